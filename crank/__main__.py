@@ -1,0 +1,3 @@
+from crank.cli import main
+
+main()

@@ -1,0 +1,227 @@
+"""`crank`: generate datasets on the twin (and, as the chain grows, train, solve, replay).
+
+Every command turns a bad input into one line on stderr and exit code 2, with nothing written at
+the target path.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import platform
+import sys
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Any
+
+import mujoco
+import numpy as np
+import typer
+from tqdm import tqdm
+
+from twin import __version__
+from twin.atomic import OutputError, atomic_path, check_writable
+from twin.dataset import GenerationConfig, generate, summarize
+from twin.excitation import Excitation
+from twin.mcap_dataset import ContractError, read_dataset, read_truth, write_dataset
+from twin.physics import MODEL_PATH, SAMPLE_RATE, ModelError, SliderCrank, load_model, model_sha256
+from twin.plots import coverage_map, excitation_plot
+from twin.variability import ConfigError, Variability
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+    help="MuJoCo slider-crank twin and PPANN robust-control testbed.",
+)
+
+USER_ERRORS = (ConfigError, ModelError, ContractError, OutputError)
+
+
+def _one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn the project's input errors into `error: ...` on stderr and exit code 2."""
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return command(*args, **kwargs)
+        except USER_ERRORS as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        except KeyboardInterrupt:
+            typer.echo("error: interrupted; nothing was written at the target path", err=True)
+            raise typer.Exit(130) from None
+
+    return wrapper
+
+
+def _bar(total: int, desc: str) -> tqdm:
+    # Shown only when the work takes more than 2 s; on stderr, so stdout stays clean.
+    return tqdm(total=total, desc=desc, unit="sample", unit_scale=True, delay=2.0, leave=False)
+
+
+def generate_dataset(
+    *, config: GenerationConfig, out: Path, model_path: Path, figures: bool = True
+) -> dict[str, Any]:
+    """Generate a dataset MCAP at `out` (and its figures beside it); return its summary."""
+    check_writable(out)
+    model, model_xml = load_model(model_path)
+    physics = SliderCrank(model)
+    started = time.perf_counter()
+    with _bar(config.n_samples, "simulating") as bar:
+        dataset, truth, episodes = generate(config, physics=physics, on_progress=bar.update)
+    run = {
+        "seed": config.seed,
+        "seconds": config.seconds,
+        "rate_hz": SAMPLE_RATE,
+        "n_samples": config.n_samples,
+        "physics_timestep": physics.model.opt.timestep,
+        "substeps": physics.substeps,
+        "torque_limit": physics.torque_limit,
+        "config": config.as_dict(),
+        "disturbance_distribution": (
+            f"uniform on [-{config.variability.disturbance_amplitude:g}, "
+            f"{config.variability.disturbance_amplitude:g}] N, one draw per sample, "
+            "held over the substeps"
+        ),
+        "episodes": [
+            {
+                "index": e.index,
+                "n_samples": e.n_samples,
+                "theta0": e.theta0,
+                "omega0": e.omega0,
+                "machine": e.machine.as_dict(),
+            }
+            for e in episodes
+        ],
+        "project_version": __version__,
+        "mujoco_version": mujoco.__version__,
+        "numpy_version": np.__version__,
+        "python_version": platform.python_version(),
+        "mjcf_path": str(model_path),
+        "mjcf_sha256": model_sha256(model_path),
+    }
+    with _bar(config.n_samples, "writing MCAP") as bar:
+        write_dataset(out, dataset, truth, run=run, model_xml=model_xml, on_progress=bar.update)
+    summary = summarize(dataset, truth) | {"wall_seconds": time.perf_counter() - started}
+    if figures:
+        stem = out.with_suffix("")
+        coverage_map(dataset, f"{stem}.coverage.png")
+        excitation_plot(dataset, f"{stem}.excitation.png")
+    return summary
+
+
+def _print_summary(title: str, summary: dict[str, Any]) -> None:
+    typer.echo(title)
+    width = max(len(k) for k in summary)
+    for key, value in summary.items():
+        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+        typer.echo(f"  {key:<{width}}  {shown}")
+
+
+def _config(
+    *, seconds: float, seed: int, episode_seconds: float, drift: bool, amplitude: float
+) -> GenerationConfig:
+    return GenerationConfig(
+        seconds=seconds,
+        seed=seed,
+        episode_seconds=episode_seconds,
+        variability=Variability(drift=drift),
+        excitation=Excitation(amplitude=amplitude),
+    )
+
+
+Seconds = Annotated[float, typer.Option(help="Duration of the dataset in s (500 Hz samples).")]
+Seed = Annotated[int, typer.Option(help="Seed of every random draw.")]
+EpisodeSeconds = Annotated[float, typer.Option(help="Length of one episode (machine draw) in s.")]
+Drift = Annotated[bool, typer.Option(help="Friction drifts as each machine warms up.")]
+Amplitude = Annotated[float, typer.Option(help="Peak excitation torque level in N·m.")]
+ModelPath = Annotated[Path, typer.Option("--model", help="The slider-crank MJCF.")]
+
+
+@app.command("generate")
+@_one_line_errors
+def generate_command(
+    seconds: Seconds = 90.0,
+    seed: Seed = 0,
+    out: Annotated[Path, typer.Option(help="Dataset MCAP to write.")] = Path("logs/dataset.mcap"),
+    episode_seconds: EpisodeSeconds = 10.0,
+    drift: Drift = True,
+    amplitude: Amplitude = Excitation.amplitude,
+    model: ModelPath = MODEL_PATH,
+    figures: Annotated[bool, typer.Option(help="Write coverage and excitation PNGs.")] = True,
+) -> None:
+    """Simulate the twin under semi-random torque and write a 500 Hz dataset MCAP."""
+    config = _config(
+        seconds=seconds,
+        seed=seed,
+        episode_seconds=episode_seconds,
+        drift=drift,
+        amplitude=amplitude,
+    )
+    summary = generate_dataset(config=config, out=out, model_path=model, figures=figures)
+    _print_summary(f"wrote {out}", summary)
+
+
+@app.command("inspect")
+@_one_line_errors
+def inspect_command(
+    path: Annotated[Path, typer.Argument(help="A dataset MCAP.")],
+) -> None:
+    """Check a dataset MCAP against the contract and print its summary."""
+    dataset = read_dataset(path)
+    truth = read_truth(path)
+    _print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
+
+
+@app.command("run")
+@_one_line_errors
+def run_command(
+    seconds: Seconds = 90.0,
+    seed: Seed = 0,
+    logs: Annotated[Path, typer.Option(help="Output root; the run goes in logs/<run>/.")] = Path(
+        "logs"
+    ),
+    name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
+    episode_seconds: EpisodeSeconds = 10.0,
+    drift: Drift = True,
+    model: ModelPath = MODEL_PATH,
+) -> None:
+    """The whole chain into logs/<run>/. So far: generate the dataset and its figures."""
+    config = _config(
+        seconds=seconds,
+        seed=seed,
+        episode_seconds=episode_seconds,
+        drift=drift,
+        amplitude=Excitation.amplitude,
+    )
+    name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
+    run_dir = logs / name
+    if run_dir.exists():
+        raise OutputError(f"run folder already exists: {run_dir}")
+    resolved = {
+        "command": "crank run",
+        "argv": sys.argv[1:],
+        "seed": seed,
+        "generate": config.as_dict(),
+        "model": str(model),
+        "project_version": __version__,
+    }
+    check_writable(run_dir / "config.json")
+    _write_json(run_dir / "config.json", resolved)
+    summary = generate_dataset(config=config, out=run_dir / "dataset.mcap", model_path=model)
+    report = {"config": resolved, "dataset": summary}
+    _write_json(run_dir / "report.json", report)
+    _print_summary(f"run {run_dir}: dataset", summary)
+
+
+def _write_json(path: Path, payload: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2) + "\n")
+
+
+def main() -> None:
+    app()

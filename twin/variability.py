@@ -1,0 +1,190 @@
+"""Machine-to-machine variability of the slider-crank: uncertain parameters, draws, and the one
+function that writes a draw into a compiled model.
+
+A *draw* is one machine of the product line (or the same machine on another day): its Coulomb
+friction and viscous damping on the motor and on the slider, its backlash width, and how much its
+friction falls as it warms up. Within a run the friction and damping fall smoothly,
+
+    value(t) = nominal_draw * (1 - warmup_drop * (1 - exp(-t / warmup_time_constant))),
+
+with t the time since the machine started; `drift=False` switches this off.
+
+The slider disturbance is white noise: one draw per 2 ms sample, held over the physics substeps,
+uniformly distributed on [-amplitude, +amplitude] (default 30 N peak, so its standard deviation is
+30 / sqrt(3) = 17.3 N). It is neither measured nor known to a learner.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+import mujoco
+import numpy as np
+
+from twin.physics import Layout
+
+
+class ConfigError(ValueError):
+    """A configuration value is out of its valid range."""
+
+
+def check_finite(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
+    """Raise ConfigError unless `value` is a finite number (and > 0 or >= 0 when asked)."""
+    if not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{name} must be > 0, got {value!r}")
+    if nonneg and value < 0:
+        raise ConfigError(f"{name} must be >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """An uncertain physical parameter: drawn uniformly from [low, high] for each machine."""
+
+    name: str
+    nominal: float
+    low: float
+    high: float
+    unit: str
+
+    def __post_init__(self) -> None:
+        for attr in ("nominal", "low", "high"):
+            check_finite(f"{self.name}.{attr}", getattr(self, attr), nonneg=True)
+        if not self.low <= self.nominal <= self.high:
+            raise ConfigError(
+                f"{self.name}: need low <= nominal <= high, got "
+                f"{self.low} <= {self.nominal} <= {self.high}"
+            )
+
+    def sample(self, rng: np.random.Generator) -> float:
+        """One draw from U[low, high] (the nominal value when the range is empty)."""
+        if self.low == self.high:
+            return self.nominal
+        return float(rng.uniform(self.low, self.high))
+
+    def fixed(self, value: float | None = None) -> Parameter:
+        """This parameter with no spread, at `value` (default: nominal)."""
+        value = self.nominal if value is None else value
+        return replace(self, nominal=value, low=value, high=value)
+
+
+@dataclass(frozen=True)
+class MachineDraw:
+    """One machine of the line: the values its uncertain parameters took."""
+
+    motor_frictionloss: float
+    motor_damping: float
+    slider_frictionloss: float
+    slider_damping: float
+    backlash_width: float
+    warmup_drop: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FrictionState:
+    """Friction and damping in effect at one instant (what `apply` writes into the model)."""
+
+    motor_frictionloss: float
+    motor_damping: float
+    slider_frictionloss: float
+    slider_damping: float
+
+
+@dataclass(frozen=True)
+class Variability:
+    """Distribution of machines and the disturbance they run under (±30 % around the MJCF)."""
+
+    motor_frictionloss: Parameter = Parameter("motor_frictionloss", 0.03, 0.021, 0.039, "N·m")
+    motor_damping: Parameter = Parameter("motor_damping", 0.08, 0.056, 0.104, "N·m·s/rad")
+    slider_frictionloss: Parameter = Parameter("slider_frictionloss", 1.5, 1.05, 1.95, "N")
+    slider_damping: Parameter = Parameter("slider_damping", 8.0, 5.6, 10.4, "N·s/m")
+    backlash_width: Parameter = Parameter("backlash_width", 0.02, 0.014, 0.026, "rad")
+    warmup_drop: Parameter = Parameter("warmup_drop", 0.15, 0.05, 0.25, "1")
+    warmup_time_constant: float = 20.0
+    """Time constant of the warm-up drift, in s."""
+    drift: bool = True
+    """Whether friction and damping drift within a run as the machine warms up."""
+    disturbance_amplitude: float = 30.0
+    """Peak of the uniform white-noise force on the slider, in N."""
+
+    def __post_init__(self) -> None:
+        for p in self.parameters():
+            if not isinstance(p, Parameter):
+                raise ConfigError(f"variability parameter must be a Parameter, got {p!r}")
+        check_finite("warmup_time_constant", self.warmup_time_constant, positive=True)
+        check_finite("disturbance_amplitude", self.disturbance_amplitude, nonneg=True)
+        if self.warmup_drop.high >= 1:
+            raise ConfigError(f"warmup_drop must stay below 1, got high={self.warmup_drop.high}")
+
+    def parameters(self) -> tuple[Parameter, ...]:
+        """The uncertain parameters, in MachineDraw's field order."""
+        return tuple(getattr(self, f.name) for f in fields(MachineDraw))
+
+    def sample(self, rng: np.random.Generator) -> MachineDraw:
+        """Draw one machine."""
+        return MachineDraw(*(p.sample(rng) for p in self.parameters()))
+
+    def nominal(self) -> MachineDraw:
+        """The nominal machine."""
+        return MachineDraw(*(p.nominal for p in self.parameters()))
+
+    @classmethod
+    def none(cls, *, backlash_width: float | None = None) -> Variability:
+        """Every machine nominal, no drift, no disturbance (optionally another backlash width)."""
+        base = cls()
+        changes = {p.name: p.fixed() for p in base.parameters()}
+        changes["backlash_width"] = base.backlash_width.fixed(backlash_width)
+        return replace(base, **changes, drift=False, disturbance_amplitude=0.0)
+
+    def friction_at(self, draw: MachineDraw, t: float) -> FrictionState:
+        """Friction and damping of machine `draw` at time `t` (s) since it started."""
+        scale = 1.0
+        if self.drift:
+            scale = 1.0 - draw.warmup_drop * (1.0 - math.exp(-t / self.warmup_time_constant))
+        return FrictionState(
+            motor_frictionloss=draw.motor_frictionloss * scale,
+            motor_damping=draw.motor_damping * scale,
+            slider_frictionloss=draw.slider_frictionloss * scale,
+            slider_damping=draw.slider_damping * scale,
+        )
+
+    def disturbance(self, rng: np.random.Generator, n_samples: int) -> np.ndarray:
+        """White-noise slider force, one value per sample, U[-A, A], shape (n_samples,)."""
+        if self.disturbance_amplitude == 0:
+            return np.zeros(n_samples)
+        a = self.disturbance_amplitude
+        return rng.uniform(-a, a, n_samples)
+
+
+def apply(
+    model: mujoco.MjModel, *, draw: MachineDraw, friction: FrictionState, layout: Layout
+) -> None:
+    """Write a machine's backlash and its current friction into `model`, in place.
+
+    The only place the twin's variability touches MuJoCo. These fields (dof_frictionloss,
+    dof_damping, jnt_range) are read directly at every step; none feeds a constant that
+    mj_setConst would have to recompute.
+    """
+    motor, slider = layout.dof["motor"], layout.dof["slider"]
+    model.dof_frictionloss[motor] = friction.motor_frictionloss
+    model.dof_damping[motor] = friction.motor_damping
+    model.dof_frictionloss[slider] = friction.slider_frictionloss
+    model.dof_damping[slider] = friction.slider_damping
+    half = 0.5 * draw.backlash_width
+    model.jnt_range[layout.joint["backlash"]] = (-half, half)
+
+
+__all__ = [
+    "ConfigError",
+    "FrictionState",
+    "MachineDraw",
+    "Parameter",
+    "Variability",
+    "apply",
+    "check_finite",
+]
