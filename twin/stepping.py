@@ -79,6 +79,16 @@ class Stepper:
         return sensordata[:, ::s], state[:, -1]
 
 
+def chunk_bounds(n_samples: int, chunk_samples: int) -> list[tuple[int, int]]:
+    """[start, stop) sample ranges of the native rollout calls."""
+    return [(a, min(a + chunk_samples, n_samples)) for a in range(0, n_samples, chunk_samples)]
+
+
+def chunk_time(start: int, stop: int) -> float:
+    """Time (s) at which a chunk's drift is evaluated: its midpoint."""
+    return 0.5 * (start + stop) / SAMPLE_RATE
+
+
 def simulate(
     physics: SliderCrank,
     variability: Variability,
@@ -134,9 +144,8 @@ def simulate(
     friction = {f.name: np.empty((n_runs, n_samples)) for f in fields(FrictionState)}
     state = np.array(initial_states, dtype=float)
 
-    for start in range(0, n_samples, chunk_samples):
-        stop = min(start + chunk_samples, n_samples)
-        t_mid = 0.5 * (start + stop) / SAMPLE_RATE
+    for start, stop in chunk_bounds(n_samples, chunk_samples):
+        t_mid = chunk_time(start, stop)
         for i, (model, draw) in enumerate(zip(models, draws, strict=True)):
             now = variability.friction_at(draw, float(start_times[i]) + t_mid)
             apply(model, draw=draw, friction=now, layout=layout)
@@ -155,4 +164,4 @@ def simulate(
     )
 
 
-__all__ = ["STATE_SPEC", "Runs", "Stepper", "simulate"]
+__all__ = ["STATE_SPEC", "Runs", "Stepper", "chunk_bounds", "chunk_time", "simulate"]

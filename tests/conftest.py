@@ -1,0 +1,50 @@
+"""Shared fixtures: the twin, and one default 90 s dataset written to MCAP and read back."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
+from twin.mcap_dataset import read_dataset, read_truth, write_dataset
+from twin.physics import SliderCrank, load_model
+
+
+@pytest.fixture(scope="session")
+def physics() -> SliderCrank:
+    return SliderCrank(load_model()[0])
+
+
+@dataclass(frozen=True)
+class Written:
+    path: Path
+    dataset: Dataset
+    truth: GroundTruth
+    loaded: Dataset
+    loaded_truth: GroundTruth
+
+
+@pytest.fixture(scope="session")
+def paper_dataset(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> Written:
+    """The default dataset: 90 s, seed 0, 9 episodes of 10 s."""
+    dataset, truth, _ = generate(GenerationConfig(), physics=physics)
+    path = tmp_path_factory.mktemp("paper") / "dataset.mcap"
+    _, xml = load_model()
+    write_dataset(path, dataset, truth, run={"seed": 0}, model_xml=xml)
+    return Written(path, dataset, truth, read_dataset(path), read_truth(path))
+
+
+def crank(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """Run the `crank` CLI in a fresh interpreter, as a user would."""
+    return subprocess.run(
+        [sys.executable, "-m", "crank", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=300,
+        check=False,
+    )

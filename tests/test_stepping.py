@@ -1,0 +1,121 @@
+"""The native batched path equals a plain mj_step loop bit for bit, and samples are aligned."""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+
+from twin.physics import STATE_SPEC, SliderCrank
+from twin.stepping import chunk_bounds, chunk_time, simulate
+from twin.variability import Variability, apply
+
+
+def _inputs(physics: SliderCrank, n_runs: int, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    variability = Variability()
+    draws = [variability.sample(rng) for _ in range(n_runs)]
+    states = np.array([physics.initial_state(rng.uniform(0, 2 * np.pi)) for _ in range(n_runs)])
+    tau = rng.uniform(-6, 6, (n_runs, n))
+    tau[:, ::7] = 12.0  # beyond the torque limit: both paths must clip alike
+    disturbance = variability.disturbance(rng, n_runs * n).reshape(n_runs, n)
+    return variability, draws, states, tau, disturbance
+
+
+def _reference(physics, variability, draws, states, tau, disturbance, chunk):
+    """A plain Python mj_step loop: same models, drift schedule and sample-held controls."""
+    layout = physics.layout
+    n_runs, n = tau.shape
+    sensordata = np.empty((n_runs, n, physics.model.nsensordata))
+    qpos_at_sample = np.empty((n_runs, n, physics.model.nq))
+    for i in range(n_runs):
+        model = copy.copy(physics.model)
+        data = mujoco.MjData(model)
+        mujoco.mj_setState(model, data, states[i], STATE_SPEC)
+        for start, stop in chunk_bounds(n, chunk):
+            friction = variability.friction_at(draws[i], chunk_time(start, stop))
+            apply(model, draw=draws[i], friction=friction, layout=layout)
+            for k in range(start, stop):
+                qpos_at_sample[i, k] = data.qpos
+                data.ctrl[layout.actuator["motor_torque"]] = tau[i, k]
+                data.ctrl[layout.actuator["slider_disturbance"]] = disturbance[i, k]
+                for s in range(physics.substeps):
+                    mujoco.mj_step(model, data)
+                    if s == 0:  # sensors of the first substep are evaluated at t_k
+                        sensordata[i, k] = data.sensordata
+    return sensordata, qpos_at_sample
+
+
+def test_native_rollout_equals_mj_step_loop(physics: SliderCrank) -> None:
+    variability, draws, states, tau, disturbance = _inputs(physics, n_runs=3, n=300, seed=7)
+    chunk = 40
+    runs = simulate(
+        physics,
+        variability,
+        draws=draws,
+        initial_states=states,
+        tau=tau,
+        disturbance=disturbance,
+        chunk_samples=chunk,
+        nthread=2,
+    )
+    expected, _ = _reference(physics, variability, draws, states, tau, disturbance, chunk)
+    assert np.array_equal(runs.sensordata, expected)
+    assert np.all(np.abs(runs.tau) <= physics.torque_limit)
+
+
+def test_sample_k_holds_the_state_at_t_k(physics: SliderCrank) -> None:
+    """MuJoCo's one-step sensor lag is handled: theta[k] is the motor qpos at t = k dt."""
+    variability, draws, states, tau, disturbance = _inputs(physics, n_runs=1, n=100, seed=3)
+    runs = simulate(
+        physics,
+        variability,
+        draws=draws,
+        initial_states=states,
+        tau=tau,
+        disturbance=disturbance,
+        chunk_samples=100,
+    )
+    _, qpos = _reference(physics, variability, draws, states, tau, disturbance, 100)
+    theta = physics.sensor(runs.sensordata[0], "theta")
+    assert np.array_equal(theta, qpos[0, :, physics.layout.qpos["motor"]])
+    assert theta[0] == physics.qpos(states[0], "motor")
+
+
+def test_chunking_does_not_change_a_trajectory_without_drift(physics: SliderCrank) -> None:
+    _, draws, states, tau, disturbance = _inputs(physics, n_runs=2, n=200, seed=5)
+    still = Variability(drift=False)
+    a = simulate(
+        physics,
+        still,
+        draws=draws,
+        initial_states=states,
+        tau=tau,
+        disturbance=disturbance,
+        chunk_samples=200,
+    )
+    b = simulate(
+        physics,
+        still,
+        draws=draws,
+        initial_states=states,
+        tau=tau,
+        disturbance=disturbance,
+        chunk_samples=13,
+        nthread=1,
+    )
+    assert np.array_equal(a.sensordata, b.sensordata)
+    assert np.array_equal(a.final_state, b.final_state)
+
+
+def test_drift_lowers_friction_over_time(physics: SliderCrank) -> None:
+    variability, draws, states, tau, disturbance = _inputs(physics, n_runs=1, n=2500, seed=1)
+    runs = simulate(
+        physics, variability, draws=draws, initial_states=states, tau=tau, disturbance=disturbance
+    )
+    motor = runs.friction["motor_frictionloss"][0]
+    assert motor[0] < draws[0].motor_frictionloss
+    assert np.all(np.diff(motor) <= 0) and motor[-1] < motor[0]
+    expected = 1 - draws[0].warmup_drop * (1 - np.exp(-chunk_time(2250, 2500) / 20.0))
+    assert motor[-1] == draws[0].motor_frictionloss * expected
