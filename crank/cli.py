@@ -8,26 +8,22 @@ from __future__ import annotations
 
 import functools
 import json
-import platform
 import sys
-import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
-import mujoco
-import numpy as np
 import typer
 from tqdm import tqdm
 
 from twin import __version__
 from twin.atomic import OutputError, atomic_path, check_writable
-from twin.dataset import GenerationConfig, generate, summarize
+from twin.dataset import GenerationConfig, summarize
 from twin.excitation import Excitation
-from twin.mcap_dataset import ContractError, read_dataset, read_truth, write_dataset
-from twin.physics import MODEL_PATH, SAMPLE_RATE, ModelError, SliderCrank, load_model, model_sha256
-from twin.plots import coverage_map, excitation_plot
+from twin.generation import generate_file
+from twin.mcap_dataset import ContractError, read_dataset, read_truth
+from twin.physics import MODEL_PATH, ModelError
 from twin.variability import ConfigError, Variability
 
 app = typer.Typer(
@@ -58,60 +54,49 @@ def _one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def _bar(total: int, desc: str) -> tqdm:
-    # Shown only when the work takes more than 2 s; on stderr, so stdout stays clean.
-    return tqdm(total=total, desc=desc, unit="sample", unit_scale=True, delay=2.0, leave=False)
+class _Progress:
+    """A progress bar on stderr, created at its first update and shown only if the step takes
+    more than 2 s, so short runs print nothing but their result."""
+
+    def __init__(self, total: int, desc: str) -> None:
+        self.total, self.desc, self.bar = total, desc, None
+
+    def update(self, n: int) -> None:
+        if self.bar is None:
+            self.bar = tqdm(
+                total=self.total,
+                desc=self.desc,
+                unit="sample",
+                unit_scale=True,
+                delay=2.0,
+                leave=False,
+            )
+        self.bar.update(n)
+
+    def __enter__(self) -> _Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def generate_dataset(
     *, config: GenerationConfig, out: Path, model_path: Path, figures: bool = True
 ) -> dict[str, Any]:
-    """Generate a dataset MCAP at `out` (and its figures beside it); return its summary."""
-    check_writable(out)
-    model, model_xml = load_model(model_path)
-    physics = SliderCrank(model)
-    started = time.perf_counter()
-    with _bar(config.n_samples, "simulating") as bar:
-        dataset, truth, episodes = generate(config, physics=physics, on_progress=bar.update)
-    run = {
-        "seed": config.seed,
-        "seconds": config.seconds,
-        "rate_hz": SAMPLE_RATE,
-        "n_samples": config.n_samples,
-        "physics_timestep": physics.model.opt.timestep,
-        "substeps": physics.substeps,
-        "torque_limit": physics.torque_limit,
-        "config": config.as_dict(),
-        "disturbance_distribution": (
-            f"uniform on [-{config.variability.disturbance_amplitude:g}, "
-            f"{config.variability.disturbance_amplitude:g}] N, one draw per sample, "
-            "held over the substeps"
-        ),
-        "episodes": [
-            {
-                "index": e.index,
-                "n_samples": e.n_samples,
-                "theta0": e.theta0,
-                "omega0": e.omega0,
-                "machine": e.machine.as_dict(),
-            }
-            for e in episodes
-        ],
-        "project_version": __version__,
-        "mujoco_version": mujoco.__version__,
-        "numpy_version": np.__version__,
-        "python_version": platform.python_version(),
-        "mjcf_path": str(model_path),
-        "mjcf_sha256": model_sha256(model_path),
-    }
-    with _bar(config.n_samples, "writing MCAP") as bar:
-        write_dataset(out, dataset, truth, run=run, model_xml=model_xml, on_progress=bar.update)
-    summary = summarize(dataset, truth) | {"wall_seconds": time.perf_counter() - started}
-    if figures:
-        stem = out.with_suffix("")
-        coverage_map(dataset, f"{stem}.coverage.png")
-        excitation_plot(dataset, f"{stem}.excitation.png")
-    return summary
+    """`generate_file` with progress bars."""
+    with (
+        _Progress(config.n_samples, "simulating") as sim,
+        _Progress(config.n_samples, "writing MCAP") as io,
+    ):
+        return generate_file(
+            config,
+            out=out,
+            model_path=model_path,
+            figures=figures,
+            on_simulated=sim.update,
+            on_written=io.update,
+        )
 
 
 def _print_summary(title: str, summary: dict[str, Any]) -> None:

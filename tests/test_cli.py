@@ -1,0 +1,132 @@
+"""The CLI as a user meets it: datasets from `crank generate`, one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.writer import Writer
+
+from tests.conftest import crank
+from twin.mcap_dataset import (
+    MEASUREMENT_TOPIC,
+    TRUTH_TOPIC,
+    read_dataset,
+    read_model_xml,
+    read_run,
+)
+
+
+def test_generate_writes_a_contract_dataset(tmp_path: Path) -> None:
+    out = tmp_path / "ds.mcap"
+    result = crank(
+        "generate", "--seconds", "3", "--seed", "4", "--episode-seconds", "1.5", "--out", str(out)
+    )
+    assert result.returncode == 0, result.stderr
+    data = read_dataset(out)
+    assert len(data) == 1500 and set(data.episode) == {0, 1}
+    run = read_run(out)
+    assert run["seed"] == 4 and run["seconds"] == 3.0 and run["rate_hz"] == 500.0
+    assert len(run["mjcf_sha256"]) == 64 and run["project_version"]
+    assert [e["machine"]["backlash_width"] > 0 for e in run["episodes"]] == [True, True]
+    assert run["config"]["variability"]["disturbance_amplitude"] == 30.0
+    assert "<mujoco" in read_model_xml(out)
+    assert (tmp_path / "ds.coverage.png").stat().st_size > 0
+    assert (tmp_path / "ds.excitation.png").stat().st_size > 0
+    inspected = crank("inspect", str(out))
+    assert inspected.returncode == 0 and "theta_bins_covered_of_12" in inspected.stdout
+
+
+def test_run_writes_config_and_report(tmp_path: Path) -> None:
+    result = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
+    assert result.returncode == 0, result.stderr
+    run_dir = tmp_path / "r1"
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["seed"] == 0 and config["generate"]["seconds"] == 2.0
+    report = json.loads((run_dir / "report.json").read_text())
+    assert report["dataset"]["n_samples"] == 1000
+    assert (run_dir / "dataset.mcap").is_file()
+    again = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
+    assert again.returncode == 2 and "already exists" in again.stderr
+
+
+def _mcap_with(path: Path, topics: list[str], message: dict) -> Path:
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        writer.add_metadata("run", {"seed": "0"})
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        for topic in topics:
+            channel = writer.register_channel(topic, "json", schema)
+            writer.add_message(
+                channel, log_time=0, data=json.dumps(message).encode(), publish_time=0
+            )
+        writer.finish()
+    return path
+
+
+def _assert_one_line_error(result, match: str) -> None:
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: ") and match in lines[0], lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--seconds", "0"], "seconds must be > 0"),
+        (["--seconds", "-2"], "seconds must be > 0"),
+        (["--seconds", "nan"], "seconds must be a finite number"),
+        (["--seconds", "inf"], "seconds must be a finite number"),
+        (["--episode-seconds", "nan"], "episode_seconds must be a finite number"),
+        (["--amplitude", "-1"], "excitation.amplitude must be >= 0"),
+        (["--model", "{tmp}/absent.xml"], "MJCF not found"),
+        (["--model", "{tmp}/garbage.xml"], "invalid MJCF"),
+        (["--model", "{tmp}/nameless.xml"], "no joint named 'motor'"),
+        (["--model", "{tmp}"], "cannot read MJCF"),
+    ],
+)
+def test_generate_bad_input(tmp_path: Path, args: list[str], match: str) -> None:
+    (tmp_path / "garbage.xml").write_text("<mujoco><worldbody><body><joint type='x'/>")
+    (tmp_path / "nameless.xml").write_text("<mujoco/>")
+    out = tmp_path / "out" / "ds.mcap"
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    result = crank("generate", "--seconds", "1", *args, "--out", str(out))
+    _assert_one_line_error(result, match)
+    assert not out.exists()
+    assert not out.parent.exists() or not any(out.parent.iterdir())  # no stray partial file
+
+
+def test_generate_unwritable_output(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a directory should be")
+    result = crank("generate", "--seconds", "1", "--out", str(blocker / "ds.mcap"))
+    _assert_one_line_error(result, "cannot write to")
+    result = crank("generate", "--seconds", "1", "--out", str(tmp_path))
+    _assert_one_line_error(result, "is a directory")
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda d: d / "absent.mcap", "dataset not found"),
+        (
+            lambda d: (d / "text.mcap").write_text("not an mcap") and d / "text.mcap",
+            "not an MCAP file",
+        ),
+        (
+            lambda d: _mcap_with(d / "one.mcap", [MEASUREMENT_TOPIC], {"t": 0.0}),
+            f"missing channel {TRUTH_TOPIC}",
+        ),
+        (
+            lambda d: _mcap_with(d / "short.mcap", [MEASUREMENT_TOPIC, TRUTH_TOPIC], {"t": 0.0}),
+            "lacks field 'episode'",
+        ),
+    ],
+)
+def test_inspect_bad_file(tmp_path: Path, make, match: str) -> None:
+    result = crank("inspect", str(make(tmp_path)))
+    _assert_one_line_error(result, match)
