@@ -124,7 +124,17 @@ def write_dataset(
         writer.finish()
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
 def _open_reader(f, path: Path):
+    head = f.read(len(MCAP_MAGIC))
+    if head != MCAP_MAGIC:
+        raise ContractError(f"{path}: not an MCAP file (no MCAP magic at its start)")
+    f.seek(-len(MCAP_MAGIC), 2)
+    if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+        raise ContractError(f"{path}: MCAP is truncated (no footer; was its writer interrupted?)")
+    f.seek(0)
     try:
         reader = make_reader(f)
         summary = reader.get_summary()
