@@ -1,0 +1,147 @@
+"""The PPANN of paper eqs. 12-14: a linear motor prior augmented by mean and sigma networks.
+
+State x = [theta, omega], input tau. The prior (eq. 13) is
+
+    alpha_lin = (tau - B_m omega - K_m theta_mod) / J_m,
+
+and the augmented acceleration (eq. 14) is
+
+    alpha = (tau - B_m (1 + z_B) omega - K_m (1 + z_K) theta_mod) / (J_m (1 + z_J)),
+
+with z_J(sin, cos), z_B(sin, cos, omega / omega_scale), z_K(sin, cos). Each z is a normal variable
+whose mean comes from a network of one hidden layer (100 tanh neurons, linear output) and whose
+standard deviation comes from a network of 10 tanh neurons with a softplus output plus a floor.
+Forward Euler at dt (eq. 4) with theta' = omega exactly (eq. 12).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+Z_NAMES = ("J", "B", "K")
+"""The three augmented terms, in the order of the last axis of every z tensor."""
+
+
+class ModelConfigError(ValueError):
+    """A PPANN configuration value is out of range."""
+
+
+@dataclass(frozen=True)
+class PPANNConfig:
+    """Architecture and physical prior of a PPANN (paper section 3.3.1)."""
+
+    j_m: float = 3e-3
+    """Prior motor inertia J_m, kg·m²."""
+    b_m: float = 0.1
+    """Prior viscous damping B_m, N·m·s/rad."""
+    k_m: float = 1.0
+    """Prior stiffness K_m, N·m/rad."""
+    mean_hidden: int = 100
+    sigma_hidden: int = 10
+    sigma_floor: float = 1e-4
+    """Smallest standard deviation a sigma network can output."""
+    omega_scale: float = 50.0
+    """omega is divided by this before it enters a network, rad/s."""
+    dt: float = 1 / 500
+    trainable_physics: bool = False
+    """Train J_m, B_m, K_m along with the mean networks."""
+    use_networks: bool = True
+    """False gives the physics-only baseline: z = 0, J_m, B_m, K_m fitted."""
+
+    def __post_init__(self) -> None:
+        for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise ModelConfigError(f"{name} must be a finite number > 0, got {value!r}")
+        if not math.isfinite(self.k_m):
+            raise ModelConfigError(f"k_m must be finite, got {self.k_m!r}")
+        for name in ("mean_hidden", "sigma_hidden"):
+            if getattr(self, name) < 1:
+                raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _mlp(inputs: int, hidden: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(inputs, hidden), nn.Tanh(), nn.Linear(hidden, 1))
+
+
+def theta_mod(theta: torch.Tensor) -> torch.Tensor:
+    """theta modulo 2 pi, in [0, 2 pi)."""
+    return torch.remainder(theta, 2 * math.pi)
+
+
+class PPANN(nn.Module):
+    """Physical prior, three mean networks and three sigma networks in one module."""
+
+    def __init__(self, config: PPANNConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or PPANNConfig()
+        c = self.config
+        physical = torch.tensor([c.j_m, c.b_m, c.k_m], dtype=torch.float64)
+        if c.trainable_physics or not c.use_networks:
+            self.physical = nn.Parameter(physical)
+        else:
+            self.register_buffer("physical", physical)
+        self.mean_nets = nn.ModuleDict(
+            {"J": _mlp(2, c.mean_hidden), "B": _mlp(3, c.mean_hidden), "K": _mlp(2, c.mean_hidden)}
+        )
+        self.sigma_nets = nn.ModuleDict(
+            {
+                "J": _mlp(2, c.sigma_hidden),
+                "B": _mlp(3, c.sigma_hidden),
+                "K": _mlp(2, c.sigma_hidden),
+            }
+        )
+        self.double()
+
+    def _features(self, theta: torch.Tensor, omega: torch.Tensor) -> dict[str, torch.Tensor]:
+        s, c = torch.sin(theta), torch.cos(theta)
+        angle = torch.stack([s, c], dim=-1)
+        speed = torch.stack([s, c, omega / self.config.omega_scale], dim=-1)
+        return {"J": angle, "B": speed, "K": angle}
+
+    def z_mean(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
+        """Mean network outputs, shape (..., 3) in the order J, B, K (zero without networks)."""
+        if not self.config.use_networks:
+            return torch.zeros((*theta.shape, 3), dtype=theta.dtype)
+        g = self._features(theta, omega)
+        return torch.cat([self.mean_nets[n](g[n]) for n in Z_NAMES], dim=-1)
+
+    def z_sigma(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
+        """Sigma network outputs, shape (..., 3), each >= sigma_floor."""
+        g = self._features(theta, omega)
+        raw = torch.cat([self.sigma_nets[n](g[n]) for n in Z_NAMES], dim=-1)
+        return nn.functional.softplus(raw) + self.config.sigma_floor
+
+    def acceleration(
+        self, theta: torch.Tensor, omega: torch.Tensor, tau: torch.Tensor, z: torch.Tensor
+    ) -> torch.Tensor:
+        """alpha of eq. 14 for given z (..., 3); with z = 0 it is the prior of eq. 13."""
+        j, b, k = self.physical
+        return (tau - b * (1 + z[..., 1]) * omega - k * (1 + z[..., 2]) * theta_mod(theta)) / (
+            j * (1 + z[..., 0])
+        )
+
+    def step(
+        self, x: torch.Tensor, tau: torch.Tensor, z: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """One forward-Euler step (eq. 4) of x (..., 2) under tau (...); z defaults to the mean."""
+        theta, omega = x[..., 0], x[..., 1]
+        if z is None:
+            z = self.z_mean(theta, omega)
+        alpha = self.acceleration(theta, omega, tau, z)
+        dt = self.config.dt
+        return torch.stack([theta + dt * omega, omega + dt * alpha], dim=-1)
+
+    def rollout(self, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """Mean-model trajectory from x0 (..., 2) under tau (..., T): states (..., T + 1, 2)."""
+        states = [x0]
+        for k in range(tau.shape[-1]):
+            states.append(self.step(states[-1], tau[..., k]))
+        return torch.stack(states, dim=-2)

@@ -1,0 +1,173 @@
+"""Two-phase training (paper section 2.2.2), reading top to bottom.
+
+Phase 1: the mean networks (and, if asked, J_m, B_m, K_m) minimise the N-step-ahead MSE of eq. 5
+over every training window at once, with Adam; the validation loss decides early stopping and the
+best weights are kept. Each state's error is divided by the standard deviation of its one-step
+increment in the training data, so theta (rad) and omega (rad/s) weigh alike.
+
+Phase 2: the mean is frozen; the sigma networks minimise the propagated NLL of eq. 9 over every
+training sample where the measured acceleration is valid, full batch, with Adam.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+from ppann.data import Windows, acceleration, check_finite, split_index, windows
+from ppann.losses import n_step_mse, n_step_prediction, propagated_nll, propagated_terms
+from ppann.model import PPANN
+from twin.dataset import Dataset
+
+
+class TrainConfigError(ValueError):
+    """A training option is out of range."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Training options; defaults follow paper section 3.3.2 where it gives them."""
+
+    horizon: int = 10
+    lr: float = 5e-3
+    batch_size: int = 4096
+    max_epochs: int = 60
+    patience: int = 8
+    sigma_lr: float = 5e-3
+    sigma_epochs: int = 400
+    validation_fraction: float = 3 / 90
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "batch_size", "max_epochs", "patience", "sigma_epochs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise TrainConfigError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("lr", "sigma_lr"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise TrainConfigError(f"{name} must be a finite number > 0, got {value!r}")
+        if not 0 < self.validation_fraction < 1:
+            raise TrainConfigError(
+                f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"
+            )
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class History:
+    """Loss per epoch of each phase, and where phase 1 stopped."""
+
+    train: list[float] = field(default_factory=list)
+    validation: list[float] = field(default_factory=list)
+    sigma: list[float] = field(default_factory=list)
+    best_epoch: int = -1
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Splits:
+    train: Windows
+    validation: Windows
+    scale: torch.Tensor
+    """Per-state loss scale (2,): std of one-step increments in the training split."""
+    split: int
+
+
+def make_splits(dataset: Dataset, config: TrainConfig) -> Splits:
+    """Check the data and cut it into training and validation windows."""
+    check_finite(dataset)
+    split = split_index(len(dataset), config.validation_fraction)
+    train = windows(dataset, start=0, stop=split, horizon=config.horizon)
+    validation = windows(dataset, start=split, stop=len(dataset), horizon=config.horizon)
+    increments = train.target[:, 0] - train.x0
+    return Splits(train, validation, increments.std(dim=0), split)
+
+
+def evaluate(model: torch.nn.Module, data: Windows, scale: torch.Tensor) -> float:
+    with torch.no_grad():
+        return float(n_step_mse(n_step_prediction(model, data.x0, data.tau), data.target, scale))
+
+
+def train_mean(
+    model: torch.nn.Module,
+    splits: Splits,
+    config: TrainConfig,
+    *,
+    history: History,
+    on_epoch: Callable[[int, float, float], None] | None = None,
+) -> None:
+    """Phase 1, in place: N-step MSE with early stopping; the best weights are restored."""
+    generator = torch.Generator().manual_seed(config.seed)
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.Adam(params, lr=config.lr)
+    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    data = splits.train
+    for epoch in range(config.max_epochs):
+        order = torch.randperm(len(data), generator=generator)
+        total = 0.0
+        for batch in order.split(config.batch_size):
+            prediction = n_step_prediction(model, data.x0[batch], data.tau[batch])
+            loss = n_step_mse(prediction, data.target[batch], splits.scale)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += float(loss.detach()) * len(batch)
+        validation = evaluate(model, splits.validation, splits.scale)
+        history.train.append(total / len(data))
+        history.validation.append(validation)
+        if on_epoch is not None:
+            on_epoch(epoch, history.train[-1], validation)
+        if validation < best:
+            best, best_state, waited = validation, copy.deepcopy(model.state_dict()), 0
+            history.best_epoch = epoch
+        else:
+            waited += 1
+            if waited >= config.patience:
+                break
+    model.load_state_dict(best_state)
+
+
+def sigma_data(dataset: Dataset, stop: int) -> tuple[torch.Tensor, ...]:
+    """(theta, omega, tau, alpha) of the samples before `stop` with a valid acceleration."""
+    alpha, valid = acceleration(dataset)
+    valid[stop:] = False
+    idx = np.flatnonzero(valid)
+    return tuple(
+        torch.from_numpy(np.ascontiguousarray(v[idx]))
+        for v in (dataset.theta, dataset.omega, dataset.tau, alpha)
+    )
+
+
+def train_sigma(
+    model: PPANN,
+    dataset: Dataset,
+    splits: Splits,
+    config: TrainConfig,
+    *,
+    history: History,
+    on_epoch: Callable[[int, float], None] | None = None,
+) -> None:
+    """Phase 2, in place: eq. 9 NLL on the sigma networks; everything else is frozen."""
+    theta, omega, tau, alpha = sigma_data(dataset, splits.split)
+    with torch.no_grad():
+        residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
+    params = list(model.sigma_nets.parameters())
+    optimizer = torch.optim.Adam(params, lr=config.sigma_lr)
+    for epoch in range(config.sigma_epochs):
+        loss = propagated_nll(residual, derivative, model.z_sigma(theta, omega))
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        history.sigma.append(float(loss))
+        if on_epoch is not None:
+            on_epoch(epoch, history.sigma[-1])
