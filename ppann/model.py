@@ -19,10 +19,13 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
 Z_NAMES = ("J", "B", "K")
+INERTIA_FACTOR_FLOOR = 0.1
+"""Smallest 1 + z_J a Monte-Carlo draw may give (see FusedHeads.acceleration)."""
 """The three augmented terms, in the order of the last axis of every z tensor."""
 
 
@@ -145,3 +148,57 @@ class PPANN(nn.Module):
         for k in range(tau.shape[-1]):
             states.append(self.step(states[-1], tau[..., k]))
         return torch.stack(states, dim=-2)
+
+
+class FusedHeads:
+    """All six networks as one block-structured layer pair in NumPy, for fast simulation.
+
+    Hidden layer: features [sin, cos, omega / omega_scale] (n, 3) times one (3, H) matrix holding
+    every network's first layer (zeros where a network ignores omega), plus the stacked biases;
+    output layer: one (H, 6) block-diagonal matrix. The hidden layer runs in float32, where
+    NumPy's tanh is vectorised (4-5 times faster than in float64): z differs from `z_mean` /
+    `z_sigma` by ~1e-6 relative (tests/test_ppann.py bounds it), far below the sampling error of
+    a 100-trajectory standard deviation (~7 %). A snapshot of the current weights: rebuild after
+    training.
+    """
+
+    def __init__(self, model: PPANN) -> None:
+        c = model.config
+        self.omega_scale, self.sigma_floor = c.omega_scale, c.sigma_floor
+        self.use_networks = c.use_networks
+        self.j, self.b, self.k = (float(v) for v in model.physical.detach())
+        self.dt = c.dt
+        nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
+        hidden = sum(net[0].out_features for net in nets)
+        self.w_in = np.zeros((3, hidden), dtype=np.float32)
+        self.b_in = np.zeros(hidden, dtype=np.float32)
+        self.w_out = np.zeros((hidden, 6), dtype=np.float32)
+        self.b_out = np.zeros(6)
+        col = 0
+        for i, net in enumerate(nets):
+            first, last = net[0], net[2]
+            width = first.out_features
+            self.w_in[: first.in_features, col : col + width] = first.weight.detach().numpy().T
+            self.b_in[col : col + width] = first.bias.detach().numpy()
+            self.w_out[col : col + width, i] = last.weight.detach().numpy()[0]
+            self.b_out[i] = float(last.bias.detach()[0])
+            col += width
+
+    def __call__(self, theta: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(z_mean, z_sigma), each (n, 3), for theta and omega of shape (n,)."""
+        g = np.stack([np.sin(theta), np.cos(theta), omega / self.omega_scale], axis=-1)
+        hidden = np.tanh(g.astype(np.float32) @ self.w_in + self.b_in)
+        out = (hidden @ self.w_out).astype(np.float64) + self.b_out
+        mean = out[:, :3] if self.use_networks else np.zeros_like(out[:, :3])
+        sigma = np.logaddexp(0.0, out[:, 3:]) + self.sigma_floor  # softplus
+        return mean, sigma
+
+    def acceleration(
+        self, theta: np.ndarray, omega: np.ndarray, tau: float | np.ndarray, z: np.ndarray
+    ) -> np.ndarray:
+        """Eq. 14 in NumPy, as `PPANN.acceleration`, except that a sampled inertia factor
+        1 + z_J is kept >= INERTIA_FACTOR_FLOOR: a drawn machine cannot have zero or negative
+        inertia (a 3-sigma draw of z_J can reach -1, and the simulation then diverges)."""
+        angle = np.remainder(theta, 2 * math.pi)
+        inertia = self.j * np.maximum(1 + z[:, 0], INERTIA_FACTOR_FLOOR)
+        return (tau - self.b * (1 + z[:, 1]) * omega - self.k * (1 + z[:, 2]) * angle) / inertia

@@ -1,0 +1,89 @@
+"""Checkpoints: weights, config, training history, input scaling and a fingerprint of the data,
+in a file that `torch.load(weights_only=True)` reads (tensors, dicts, lists, strings, numbers)."""
+
+from __future__ import annotations
+
+import hashlib
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ppann.baselines import BlackBox, BlackBoxConfig
+from ppann.model import PPANN, PPANNConfig
+from twin.atomic import atomic_path
+from twin.dataset import Dataset
+
+FORMAT = "crank-ppann-checkpoint"
+VERSION = 1
+KINDS = ("ppann", "physics", "blackbox")
+
+
+class CheckpointError(ValueError):
+    """A file is not a checkpoint of this version and architecture."""
+
+
+def fingerprint(dataset: Dataset) -> str:
+    """sha256 over the measurement arrays a model was trained on."""
+    digest = hashlib.sha256()
+    for name in ("t", "episode", "theta", "omega", "tau"):
+        digest.update(np.ascontiguousarray(getattr(dataset, name)).tobytes())
+    return digest.hexdigest()
+
+
+def build(kind: str, config: dict[str, Any]) -> torch.nn.Module:
+    """A fresh model of `kind` from its config dict."""
+    if kind == "blackbox":
+        return BlackBox(BlackBoxConfig(**config))
+    return PPANN(PPANNConfig(**config))
+
+
+def save(path: str | Path, model: torch.nn.Module, *, kind: str, extra: dict[str, Any]) -> None:
+    """Write a checkpoint atomically; `extra` holds history, train config, scaling, fingerprint."""
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "kind": kind,
+        "config": model.config.as_dict(),
+        "state_dict": model.state_dict(),
+        **extra,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+
+
+def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """Read a checkpoint: the model (eval mode) and the whole payload.
+
+    Raises:
+      CheckpointError: missing file, not a checkpoint, another version, another architecture.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint not found: {path}")
+    try:
+        payload = torch.load(path, weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as exc:
+        reason = " ".join(str(exc).split())[:160]
+        raise CheckpointError(f"{path}: not a checkpoint ({reason})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not a {FORMAT} file")
+    if payload.get("version") != VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint version {payload.get('version')!r}, this code reads {VERSION}"
+        )
+    if payload.get("kind") not in KINDS:
+        raise CheckpointError(f"{path}: unknown model kind {payload.get('kind')!r}")
+    try:
+        model = build(payload["kind"], payload["config"])
+    except (TypeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: config does not fit this architecture ({exc})") from None
+    try:
+        model.load_state_dict(payload["state_dict"])
+    except RuntimeError as exc:
+        reason = " ".join(str(exc).split())[:200]
+        raise CheckpointError(f"{path}: weights from another architecture ({reason})") from None
+    model.eval()
+    return model, payload
