@@ -86,11 +86,14 @@ class PPANN(nn.Module):
         super().__init__()
         self.config = config or PPANNConfig()
         c = self.config
-        physical = torch.tensor([c.j_m, c.b_m, c.k_m], dtype=torch.float64)
+        # J_m, B_m, K_m = prior × factor: Adam moves a parameter by about lr per step, so the
+        # factor (starting at 1) makes that step relative rather than 5e-3 kg·m² on a 3e-3 J_m.
+        self.register_buffer("prior", torch.tensor([c.j_m, c.b_m, c.k_m], dtype=torch.float64))
+        factor = torch.ones(3, dtype=torch.float64)
         if c.trainable_physics or not c.use_networks:
-            self.physical = nn.Parameter(physical)
+            self.physical_factor = nn.Parameter(factor)
         else:
-            self.register_buffer("physical", physical)
+            self.register_buffer("physical_factor", factor)
         self.mean_nets = nn.ModuleDict(
             {"J": _mlp(2, c.mean_hidden), "B": _mlp(3, c.mean_hidden), "K": _mlp(2, c.mean_hidden)}
         )
@@ -102,6 +105,11 @@ class PPANN(nn.Module):
             }
         )
         self.double()
+
+    @property
+    def physical(self) -> torch.Tensor:
+        """[J_m, B_m, K_m] in use, (3,)."""
+        return self.prior * self.physical_factor
 
     def _features(self, theta: torch.Tensor, omega: torch.Tensor) -> dict[str, torch.Tensor]:
         s, c = torch.sin(theta), torch.cos(theta)

@@ -168,6 +168,6 @@ def train_sigma(
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        history.sigma.append(float(loss))
+        history.sigma.append(float(loss.detach()))
         if on_epoch is not None:
             on_epoch(epoch, history.sigma[-1])

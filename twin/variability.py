@@ -121,6 +121,17 @@ class Variability:
         if self.warmup_drop.high >= 1:
             raise ConfigError(f"warmup_drop must stay below 1, got high={self.warmup_drop.high}")
 
+    @classmethod
+    def from_dict(cls, values: dict) -> Variability:
+        """Rebuild from `asdict(variability)`, e.g. a dataset's `run` metadata."""
+        try:
+            changes = {
+                k: Parameter(**v) if isinstance(v, dict) else v for k, v in values.items()
+            }
+            return cls(**changes)
+        except TypeError as exc:
+            raise ConfigError(f"not a variability description: {exc}") from None
+
     def parameters(self) -> tuple[Parameter, ...]:
         """The uncertain parameters, in MachineDraw's field order."""
         return tuple(getattr(self, f.name) for f in fields(MachineDraw))

@@ -1,0 +1,134 @@
+"""`crank train`: fit the PPANN and both baselines on a dataset, save checkpoints, and write the
+validation report (JSON + PNGs) beside them.
+
+Outputs for `--out logs/model.pt`:
+  model.pt, model.physics.pt, model.blackbox.pt   checkpoints (torch.load(weights_only=True))
+  model.report.json                              the report (keys in the README)
+  model.maps.png, model.validation.png, model.bands.png, model.calibration.png   figures
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ppann import checkpoint, figures
+from ppann.fit import Fitted, fit
+from ppann.report import (
+    bands,
+    calibration,
+    free_run,
+    inside_3sigma,
+    prediction_rmse,
+    twin_replay,
+    validation_segment,
+)
+from ppann.train import TrainConfig, make_splits
+from twin.atomic import atomic_path, check_writable
+from twin.mcap_dataset import read_dataset
+from twin.physics import SliderCrank
+from twin.plots import save_figure
+
+KIND_ORDER = ("ppann", "physics", "blackbox")
+
+
+def sibling(out: Path, suffix: str) -> Path:
+    return out.with_name(f"{out.stem}.{suffix}")
+
+
+def train_and_report(
+    data_path: str | Path,
+    out: str | Path,
+    *,
+    config: TrainConfig,
+    mc_samples: int = 100,
+    replay_runs: int = 100,
+    on_epoch: Callable[[str, str, int, float], None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Train, save and report; returns the report dict."""
+    out = Path(out)
+    check_writable(out)
+    dataset = read_dataset(data_path)
+    splits = make_splits(dataset, config)
+    print_stage = on_stage or (lambda _: None)
+    fitted: dict[str, Fitted] = {}
+    for kind in KIND_ORDER:
+        print_stage(f"training {kind}")
+        fitted[kind] = fit(
+            dataset,
+            kind=kind,
+            config=config,
+            splits=splits,
+            on_epoch=None if on_epoch is None else (lambda p, e, v, k=kind: on_epoch(k, p, e, v)),
+        )
+    print_stage("validating")
+    segment = validation_segment(dataset, config.validation_fraction)
+    measured = np.stack([dataset.theta, dataset.omega], -1)[segment.start : segment.stop]
+    t = dataset.t[segment.start : segment.stop] - dataset.t[segment.start]
+    ppann = fitted["ppann"].model
+    mc = bands(ppann, dataset, segment, n=mc_samples, seed=config.seed)
+    print_stage("replaying the validation torque on the twin")
+    physics = SliderCrank()
+    replay = twin_replay(
+        dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed + 1
+    )
+    fingerprint = checkpoint.fingerprint(dataset)
+    report: dict[str, Any] = {
+        "dataset": {
+            "path": str(data_path),
+            "fingerprint": fingerprint,
+            "n_samples": len(dataset),
+            "validation_start": segment.start,
+            "validation_seconds": segment.length * float(dataset.t[1] - dataset.t[0]),
+        },
+        "train_config": config.as_dict(),
+        "models": {},
+        "monte_carlo": {
+            "n_samples": mc_samples,
+            **{mode: {"inside_3sigma": inside_3sigma(b, measured)} for mode, b in mc.items()},
+        },
+        "calibration": {
+            "n_runs": replay_runs,
+            "observed_sigma_final": {
+                "theta": float(replay.theta[:, -1].std(ddof=1)),
+                "slider_position": float(replay.slider_position[:, -1].std(ddof=1)),
+            },
+            **{mode: calibration(b, replay) for mode, b in mc.items()},
+        },
+    }
+    for kind, f in fitted.items():
+        entry = prediction_rmse(f.model, dataset, segment) | {
+            "train_seconds": f.seconds,
+            "epochs": len(f.history.train),
+            "best_epoch": f.history.best_epoch,
+        }
+        if kind != "blackbox":
+            j, b, k = (float(v) for v in f.model.physical.detach())
+            entry["physical"] = {"J_m": j, "B_m": b, "K_m": k}
+        report["models"][kind] = entry
+        path = out if kind == "ppann" else sibling(out, f"{kind}.pt")
+        checkpoint.save(
+            path,
+            f.model,
+            kind=kind,
+            extra={
+                "history": f.history.as_dict(),
+                "train_config": config.as_dict(),
+                "data_fingerprint": fingerprint,
+                "data_path": str(data_path),
+                "loss_scale": splits.scale.tolist(),
+            },
+        )
+    save_figure(figures.network_maps(ppann), sibling(out, "maps.png"))
+    predictions = {k: free_run(f.model, dataset, segment) for k, f in fitted.items()}
+    save_figure(figures.validation(t, measured, predictions), sibling(out, "validation.png"))
+    save_figure(figures.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
+    save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
+    with atomic_path(sibling(out, "report.json")) as tmp:
+        tmp.write_text(json.dumps(report, indent=2) + "\n")
+    return report
