@@ -17,6 +17,11 @@ from typing import Annotated, Any
 import typer
 from tqdm import tqdm
 
+from ppann.checkpoint import CheckpointError
+from ppann.data import DataError
+from ppann.model import ModelConfigError
+from ppann.pipeline import train_and_report
+from ppann.train import TrainConfig, TrainConfigError
 from twin import __version__
 from twin.atomic import OutputError, atomic_path, check_writable
 from twin.dataset import GenerationConfig, summarize
@@ -34,7 +39,16 @@ app = typer.Typer(
     help="MuJoCo slider-crank twin and PPANN robust-control testbed.",
 )
 
-USER_ERRORS = (ConfigError, ModelError, ContractError, OutputError)
+USER_ERRORS = (
+    ConfigError,
+    ModelError,
+    ContractError,
+    OutputError,
+    DataError,
+    CheckpointError,
+    TrainConfigError,
+    ModelConfigError,
+)
 
 
 def _one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
@@ -162,6 +176,68 @@ def inspect_command(
     _print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
 
 
+class _EpochBars:
+    """One progress bar per model and phase, showing the latest loss."""
+
+    def __init__(self, epochs: dict[str, int]) -> None:
+        self.epochs, self.bar, self.key = epochs, None, None
+
+    def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:
+        if (kind, phase) != self.key:
+            self.close()
+            self.key = (kind, phase)
+            self.bar = tqdm(
+                total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch", leave=False
+            )
+        self.bar.update(1)
+        self.bar.set_postfix(loss=f"{loss:.4g}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any]:
+    """`train_and_report` with progress bars."""
+    bars = _EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
+    try:
+        return train_and_report(data, out, config=config, on_epoch=bars)
+    finally:
+        bars.close()
+
+
+def _train_summary(report: dict[str, Any]) -> dict[str, Any]:
+    rows: dict[str, Any] = {}
+    for kind, entry in report["models"].items():
+        r10 = entry["rmse_10_step"]
+        rows[f"{kind} 10-step RMSE θ / ω"] = f"{r10['theta']:.4f} rad / {r10['omega']:.3f} rad/s"
+    for mode in ("step", "trajectory"):
+        c = report["calibration"][mode]
+        rows[f"σ predicted/observed ({mode})"] = (
+            f"θ {c['theta']['median']:.2f}, slider {c['slider_position']['median']:.2f}"
+        )
+    rows["PPANN training"] = f"{report['models']['ppann']['train_seconds']:.1f} s"
+    return rows
+
+
+@app.command("train")
+@_one_line_errors
+def train_command(
+    data: Annotated[Path, typer.Option(help="Dataset MCAP.")] = Path("logs/dataset.mcap"),
+    out: Annotated[Path, typer.Option(help="PPANN checkpoint to write.")] = Path("logs/model.pt"),
+    epochs: Annotated[int, typer.Option(help="Most phase-1 epochs (early stopping).")] = (
+        TrainConfig.max_epochs
+    ),
+    sigma_epochs: Annotated[int, typer.Option(help="Phase-2 epochs.")] = TrainConfig.sigma_epochs,
+    horizon: Annotated[int, typer.Option(help="N-step-ahead horizon Ns.")] = TrainConfig.horizon,
+    seed: Seed = 0,
+) -> None:
+    """Train the PPANN and both baselines; write checkpoints and the validation report."""
+    config = TrainConfig(max_epochs=epochs, sigma_epochs=sigma_epochs, horizon=horizon, seed=seed)
+    report = train_models(data=data, out=out, config=config)
+    _print_summary(f"wrote {out} and its report", _train_summary(report))
+
+
 @app.command("run")
 @_one_line_errors
 def run_command(
@@ -175,7 +251,7 @@ def run_command(
     drift: Drift = True,
     model: ModelPath = MODEL_PATH,
 ) -> None:
-    """The whole chain into logs/<run>/. So far: generate the dataset and its figures."""
+    """The whole chain into logs/<run>/. So far: generate the dataset, train and validate."""
     config = _config(
         seconds=seconds,
         seed=seed,
@@ -192,15 +268,20 @@ def run_command(
         "argv": sys.argv[1:],
         "seed": seed,
         "generate": config.as_dict(),
+        "train": TrainConfig(seed=seed).as_dict(),
         "model": str(model),
         "project_version": __version__,
     }
     check_writable(run_dir / "config.json")
     _write_json(run_dir / "config.json", resolved)
     summary = generate_dataset(config=config, out=run_dir / "dataset.mcap", model_path=model)
-    report = {"config": resolved, "dataset": summary}
+    trained = train_models(
+        data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=TrainConfig(seed=seed)
+    )
+    report = {"config": resolved, "dataset": summary, "ppann": trained}
     _write_json(run_dir / "report.json", report)
     _print_summary(f"run {run_dir}: dataset", summary)
+    _print_summary("PPANN", _train_summary(trained))
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:

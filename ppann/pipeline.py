@@ -36,6 +36,18 @@ from twin.plots import save_figure
 KIND_ORDER = ("ppann", "physics", "blackbox")
 
 
+def finite_or_none(value: Any) -> Any:
+    """The report with every non-finite number replaced by None, so it stays strict JSON (a
+    diverged Monte-Carlo draw of a poorly trained model can overflow)."""
+    if isinstance(value, dict):
+        return {k: finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_or_none(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
 def sibling(out: Path, suffix: str) -> Path:
     return out.with_name(f"{out.stem}.{suffix}")
 
@@ -130,5 +142,5 @@ def train_and_report(
     save_figure(figures.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
     save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
     with atomic_path(sibling(out, "report.json")) as tmp:
-        tmp.write_text(json.dumps(report, indent=2) + "\n")
+        tmp.write_text(json.dumps(finite_or_none(report), indent=2, allow_nan=False) + "\n")
     return report

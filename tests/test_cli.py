@@ -130,3 +130,69 @@ def test_generate_unwritable_output(tmp_path: Path) -> None:
 def test_inspect_bad_file(tmp_path: Path, make, match: str) -> None:
     result = crank("inspect", str(make(tmp_path)))
     _assert_one_line_error(result, match)
+
+
+def _dataset(tmp_path: Path, *, seconds: str = "4") -> Path:
+    out = tmp_path / "ds.mcap"
+    result = crank(
+        "generate",
+        "--seconds",
+        seconds,
+        "--episode-seconds",
+        "2",
+        "--out",
+        str(out),
+        "--no-figures",
+    )
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+def test_train_writes_checkpoints_and_report(tmp_path: Path) -> None:
+    import torch
+
+    from ppann.checkpoint import load
+
+    data = _dataset(tmp_path)
+    out = tmp_path / "m" / "model.pt"
+    result = crank(
+        "train", "--data", str(data), "--out", str(out), "--epochs", "3", "--sigma-epochs", "10"
+    )
+    assert result.returncode == 0, result.stderr
+    payload = torch.load(out, weights_only=True)
+    assert payload["kind"] == "ppann" and len(payload["history"]["sigma"]) == 10
+    assert payload["train_config"]["max_epochs"] == 3 and len(payload["data_fingerprint"]) == 64
+    model, _ = load(out)
+    assert model.config.mean_hidden == 100
+    for kind in ("physics", "blackbox"):
+        assert load(out.with_name(f"model.{kind}.pt"))[1]["kind"] == kind
+    report = json.loads((out.parent / "model.report.json").read_text())
+    assert set(report["models"]) == {"ppann", "physics", "blackbox"}
+    assert set(report["calibration"]) >= {"n_runs", "step", "trajectory"}
+    for name in ("maps", "validation", "bands", "calibration"):
+        assert (out.parent / f"model.{name}.png").stat().st_size > 0
+
+
+def test_train_rejects_non_finite_data(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from twin.mcap_dataset import read_truth, write_dataset
+
+    data = _dataset(tmp_path, seconds="2")
+    dataset = read_dataset(data)
+    tau = dataset.tau.copy()
+    tau[77] = float("nan")
+    bad = tmp_path / "nan.mcap"
+    write_dataset(
+        bad, replace(dataset, tau=tau), read_truth(data), run=dataset.run, model_xml="<mujoco/>"
+    )
+    out = tmp_path / "m" / "model.pt"
+    result = crank("train", "--data", str(bad), "--out", str(out))
+    _assert_one_line_error(result, "tau is nan at sample 77")
+    assert not out.exists()
+
+
+def test_train_rejects_a_too_short_dataset(tmp_path: Path) -> None:
+    data = _dataset(tmp_path, seconds="0.2")
+    result = crank("train", "--data", str(data), "--out", str(tmp_path / "model.pt"))
+    _assert_one_line_error(result, "too short")
