@@ -1,4 +1,4 @@
-"""`crank`: generate datasets on the twin (and, as the chain grows, train, solve, replay).
+"""`crank`: generate datasets on the twin and train the PPANN (as the chain grows: solve, replay).
 
 Every command turns a bad input into one line on stderr and exit code 2, with nothing written at
 the target path.

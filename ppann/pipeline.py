@@ -29,8 +29,8 @@ from ppann.report import (
 )
 from ppann.train import TrainConfig, make_splits
 from twin.atomic import atomic_path, check_writable
-from twin.mcap_dataset import read_dataset
-from twin.physics import SliderCrank
+from twin.mcap_dataset import read_dataset, read_model_xml
+from twin.physics import SliderCrank, compile_mjcf
 from twin.plots import save_figure
 
 KIND_ORDER = ("ppann", "physics", "blackbox")
@@ -85,7 +85,10 @@ def train_and_report(
     ppann = fitted["ppann"].model
     mc = bands(ppann, dataset, segment, n=mc_samples, seed=config.seed)
     print_stage("replaying the validation torque on the twin")
-    physics = SliderCrank()
+    # The twin the dataset was generated on: its compiled MJCF travels in the file.
+    physics = SliderCrank(
+        compile_mjcf(read_model_xml(data_path), source=f"{data_path}:model.xml")[0]
+    )
     replay = twin_replay(
         dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed + 1
     )

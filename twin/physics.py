@@ -72,12 +72,21 @@ def load_model(path: str | Path | None = None) -> tuple[mujoco.MjModel, str]:
         raise ModelError(f"MJCF not found: {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ModelError(f"cannot read MJCF {path}: {exc}") from None
+    return compile_mjcf(xml, source=str(path))
+
+
+def compile_mjcf(xml: str, *, source: str) -> tuple[mujoco.MjModel, str]:
+    """Compile MJCF text (from `source`, named in errors); return the model and its XML.
+
+    Raises:
+      ModelError: the text is not valid MJCF or lacks a named element.
+    """
     try:
         spec = mujoco.MjSpec.from_string(xml)
         model = spec.compile()
     except ValueError as exc:
         reason = " ".join(str(exc).split())
-        raise ModelError(f"invalid MJCF {path}: {reason}") from None
+        raise ModelError(f"invalid MJCF {source}: {reason}") from None
     Layout.of(model)  # Fails early, naming the missing element.
     return model, spec.to_xml()
 

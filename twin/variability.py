@@ -125,9 +125,7 @@ class Variability:
     def from_dict(cls, values: dict) -> Variability:
         """Rebuild from `asdict(variability)`, e.g. a dataset's `run` metadata."""
         try:
-            changes = {
-                k: Parameter(**v) if isinstance(v, dict) else v for k, v in values.items()
-            }
+            changes = {k: Parameter(**v) if isinstance(v, dict) else v for k, v in values.items()}
             return cls(**changes)
         except TypeError as exc:
             raise ConfigError(f"not a variability description: {exc}") from None
