@@ -1,0 +1,78 @@
+"""The trained PPANN written out as CasADi SX expressions (no torch callback in an OCP).
+
+`CasadiPPANN(model)` reads the weights once and builds:
+  z_mean(theta, omega) -> (3,)   the mean networks, J, B, K
+  z_sigma(theta, omega) -> (3,)  the sigma networks (softplus + floor)
+  step(x, tau) -> x_next          forward Euler of eq. 14 with the mean z (eq. 10b)
+as `casadi.Function`s, equal to the torch model to 1e-9 (tests/test_control_dynamics.py).
+
+theta_mod is theta - 2 pi floor(theta / 2 pi), as in torch (`torch.remainder`); it is
+discontinuous at multiples of 2 pi. How an OCP crossing 2 pi keeps a smooth problem is the OCP's
+concern (issue 4), not this module's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+from torch import nn
+
+from ppann.model import PPANN, Z_NAMES
+
+
+def mlp(net: nn.Sequential, features: ca.SX) -> ca.SX:
+    """A Linear-tanh-Linear network as an SX expression of its input column."""
+    first, last = net[0], net[2]
+    w1, b1 = (ca.DM(t.detach().numpy()) for t in (first.weight, first.bias))
+    w2, b2 = (ca.DM(t.detach().numpy()) for t in (last.weight, last.bias))
+    return ca.mtimes(w2, ca.tanh(ca.mtimes(w1, features) + b1)) + b2
+
+
+def softplus(x: ca.SX) -> ca.SX:
+    """log(1 + exp(x)), written to stay finite for large x."""
+    return ca.fmax(x, 0) + ca.log1p(ca.exp(-ca.fabs(x)))
+
+
+class CasadiPPANN:
+    """SX functions of a trained PPANN's mean, sigma and one-step dynamics."""
+
+    def __init__(self, model: PPANN) -> None:
+        c = model.config
+        self.dt = c.dt
+        j, b, k = (float(v) for v in model.physical.detach())
+        theta, omega, tau = ca.SX.sym("theta"), ca.SX.sym("omega"), ca.SX.sym("tau")
+        s, co = ca.sin(theta), ca.cos(theta)
+        features = {
+            "J": ca.vertcat(s, co),
+            "B": ca.vertcat(s, co, omega / c.omega_scale),
+            "K": ca.vertcat(s, co),
+        }
+        if c.use_networks:
+            mean = ca.vertcat(*(mlp(model.mean_nets[n], features[n]) for n in Z_NAMES))
+        else:
+            mean = ca.SX.zeros(3)
+        sigma = ca.vertcat(
+            *(softplus(mlp(model.sigma_nets[n], features[n])) + c.sigma_floor for n in Z_NAMES)
+        )
+        angle = theta - 2 * math.pi * ca.floor(theta / (2 * math.pi))
+        alpha = (tau - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (j * (1 + mean[0]))
+        x = ca.vertcat(theta, omega)
+        self.z_mean = ca.Function("z_mean", [theta, omega], [mean], ["theta", "omega"], ["z"])
+        self.z_sigma = ca.Function("z_sigma", [theta, omega], [sigma], ["theta", "omega"], ["s"])
+        self.acceleration = ca.Function("alpha", [x, tau], [alpha], ["x", "tau"], ["alpha"])
+        self.step = ca.Function(
+            "step",
+            [x, tau],
+            [ca.vertcat(theta + self.dt * omega, omega + self.dt * alpha)],
+            ["x", "tau"],
+            ["x_next"],
+        )
+
+    def rollout(self, x0: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Mean trajectory (T + 1, 2) by repeated `step`; for checks, not for an OCP."""
+        states = [np.asarray(x0, dtype=float)]
+        for u in tau:
+            states.append(np.asarray(self.step(states[-1], float(u))).ravel())
+        return np.array(states)
