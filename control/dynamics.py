@@ -74,5 +74,5 @@ class CasadiPPANN:
         """Mean trajectory (T + 1, 2) by repeated `step`; for checks, not for an OCP."""
         states = [np.asarray(x0, dtype=float)]
         for u in tau:
-            states.append(np.asarray(self.step(states[-1], float(u))).ravel())
+            states.append(self.step(states[-1], float(u)).full().ravel())
         return np.array(states)

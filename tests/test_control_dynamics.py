@@ -37,12 +37,12 @@ def test_networks_and_dynamics_equal_torch(config: dict) -> None:
         nxt = model.step(torch.stack([t, w], -1), u).numpy()
     for i in range(len(theta)):
         np.testing.assert_allclose(
-            np.ravel(exported.z_mean(theta[i], omega[i])), z[i], rtol=0, atol=1e-9
+            exported.z_mean(theta[i], omega[i]).full().ravel(), z[i], rtol=0, atol=1e-9
         )
         np.testing.assert_allclose(
-            np.ravel(exported.z_sigma(theta[i], omega[i])), s[i], rtol=0, atol=1e-9
+            exported.z_sigma(theta[i], omega[i]).full().ravel(), s[i], rtol=0, atol=1e-9
         )
-        step = np.ravel(exported.step([theta[i], omega[i]], tau[i]))
+        step = exported.step([theta[i], omega[i]], tau[i]).full().ravel()
         np.testing.assert_allclose(step, nxt[i], rtol=1e-12, atol=1e-9)
 
 
