@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from ppann.fit import fit
-from ppann.losses import n_step_mse, n_step_prediction
-from ppann.model import PPANN, FusedHeads
+from ppann.losses import n_step_mse
+from ppann.model import PPANN, FusedHeads, n_step_prediction
 from ppann.montecarlo import MODES, monte_carlo
 from ppann.train import TrainConfig, make_splits
 from twin.dataset import GenerationConfig

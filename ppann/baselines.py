@@ -47,9 +47,3 @@ class BlackBox(nn.Module):
         )
         alpha = 1000.0 * self.net(g)[..., 0]  # network output in units of 1000 rad/s²
         return torch.stack([theta + c.dt * omega, omega + c.dt * alpha], dim=-1)
-
-    def rollout(self, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-        states = [x0]
-        for k in range(tau.shape[-1]):
-            states.append(self.step(states[-1], tau[..., k]))
-        return torch.stack(states, dim=-2)

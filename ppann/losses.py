@@ -19,15 +19,6 @@ VARIANCE_FLOOR = 1e-12
 """Added to s^2 so that a sample with alpha = omega = theta_mod = 0 cannot divide by zero."""
 
 
-def n_step_prediction(model: torch.nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-    """States after 1..N mean-model steps from every window at once: (n, N, 2)."""
-    states, x = [], x0
-    for k in range(tau.shape[-1]):
-        x = model.step(x, tau[..., k])
-        states.append(x)
-    return torch.stack(states, dim=-2)
-
-
 def n_step_mse(prediction: torch.Tensor, target: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
     """Eq. 5 over windows and steps, each state divided by its scale (2,)."""
     return (((prediction - target) / scale) ** 2).mean()

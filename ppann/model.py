@@ -150,12 +150,20 @@ class PPANN(nn.Module):
         dt = self.config.dt
         return torch.stack([theta + dt * omega, omega + dt * alpha], dim=-1)
 
-    def rollout(self, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-        """Mean-model trajectory from x0 (..., 2) under tau (..., T): states (..., T + 1, 2)."""
-        states = [x0]
-        for k in range(tau.shape[-1]):
-            states.append(self.step(states[-1], tau[..., k]))
-        return torch.stack(states, dim=-2)
+
+def n_step_prediction(model: nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """States after 1..N mean-model steps of any model with `step(x, tau)`, from x0 (..., 2) under
+    tau (..., N), all windows at once: (..., N, 2)."""
+    states, x = [], x0
+    for k in range(tau.shape[-1]):
+        x = model.step(x, tau[..., k])
+        states.append(x)
+    return torch.stack(states, dim=-2)
+
+
+def rollout(model: nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """Mean-model trajectory including x0: states (..., T + 1, 2)."""
+    return torch.cat([x0.unsqueeze(-2), n_step_prediction(model, x0, tau)], dim=-2)
 
 
 class FusedHeads:

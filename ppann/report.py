@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from ppann.data import split_index, windows
-from ppann.losses import n_step_prediction
+from ppann.model import n_step_prediction, rollout
 from ppann.montecarlo import MODES, Bands, monte_carlo
 from twin.dataset import Dataset
 from twin.physics import SliderCrank, slider_position_formula
@@ -77,7 +77,7 @@ def free_run(model: torch.nn.Module, dataset: Dataset, segment: Segment) -> np.n
     x0 = torch.tensor([dataset.theta[segment.start], dataset.omega[segment.start]])
     tau = torch.from_numpy(dataset.tau[segment.start : segment.stop - 1])
     with torch.no_grad():
-        return model.rollout(x0.double(), tau).numpy()
+        return rollout(model, x0.double(), tau).numpy()
 
 
 def bands(model: torch.nn.Module, dataset: Dataset, segment: Segment, *, n: int, seed: int):

@@ -20,8 +20,8 @@ import numpy as np
 import torch
 
 from ppann.data import Windows, acceleration, check_finite, split_index, windows
-from ppann.losses import n_step_mse, n_step_prediction, propagated_nll, propagated_terms
-from ppann.model import PPANN
+from ppann.losses import n_step_mse, propagated_nll, propagated_terms
+from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
 
 
