@@ -28,7 +28,7 @@ class DataError(ValueError):
     """A dataset cannot be used for training; the message says why."""
 
 
-def check_finite(dataset: Dataset) -> None:
+def check_finite_data(dataset: Dataset) -> None:
     """Raise DataError naming the first non-finite value (field, sample, time)."""
     for name in ("t", "theta", "omega", "tau"):
         values = getattr(dataset, name)

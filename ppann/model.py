@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from twin.variability import check_finite
+
 Z_NAMES = ("J", "B", "K")
 INERTIA_FACTOR_FLOOR = 0.1
 """Smallest 1 + z_J a Monte-Carlo draw may give (see FusedHeads.acceleration)."""
@@ -57,11 +59,8 @@ class PPANNConfig:
 
     def __post_init__(self) -> None:
         for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise ModelConfigError(f"{name} must be a finite number > 0, got {value!r}")
-        if not math.isfinite(self.k_m):
-            raise ModelConfigError(f"k_m must be finite, got {self.k_m!r}")
+            check_finite(name, getattr(self, name), positive=True, error=ModelConfigError)
+        check_finite("k_m", self.k_m, error=ModelConfigError)
         for name in ("mean_hidden", "sigma_hidden"):
             if getattr(self, name) < 1:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")

@@ -19,10 +19,11 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from ppann.data import Windows, acceleration, check_finite, split_index, windows
+from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
 from ppann.losses import n_step_mse, propagated_nll, propagated_terms
 from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
+from twin.variability import check_finite
 
 
 class TrainConfigError(ValueError):
@@ -49,9 +50,7 @@ class TrainConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise TrainConfigError(f"{name} must be an integer >= 1, got {value!r}")
         for name in ("lr", "sigma_lr"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value <= 0:
-                raise TrainConfigError(f"{name} must be a finite number > 0, got {value!r}")
+            check_finite(name, getattr(self, name), positive=True, error=TrainConfigError)
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"
@@ -85,7 +84,7 @@ class Splits:
 
 def make_splits(dataset: Dataset, config: TrainConfig) -> Splits:
     """Check the data and cut it into training and validation windows."""
-    check_finite(dataset)
+    check_finite_data(dataset)
     split = split_index(len(dataset), config.validation_fraction)
     train = windows(dataset, start=0, stop=split, horizon=config.horizon)
     validation = windows(dataset, start=split, stop=len(dataset), horizon=config.horizon)

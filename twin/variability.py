@@ -29,14 +29,21 @@ class ConfigError(ValueError):
     """A configuration value is out of its valid range."""
 
 
-def check_finite(name: str, value: float, *, positive: bool = False, nonneg: bool = False) -> None:
-    """Raise ConfigError unless `value` is a finite number (and > 0 or >= 0 when asked)."""
+def check_finite(
+    name: str,
+    value: float,
+    *,
+    positive: bool = False,
+    nonneg: bool = False,
+    error: type[ValueError] = ConfigError,
+) -> None:
+    """Raise `error` unless `value` is a finite number (and > 0 or >= 0 when asked)."""
     if not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+        raise error(f"{name} must be a finite number, got {value!r}")
     if positive and value <= 0:
-        raise ConfigError(f"{name} must be > 0, got {value!r}")
+        raise error(f"{name} must be > 0, got {value!r}")
     if nonneg and value < 0:
-        raise ConfigError(f"{name} must be >= 0, got {value!r}")
+        raise error(f"{name} must be >= 0, got {value!r}")
 
 
 @dataclass(frozen=True)
