@@ -259,6 +259,7 @@ def run_command(
         drift=drift,
         amplitude=Excitation.amplitude,
     )
+    train_config = TrainConfig(seed=seed)
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
     run_dir = logs / name
     if run_dir.exists():
@@ -268,7 +269,7 @@ def run_command(
         "argv": sys.argv[1:],
         "seed": seed,
         "generate": config.as_dict(),
-        "train": TrainConfig(seed=seed).as_dict(),
+        "train": train_config.as_dict(),
         "model": str(model),
         "project_version": __version__,
     }
@@ -276,7 +277,7 @@ def run_command(
     _write_json(run_dir / "config.json", resolved)
     summary = generate_dataset(config=config, out=run_dir / "dataset.mcap", model_path=model)
     trained = train_models(
-        data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=TrainConfig(seed=seed)
+        data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=train_config
     )
     report = {"config": resolved, "dataset": summary, "ppann": trained}
     _write_json(run_dir / "report.json", report)
