@@ -4,11 +4,13 @@
   z_mean(theta, omega) -> (3,)   the mean networks, J, B, K
   z_sigma(theta, omega) -> (3,)  the sigma networks (softplus + floor)
   step(x, tau) -> x_next          forward Euler of eq. 14 with the mean z (eq. 10b)
+  step_on_turn(x, tau, turn) -> x_next
+                                  the same with theta_mod = theta - 2 pi turn, a given turn
 as `casadi.Function`s, equal to the torch model to 1e-9 (tests/test_control_dynamics.py).
 
 theta_mod is theta - 2 pi floor(theta / 2 pi), as in torch (`torch.remainder`); it is
-discontinuous at multiples of 2 pi. How an OCP crossing 2 pi keeps a smooth problem is the OCP's
-concern (issue 4), not this module's.
+discontinuous at multiples of 2 pi. `step_on_turn` is smooth in x: an OCP fixes each sample's turn
+floor(theta / 2 pi) and checks it after the solve (control/ocp.py), where it equals `step`.
 """
 
 from __future__ import annotations
@@ -56,8 +58,15 @@ class CasadiPPANN:
         sigma = ca.vertcat(
             *(softplus(mlp(model.sigma_nets[n], features[n])) + c.sigma_floor for n in Z_NAMES)
         )
-        angle = theta - 2 * math.pi * ca.floor(theta / (2 * math.pi))
-        alpha = (tau - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (j * (1 + mean[0]))
+        turn = ca.SX.sym("turn")
+
+        def alpha_at(angle: ca.SX) -> ca.SX:
+            return (tau - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (
+                j * (1 + mean[0])
+            )
+
+        alpha = alpha_at(theta - 2 * math.pi * ca.floor(theta / (2 * math.pi)))
+        alpha_turn = alpha_at(theta - 2 * math.pi * turn)
         x = ca.vertcat(theta, omega)
         self.z_mean = ca.Function("z_mean", [theta, omega], [mean], ["theta", "omega"], ["z"])
         self.z_sigma = ca.Function("z_sigma", [theta, omega], [sigma], ["theta", "omega"], ["s"])
@@ -67,6 +76,13 @@ class CasadiPPANN:
             [x, tau],
             [ca.vertcat(theta + self.dt * omega, omega + self.dt * alpha)],
             ["x", "tau"],
+            ["x_next"],
+        )
+        self.step_on_turn = ca.Function(
+            "step_on_turn",
+            [x, tau, turn],
+            [ca.vertcat(theta + self.dt * omega, omega + self.dt * alpha_turn)],
+            ["x", "tau", "turn"],
             ["x_next"],
         )
 

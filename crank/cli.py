@@ -17,6 +17,10 @@ from typing import Annotated, Any
 import typer
 from tqdm import tqdm
 
+from control.ocp import OCPConfig, OCPConfigError, OCPError
+from control.ocp_file import OCPFileError
+from control.robust import Iteration, RobustError
+from control.solve import figure_paths, solve_file
 from ppann.checkpoint import CheckpointError
 from ppann.data import DataError
 from ppann.model import ModelConfigError
@@ -48,6 +52,10 @@ USER_ERRORS = (
     CheckpointError,
     TrainConfigError,
     ModelConfigError,
+    OCPConfigError,
+    OCPError,
+    RobustError,
+    OCPFileError,
 )
 
 
@@ -283,6 +291,86 @@ def run_command(
     _write_json(run_dir / "report.json", report)
     _print_summary(f"run {run_dir}: dataset", summary)
     _print_summary("PPANN", _train_summary(trained))
+
+
+def _samples(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise OCPConfigError(
+            f"--samples must be comma-separated integers like 50,100, got {text!r}"
+        ) from None
+
+
+def solve_ocp(*, model: Path, out: Path, config: OCPConfig) -> dict[str, Any]:
+    """`solve_file`, printing each robust iteration's margins on stderr."""
+
+    def show(it: Iteration) -> None:
+        margin = ", ".join(f"{1e3 * v:.2f}" for v in it.margin)
+        k_sigma = ", ".join(f"{1e3 * v:.2f}" for v in it.k_sigma)
+        typer.echo(
+            f"  robust iteration: margin [{margin}] mm -> kσ [{k_sigma}] mm, cost {it.cost:.5g}",
+            err=True,
+        )
+
+    return solve_file(model, out, config=config, on_iteration=show)
+
+
+def _solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
+    n, r = payload["nominal"], payload["robust"]
+    t = payload["timing"]
+    return {
+        "nominal cost": n["cost"],
+        "robust cost": f"{r['cost']:.6g} ({r['cost'] / n['cost'] - 1:+.1%})",
+        "robust iterations": len(payload["robust_iterations"]),
+        "final margins": ", ".join(
+            f"{1e3 * (h - payload['config']['height']):.2f} mm" for h in r["heights"]
+        ),
+        "nominal solve": f"{t['nominal_solve_s']:.2f} s",
+        "robust loop": f"{t['robust_loop_s']:.2f} s",
+    }
+
+
+@app.command("solve")
+@_one_line_errors
+def solve_command(
+    model: Annotated[Path, typer.Option(help="PPANN checkpoint.")] = Path("logs/model.pt"),
+    out: Annotated[Path, typer.Option(help="OCP result to write.")] = Path("logs/ocp.json"),
+    horizon: Annotated[int, typer.Option(help="N, samples.")] = OCPConfig.horizon,
+    height: Annotated[float, typer.Option(help="Slider lower bound, m.")] = OCPConfig.height,
+    samples: Annotated[str, typer.Option(help="1-based constraint samples, comma-separated.")] = (
+        "50,100"
+    ),
+    k_sigma: Annotated[float, typer.Option(help="k of the robust k·σ tightening.")] = (
+        OCPConfig.k_sigma
+    ),
+    mc_samples: Annotated[int, typer.Option(help="Monte-Carlo trajectories.")] = (
+        OCPConfig.mc_samples
+    ),
+    mc_mode: Annotated[str, typer.Option(help="z draws: step (eq. 11) or trajectory.")] = (
+        OCPConfig.mc_mode
+    ),
+    torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
+    theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
+    theta_end: Annotated[float, typer.Option(help="θ_N, rad.")] = OCPConfig.theta_end,
+    seed: Annotated[int, typer.Option(help="Seed of the Monte-Carlo draws.")] = 0,
+) -> None:
+    """Nominal OCP (eqs. 10, 15) and robust OCP (eq. 16) on a PPANN; write ocp.json + figures."""
+    config = OCPConfig(
+        horizon=horizon,
+        height=height,
+        constraint_samples=_samples(samples),
+        k_sigma=k_sigma,
+        mc_samples=mc_samples,
+        mc_mode=mc_mode,
+        torque_limit=torque_limit,
+        theta_start=theta_start,
+        theta_end=theta_end,
+        mc_seed=seed,
+    )
+    payload = solve_ocp(model=model, out=out, config=config)
+    figures = ", ".join(str(p) for p in figure_paths(out).values())
+    _print_summary(f"wrote {out} and {figures}", _solve_summary(payload))
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:

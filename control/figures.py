@@ -1,0 +1,76 @@
+"""Figures of a solved OCP: nominal (paper Fig. 10) and robust against nominal (Fig. 11)."""
+
+from __future__ import annotations
+
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from control.ocp_file import OCPFile, Profile
+
+
+def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None) -> None:
+    """Shade the forbidden region below each constraint sample's height."""
+    c = ocp.config
+    for i, k in enumerate(c.constraint_samples):
+        t = (k - 1) * ocp.dt
+        h = c.height if heights is None else heights[i]
+        ax.vlines(t, -0.005, h, color="k", lw=2.5, label="constraint" if i == 0 else None)
+        ax.plot([t], [h], "kv", ms=7)
+
+
+def _slider(ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str) -> None:
+    k = ocp.config.k_sigma
+    ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
+    ax.fill_between(
+        profile.time,
+        profile.slider_lower,
+        profile.slider_upper,
+        color=color,
+        alpha=0.2,
+        label=f"{label}: ±{k:g}σ (Monte-Carlo, {ocp.config.mc_samples} runs)",
+    )
+
+
+def nominal_figure(ocp: OCPFile) -> Figure:
+    """Fig. 10: the nominal torque and its slider position with the ±kσ band."""
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0")
+    top.set_ylabel("τ [N·m]")
+    top.set_title(f"Nominal OCP on the mean PPANN (cost {ocp.nominal.cost:.4g})")
+    _slider(bottom, ocp, ocp.nominal, "C0", "nominal")
+    constraint_boxes(bottom, ocp)
+    bottom.set_ylabel("slider position [m]")
+    bottom.set_xlabel("t [s]")
+    bottom.legend(loc="lower center", fontsize=8)
+    return fig
+
+
+def robust_figure(ocp: OCPFile) -> Figure:
+    """Fig. 11: nominal and robust torque; robust slider position with its ±kσ band, and the
+    margins of every robust iteration."""
+    fig = Figure(figsize=(9, 8), layout="constrained")
+    top, middle, bottom = fig.subplots(3, 1, height_ratios=(1, 1.3, 0.8))
+    top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0", label="nominal")
+    top.plot(ocp.robust.time, ocp.robust.tau, color="C3", label="robust")
+    top.set_ylabel("τ [N·m]")
+    premium = ocp.robust.cost / ocp.nominal.cost - 1
+    top.set_title(f"Robust OCP (eq. 16): cost {ocp.robust.cost:.4g}, {premium:+.1%} over nominal")
+    top.legend(fontsize=8)
+    _slider(middle, ocp, ocp.nominal, "C0", "nominal")
+    _slider(middle, ocp, ocp.robust, "C3", "robust")
+    constraint_boxes(middle, ocp)
+    middle.set_ylabel("slider position [m]")
+    middle.set_xlabel("t [s]")
+    middle.legend(loc="lower center", fontsize=7)
+    iterations = ocp.raw.get("robust_iterations", [])
+    for i, k in enumerate(ocp.config.constraint_samples):
+        margins = [1e3 * it["margin"][i] for it in iterations]
+        sigmas = [1e3 * it["k_sigma"][i] for it in iterations]
+        steps = range(1, len(iterations) + 1)
+        bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin used, sample {k}")
+        bottom.plot(steps, sigmas, "x--", color=f"C{i}", label=f"kσ of its solution, sample {k}")
+    bottom.set_xlabel("robust iteration")
+    bottom.set_ylabel("[mm]")
+    bottom.legend(fontsize=7)
+    return fig

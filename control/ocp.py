@@ -1,0 +1,320 @@
+"""The nominal OCP of paper eqs. 10 and 15 on the PPANN mean, by multiple shooting and IPOPT.
+
+Index convention (the paper's, 1-based): sample k = 1..N is the state x_k = (theta_k, omega_k) at
+t_k = (k - 1) Ts. Torque u_k acts from t_k to t_{k+1}, so x_{k+1} = step(x_k, u_k) for
+k = 1..N-1 (eq. 10b). The cost of section 3.4.1,
+
+    J = sum_{k=1}^{N} u_k^2 + 1e-4 sum_{k=1}^{N-1} ((u_{k+1} - u_k) / Ts)^2,
+
+also holds u_N, the torque after the last sample: it enters no constraint, only the cost, so it
+settles at 25/26 u_{N-1} (with Ts = 2 ms). In code, sample k is array index k - 1.
+
+Constraints (eq. 15): theta_1, omega_1, theta_N, omega_N fixed; slider position >= height at the
+configured samples (50 and 100); |u_k| <= torque limit.
+
+theta mod 2 pi: the PPANN's stiffness term K (1 + z_K) theta_mod jumps where theta crosses a
+multiple of 2 pi. Each shooting interval uses `step_on_turn` with its turn floor(theta_k / 2 pi)
+given as a parameter, taken from the initial guess, which makes the NLP smooth. After a solve the
+turns are recomputed from the solution; where one changed the OCP is solved again, warm-started,
+until they agree, and the solution then satisfies the torch model's own dynamics (with its
+`remainder`) exactly, not an approximation of it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from control.dynamics import CasadiPPANN
+from ppann.model import PPANN
+from twin.physics import CRANK_LENGTH, ROD_LENGTH
+from twin.variability import check_finite
+
+
+class OCPConfigError(ValueError):
+    """An OCP setting is out of range."""
+
+
+class OCPError(RuntimeError):
+    """IPOPT did not return a solution that meets every constraint.
+
+    Attributes:
+      status: IPOPT's return status (or the reason the check after the solve failed).
+      constraint: the most violated constraint, in words.
+      violation: how far it is from its bound, in its own unit.
+    """
+
+    def __init__(self, status: str, constraint: str, violation: float, iterations: int) -> None:
+        self.status, self.constraint, self.violation = status, constraint, violation
+        self.iterations = iterations
+        super().__init__(
+            f"OCP failed: IPOPT status {status} after {iterations} iterations; most violated "
+            f"constraint: {constraint} (off by {violation:.3g})"
+        )
+
+
+SOLVED = "Solve_Succeeded"
+FEASIBILITY_TOLERANCE = 1e-8
+"""Largest constraint violation accepted in a returned solution (m, rad, rad/s)."""
+MAX_TURN_PASSES = 6
+"""Most re-solves with the 2 pi crossing moved to another sample."""
+TURN_EDGE = 1e-9
+"""theta_k stays this far inside [2 pi turn_k, 2 pi (turn_k + 1)), rad."""
+TURN_ACTIVE = 1e-7
+"""theta_k this close to a turn edge means the optimum wants to cross it there, rad."""
+
+
+@dataclass(frozen=True)
+class OCPConfig:
+    """Settings of the nominal OCP (eq. 15) and of the robust iteration (eq. 16)."""
+
+    horizon: int = 150
+    """N, samples including the first and last."""
+    theta_start: float = math.pi
+    omega_start: float = 0.0
+    theta_end: float = 3 * math.pi
+    omega_end: float = 0.0
+    height: float = 0.08
+    """Lowest slider position allowed at the constraint samples, m."""
+    constraint_samples: tuple[int, ...] = (50, 100)
+    """1-based sample indices of the slider constraint."""
+    torque_limit: float = 10.0
+    """|u| bound, N·m (the twin's actuator range)."""
+    smoothness_weight: float = 1e-4
+    """Weight of sum((du / Ts)^2) in the cost."""
+    k_sigma: float = 3.0
+    """k of the robust constraint slider - k sigma >= height (eq. 16)."""
+    mc_samples: int = 100
+    mc_mode: str = "step"
+    """Monte-Carlo draws of z: "step" (eq. 11, fresh per step) or "trajectory"."""
+    mc_seed: int = 0
+    """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
+    margin_tolerance: float = 1e-4
+    """The robust loop stops when k sigma moves by less than this between iterations, m."""
+    max_robust_iterations: int = 30
+    max_ipopt_iterations: int = 3000
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "constraint_samples", tuple(self.constraint_samples))
+        if self.horizon < 3:
+            raise OCPConfigError(f"horizon must be >= 3 samples, got {self.horizon}")
+        for name in ("theta_start", "omega_start", "theta_end", "omega_end", "height"):
+            check_finite(name, getattr(self, name), error=OCPConfigError)
+        for name in ("torque_limit", "margin_tolerance"):
+            check_finite(name, getattr(self, name), positive=True, error=OCPConfigError)
+        for name in ("smoothness_weight", "k_sigma"):
+            check_finite(name, getattr(self, name), nonneg=True, error=OCPConfigError)
+        samples = self.constraint_samples
+        if not samples or len(set(samples)) != len(samples):
+            raise OCPConfigError(f"constraint_samples must be distinct, got {samples}")
+        bad = [k for k in samples if not 1 < k < self.horizon]
+        if bad:
+            raise OCPConfigError(
+                f"constraint samples {bad} outside 2..{self.horizon - 1} "
+                f"(1-based, strictly inside the horizon)"
+            )
+        if self.mc_samples < 2:
+            raise OCPConfigError(f"mc_samples must be >= 2, got {self.mc_samples}")
+        if self.mc_mode not in ("step", "trajectory"):
+            raise OCPConfigError(f"mc_mode must be 'step' or 'trajectory', got {self.mc_mode!r}")
+        for name in ("max_robust_iterations", "max_ipopt_iterations"):
+            if getattr(self, name) < 1:
+                raise OCPConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    def as_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["constraint_samples"] = list(self.constraint_samples)
+        return out
+
+
+def slider_position(theta: Any) -> Any:
+    """Slider position (m) of crank angle theta, for NumPy arrays and CasADi expressions alike:
+    l1 cos(theta) + sqrt(l2^2 - l1^2 sin^2(theta)) + l1 - l2 (twin.physics' formula)."""
+    lib = ca if isinstance(theta, ca.SX | ca.MX | ca.DM) else np
+    return (
+        CRANK_LENGTH * lib.cos(theta)
+        + lib.sqrt(ROD_LENGTH**2 - (CRANK_LENGTH * lib.sin(theta)) ** 2)
+        + CRANK_LENGTH
+        - ROD_LENGTH
+    )
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One solved OCP. Arrays are indexed by sample - 1 (see the module docstring)."""
+
+    tau: np.ndarray
+    """u_1..u_N, N·m, (N,)."""
+    states: np.ndarray
+    """x_1..x_N as (theta, omega), (N, 2)."""
+    heights: np.ndarray
+    """Lower bounds the slider had at the constraint samples in this solve, m."""
+    cost: float
+    status: str
+    iterations: int
+    """IPOPT iterations, summed over the turn passes."""
+    wall_time: float
+    """Seconds, all passes."""
+    turn_passes: int
+    lam_g: np.ndarray = field(repr=False)
+    lam_x: np.ndarray = field(repr=False)
+
+    @property
+    def slider(self) -> np.ndarray:
+        """Slider position of the mean-model states, (N,), m."""
+        return slider_position(self.states[:, 0])
+
+
+class NominalOCP:
+    """Eqs. 10 and 15 for one trained PPANN, built once and re-solvable with other slider heights
+    (the robust loop) and warm starts."""
+
+    def __init__(self, model: PPANN, config: OCPConfig | None = None) -> None:
+        self.config = c = config or OCPConfig()
+        self.dynamics = CasadiPPANN(model)
+        self.dt = self.dynamics.dt
+        n = c.horizon
+        x = ca.MX.sym("x", 2, n)
+        u = ca.MX.sym("u", n)
+        turns = ca.MX.sym("turns", n - 1)
+        step = self.dynamics.step_on_turn.map(n - 1)
+        defects = step(x[:, :-1], u[: n - 1].T, turns.T) - x[:, 1:]
+        du = (u[1:] - u[:-1]) / self.dt
+        cost = ca.sumsqr(u) + c.smoothness_weight * ca.sumsqr(du)
+        index = [k - 1 for k in c.constraint_samples]
+        slider = ca.vertcat(*(slider_position(x[0, i]) for i in index))
+        boundary = ca.vertcat(x[0, 0], x[1, 0], x[0, n - 1], x[1, n - 1])
+        g = ca.vertcat(ca.vec(defects), boundary, slider)
+        w = ca.vertcat(ca.vec(x), u)
+        self._labels = (
+            [f"dynamics (eq. 10b) {s} from sample {k}" for k in range(1, n) for s in "θω"]
+            + [
+                f"θ_1 = {c.theta_start:.6g}",
+                f"ω_1 = {c.omega_start:.6g}",
+                f"θ_{n} = {c.theta_end:.6g}",
+                f"ω_{n} = {c.omega_end:.6g}",
+            ]
+            + [
+                f"slider position ≥ {{h{i}}} m at sample {k}"
+                for i, k in enumerate(c.constraint_samples)
+            ]
+        )
+        self._boundary = np.array([c.theta_start, c.omega_start, c.theta_end, c.omega_end])
+        self._n_defects = 2 * (n - 1)
+        options = {
+            "expand": True,
+            "print_time": False,
+            "ipopt": {
+                "print_level": 0,
+                "sb": "yes",
+                "tol": 1e-10,
+                "constr_viol_tol": 1e-10,
+                "max_iter": c.max_ipopt_iterations,
+                "warm_start_init_point": "yes",
+                "warm_start_bound_push": 1e-9,
+                "warm_start_mult_bound_push": 1e-9,
+                "mu_init": 1e-3,
+            },
+        }
+        nlp = {"x": w, "p": turns, "f": cost, "g": g}
+        self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, options)
+        self._lbx = np.concatenate([np.full(2 * n, -np.inf), np.full(n, -c.torque_limit)])
+        self._ubx = np.concatenate([np.full(2 * n, np.inf), np.full(n, c.torque_limit)])
+
+    def initial_guess(self) -> np.ndarray:
+        """States on a cosine ramp from the start to the end angle, zero torque."""
+        c = self.config
+        s = np.linspace(0.0, 1.0, c.horizon)
+        span = c.theta_end - c.theta_start
+        theta = c.theta_start + span * (1 - np.cos(np.pi * s)) / 2
+        omega = span * np.pi / (2 * (c.horizon - 1) * self.dt) * np.sin(np.pi * s)
+        return np.concatenate([np.stack([theta, omega], axis=1).ravel(), np.zeros(c.horizon)])
+
+    def solve(self, heights: np.ndarray | None = None, *, warm: Solution | None = None) -> Solution:
+        """Solve with slider lower bounds `heights` at the constraint samples (default: the
+        configured height everywhere), warm-started from `warm` if given.
+
+        Raises:
+          OCPError: IPOPT failed, or its answer breaks a constraint by more than 1e-8.
+        """
+        c, n = self.config, self.config.horizon
+        if heights is None:
+            heights = np.full(len(c.constraint_samples), c.height)
+        heights = np.asarray(heights, dtype=float)
+        lbg = np.concatenate([np.zeros(self._n_defects), self._boundary, heights])
+        ubg = np.concatenate(
+            [np.zeros(self._n_defects), self._boundary, np.full(len(heights), np.inf)]
+        )
+        args: dict[str, Any] = {"lbx": self._lbx, "ubx": self._ubx, "lbg": lbg, "ubg": ubg}
+        if warm is None:
+            w0 = self.initial_guess()
+        else:
+            w0 = np.concatenate([warm.states.ravel(), warm.tau])
+            args.update(lam_g0=warm.lam_g, lam_x0=warm.lam_x)
+        iterations, wall = 0, 0.0
+        turns = np.floor(w0[0 : 2 * (n - 1) : 2] / (2 * math.pi))
+        tried: set[bytes] = set()
+        for passes in range(1, MAX_TURN_PASSES + 1):
+            tried.add(turns.tobytes())
+            lower, upper = 2 * math.pi * turns + TURN_EDGE, 2 * math.pi * (turns + 1) - TURN_EDGE
+            args["lbx"], args["ubx"] = self._lbx.copy(), self._ubx.copy()
+            args["lbx"][0 : 2 * (n - 1) : 2] = lower
+            args["ubx"][0 : 2 * (n - 1) : 2] = upper
+            w0 = w0.copy()
+            w0[0 : 2 * (n - 1) : 2] = np.clip(w0[0 : 2 * (n - 1) : 2], lower, upper)
+            started = time.perf_counter()
+            result = self._solver(x0=w0, p=turns, **args)
+            wall += time.perf_counter() - started
+            stats = self._solver.stats()
+            iterations += int(stats["iter_count"])
+            w = result["x"].full().ravel()
+            g = result["g"].full().ravel()
+            status = str(stats["return_status"])
+            label, violation = self._most_violated(g, lbg, ubg, w, heights)
+            if status != SOLVED or violation > FEASIBILITY_TOLERANCE:
+                raise OCPError(status, label, violation, iterations)
+            args["lam_g0"] = result["lam_g"].full().ravel()
+            args["lam_x0"] = result["lam_x"].full().ravel()
+            theta = w[0 : 2 * (n - 1) : 2]
+            shift = (theta >= upper - TURN_ACTIVE).astype(float) - (theta <= lower + TURN_ACTIVE)
+            following = turns + shift
+            if not shift.any() or following.tobytes() in tried or passes == MAX_TURN_PASSES:
+                break
+            turns, w0 = following, w
+        return Solution(
+            tau=w[2 * n :].copy(),
+            states=w[: 2 * n].reshape(n, 2).copy(),
+            heights=heights.copy(),
+            cost=float(result["f"]),
+            status=status,
+            iterations=iterations,
+            wall_time=wall,
+            turn_passes=passes,
+            lam_g=args["lam_g0"],
+            lam_x=args["lam_x0"],
+        )
+
+    def _most_violated(
+        self, g: np.ndarray, lbg: np.ndarray, ubg: np.ndarray, w: np.ndarray, heights: np.ndarray
+    ) -> tuple[str, float]:
+        """The constraint (or torque bound) furthest outside its bounds, and by how much."""
+        excess = np.maximum(lbg - g, g - ubg)
+        n = self.config.horizon
+        tau = w[2 * n :]
+        torque_excess = np.abs(tau) - self.config.torque_limit
+        i = int(np.argmax(excess))
+        j = int(np.argmax(torque_excess))
+        if torque_excess[j] > excess[i]:
+            return f"|torque| ≤ {self.config.torque_limit:g} N·m at sample {j + 1}", float(
+                torque_excess[j]
+            )
+        label = self._labels[i]
+        if "{h" in label:
+            slot = i - self._n_defects - 4
+            label = label.replace(f"{{h{slot}}}", f"{heights[slot]:.4g}")
+        return label, float(max(excess[i], 0.0))

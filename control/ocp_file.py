@@ -1,0 +1,270 @@
+"""ocp.json: the nominal and robust torque profiles of one `crank solve`, and its loader.
+
+Top-level keys (stable; `version` changes if any meaning does):
+
+  format, version            "crank-ocp", 1
+  index_convention           how sample k maps to arrays (text; see control/ocp.py)
+  dt                         sample time Ts, s
+  horizon                    N, samples per profile
+  constraint_samples         1-based samples of the slider constraint
+  config                     the resolved OCPConfig
+  model                      {path, sha256, kind} of the checkpoint solved on
+  nominal, robust            profiles (below)
+  robust_iterations          one entry per robust solve: margin, k_sigma (m, per constraint
+                             sample), cost, ipopt_iterations, solve_time_s, monte_carlo_time_s,
+                             damping
+  failed_margins             margins IPOPT could not meet during the loop, m
+  timing                     build_s, nominal_solve_s, robust_loop_s
+  versions                   project, casadi, torch, numpy, python
+  created                    ISO time of writing
+
+A profile holds arrays of length N, index k - 1 for sample k: `time` (s), `tau` (N·m, u_k acts
+from t_k to t_{k+1}; the last is the torque after the horizon), `theta`, `omega` (mean-model
+states), `slider` (mean-model slider position, m), `slider_mc_mean`, `slider_sigma` (Monte-Carlo
+mean and standard deviation of the slider position), `slider_lower`, `slider_upper` (slider ∓ k
+sigma); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus `heights`, the slider
+lower bounds used at the constraint samples.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+import torch
+
+from control.ocp import OCPConfig, Solution
+from control.robust import RobustResult, Uncertainty
+from twin import __version__
+from twin.atomic import atomic_path
+
+FORMAT = "crank-ocp"
+VERSION = 1
+INDEX_CONVENTION = (
+    "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
+    "t_{k+1}; constraint_samples are 1-based"
+)
+SERIES = (
+    "time",
+    "tau",
+    "theta",
+    "omega",
+    "slider",
+    "slider_mc_mean",
+    "slider_sigma",
+    "slider_lower",
+    "slider_upper",
+)
+SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
+TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "nominal", "robust")
+
+
+class OCPFileError(ValueError):
+    """A file is not a valid ocp.json."""
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One torque profile and what the PPANN predicts for it; arrays (N,)."""
+
+    time: np.ndarray
+    tau: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    slider: np.ndarray
+    slider_mc_mean: np.ndarray
+    slider_sigma: np.ndarray
+    slider_lower: np.ndarray
+    slider_upper: np.ndarray
+    heights: np.ndarray
+    cost: float
+    status: str
+    ipopt_iterations: int
+    wall_time_s: float
+
+
+@dataclass(frozen=True)
+class OCPFile:
+    config: OCPConfig
+    dt: float
+    nominal: Profile
+    robust: Profile
+    raw: dict[str, Any]
+
+    @property
+    def horizon(self) -> int:
+        return self.config.horizon
+
+
+def profile_dict(
+    solution: Solution, uncertainty: Uncertainty, *, k_sigma: float, dt: float
+) -> dict[str, Any]:
+    """A profile as JSON-ready lists and scalars."""
+    n = len(solution.tau)
+    band = k_sigma * uncertainty.std
+    series = {
+        "time": np.arange(n) * dt,
+        "tau": solution.tau,
+        "theta": solution.states[:, 0],
+        "omega": solution.states[:, 1],
+        "slider": solution.slider,
+        "slider_mc_mean": uncertainty.mean,
+        "slider_sigma": uncertainty.std,
+        "slider_lower": solution.slider - band,
+        "slider_upper": solution.slider + band,
+    }
+    return {
+        **{k: [float(v) for v in values] for k, values in series.items()},
+        "heights": [float(h) for h in solution.heights],
+        "cost": solution.cost,
+        "status": solution.status,
+        "ipopt_iterations": solution.iterations,
+        "wall_time_s": solution.wall_time,
+    }
+
+
+def write_ocp(
+    path: str | Path,
+    result: RobustResult,
+    *,
+    config: OCPConfig,
+    dt: float,
+    model: dict[str, Any],
+    build_s: float,
+) -> dict[str, Any]:
+    """Write ocp.json atomically and return what was written."""
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "index_convention": INDEX_CONVENTION,
+        "dt": dt,
+        "horizon": config.horizon,
+        "constraint_samples": list(config.constraint_samples),
+        "config": config.as_dict(),
+        "model": model,
+        "nominal": profile_dict(
+            result.nominal, result.nominal_uncertainty, k_sigma=config.k_sigma, dt=dt
+        ),
+        "robust": profile_dict(
+            result.robust, result.robust_uncertainty, k_sigma=config.k_sigma, dt=dt
+        ),
+        "robust_iterations": [
+            {
+                "margin": it.margin.tolist(),
+                "k_sigma": it.k_sigma.tolist(),
+                "cost": it.cost,
+                "ipopt_iterations": it.ipopt_iterations,
+                "solve_time_s": it.solve_time,
+                "monte_carlo_time_s": it.monte_carlo_time,
+                "damping": it.damping,
+            }
+            for it in result.iterations
+        ],
+        "failed_margins": [m.tolist() for m in result.failed_proposals],
+        "timing": {
+            "build_s": build_s,
+            "nominal_solve_s": result.nominal.wall_time,
+            "robust_loop_s": result.wall_time,
+        },
+        "versions": {
+            "project": __version__,
+            "casadi": ca.__version__,
+            "torch": torch.__version__,
+            "numpy": np.__version__,
+            "python": platform.python_version(),
+        },
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    text = json.dumps(payload, indent=1, allow_nan=False)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)
+    return payload
+
+
+def read_ocp(path: str | Path) -> OCPFile:
+    """Load and validate an ocp.json.
+
+    Raises:
+      OCPFileError: missing or unreadable file, not JSON, another format or version, a missing
+        key, an array of the wrong length, a non-finite number.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise OCPFileError(f"OCP file not found: {path}")
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise OCPFileError(f"{path}: not a JSON file ({exc})") from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        raise OCPFileError(f"{path}: not a {FORMAT} file")
+    if raw.get("version") != VERSION:
+        raise OCPFileError(f"{path}: version {raw.get('version')!r}, this code reads {VERSION}")
+    for key in TOP_KEYS:
+        if key not in raw:
+            raise OCPFileError(f"{path}: missing key {key!r}")
+    try:
+        settings = dict(raw["config"])
+        settings["constraint_samples"] = tuple(settings["constraint_samples"])
+        config = OCPConfig(**settings)
+    except (TypeError, KeyError, ValueError) as exc:
+        raise OCPFileError(f"{path}: bad config ({exc})") from None
+    if raw["horizon"] != config.horizon:
+        raise OCPFileError(
+            f"{path}: horizon {raw['horizon']!r} differs from the config's {config.horizon}"
+        )
+    dt = _finite(path, "dt", raw["dt"])
+    if dt <= 0:
+        raise OCPFileError(f"{path}: dt must be > 0, got {dt}")
+    profiles = {name: _profile(path, name, raw[name], config) for name in ("nominal", "robust")}
+    return OCPFile(config=config, dt=dt, raw=raw, **profiles)
+
+
+def _finite(path: Path, name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise OCPFileError(f"{path}: {name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _profile(path: Path, name: str, raw: Any, config: OCPConfig) -> Profile:
+    if not isinstance(raw, dict):
+        raise OCPFileError(f"{path}: {name} must be an object")
+    for key in (*SERIES, "heights", *SCALARS, "status"):
+        if key not in raw:
+            raise OCPFileError(f"{path}: missing key '{name}.{key}'")
+    arrays = {}
+    for key, length, what in [
+        *((k, config.horizon, "horizon") for k in SERIES),
+        ("heights", len(config.constraint_samples), "constraint samples"),
+    ]:
+        values = raw[key]
+        if not isinstance(values, list) or len(values) != length:
+            got = len(values) if isinstance(values, list) else type(values).__name__
+            raise OCPFileError(f"{path}: {name}.{key} has {got} values, expected {length} ({what})")
+        try:
+            array = np.array(values, dtype=float)
+        except (TypeError, ValueError):
+            raise OCPFileError(f"{path}: {name}.{key} holds a non-number") from None
+        bad = np.flatnonzero(~np.isfinite(array))
+        if bad.size:
+            raise OCPFileError(
+                f"{path}: {name}.{key} holds a non-finite value at index {int(bad[0])}"
+            )
+        arrays[key] = array
+    limit = config.torque_limit
+    if np.any(np.abs(arrays["tau"]) > limit * (1 + 1e-9)):
+        raise OCPFileError(f"{path}: {name}.tau exceeds the torque limit {limit:g} N·m")
+    scalars = {key: _finite(path, f"{name}.{key}", raw[key]) for key in SCALARS}
+    return Profile(
+        **arrays,
+        cost=scalars["cost"],
+        status=str(raw["status"]),
+        ipopt_iterations=int(scalars["ipopt_iterations"]),
+        wall_time_s=scalars["wall_time_s"],
+    )

@@ -1,0 +1,172 @@
+"""The robust OCP of paper eq. 16, by iterating OCP solve and Monte-Carlo uncertainty.
+
+Eq. 16 tightens the slider constraint to slider_k - k sigma_k >= height, with sigma_k the
+Monte-Carlo standard deviation (eq. 11) of the slider position under the torque being computed.
+sigma depends on that torque: near top dead centre the slider hardly moves with theta, so a torque
+that reaches the constraint far from it (the nominal one) has a far larger sigma than one that
+dwells near it. The margin m (one per constraint sample) is therefore a fixed point,
+m = k sigma(u*(height + m)), found by damped iteration from m = 0 (the nominal solve):
+
+    proposal = m + beta (k sigma(u) - m)
+
+with beta = 1 until the residual k sigma - m changes sign at some sample (the iteration
+overshot), after which beta halves at each sign change; a proposal IPOPT cannot meet (the
+nominal sigma can eat the whole stroke) halves beta and retries from the last solved margin.
+The loop stops when k sigma of the latest solution is within `margin_tolerance` of the margin it
+was solved with, at every sample, so slider - k sigma >= height - margin_tolerance holds there.
+Each solve is warm-started from the previous one; the Monte-Carlo reuses one seed, so the map
+m -> k sigma is deterministic.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from control.ocp import NominalOCP, OCPConfig, OCPError, Solution, slider_position
+from ppann.model import PPANN, FusedHeads
+from ppann.montecarlo import monte_carlo
+
+MIN_DAMPING = 1 / 256
+
+
+class RobustError(RuntimeError):
+    """The robust iteration did not reach a margin that its own Monte-Carlo confirms."""
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Monte-Carlo slider position under one torque: mean and std per sample, (N,) each, m."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    wall_time: float
+
+
+@dataclass(frozen=True)
+class Iteration:
+    """One robust solve: the margin it used, the k sigma its solution has, its cost."""
+
+    margin: np.ndarray
+    k_sigma: np.ndarray
+    cost: float
+    ipopt_iterations: int
+    solve_time: float
+    monte_carlo_time: float
+    damping: float
+
+
+@dataclass(frozen=True)
+class RobustResult:
+    nominal: Solution
+    nominal_uncertainty: Uncertainty
+    robust: Solution
+    robust_uncertainty: Uncertainty
+    iterations: tuple[Iteration, ...]
+    """Every robust solve in order (the nominal solve is not among them)."""
+    failed_proposals: tuple[np.ndarray, ...]
+    """Margins IPOPT could not meet, and which halved the damping."""
+    wall_time: float
+    """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
+
+
+def slider_uncertainty(heads: FusedHeads, solution: Solution, config: OCPConfig) -> Uncertainty:
+    """Monte-Carlo (eq. 11) of the slider position under the solution's torque u_1..u_{N-1}."""
+    started = time.perf_counter()
+    bands = monte_carlo(
+        heads,
+        solution.states[0],
+        solution.tau[:-1],
+        n_samples=config.mc_samples,
+        mode=config.mc_mode,  # type: ignore[arg-type]
+        seed=config.mc_seed,
+    )
+    slider = slider_position(bands.samples[:, :, 0])
+    return Uncertainty(
+        slider.mean(axis=0), slider.std(axis=0, ddof=1), time.perf_counter() - started
+    )
+
+
+def solve_robust(
+    model: PPANN,
+    config: OCPConfig | None = None,
+    *,
+    ocp: NominalOCP | None = None,
+    on_iteration: Callable[[Iteration], None] | None = None,
+) -> RobustResult:
+    """Nominal solve, its uncertainty, then the damped margin iteration of the module docstring.
+
+    Raises:
+      OCPError: the nominal OCP itself fails.
+      RobustError: no margin within max_robust_iterations, or damping exhausted by failures.
+    """
+    config = config or OCPConfig()
+    ocp = ocp or NominalOCP(model, config)
+    heads = FusedHeads(model)
+    index = np.array(config.constraint_samples) - 1
+    base = np.full(len(index), config.height)
+
+    nominal = ocp.solve()
+    nominal_unc = slider_uncertainty(heads, nominal, config)
+    started = time.perf_counter()
+    margin = np.zeros(len(index))
+    target = config.k_sigma * nominal_unc.std[index]
+    current = nominal
+    beta, last_residual = 1.0, target - margin
+    iterations: list[Iteration] = []
+    failed: list[np.ndarray] = []
+    while len(iterations) < config.max_robust_iterations:
+        proposal = margin + beta * (target - margin)
+        try:
+            solution = ocp.solve(base + proposal, warm=current)
+        except OCPError:
+            failed.append(proposal)
+            beta /= 2
+            if beta < MIN_DAMPING:
+                raise RobustError(
+                    f"robust OCP infeasible for every margin tried; smallest failed margin "
+                    f"{_mm(proposal)} (k sigma of the last solution {_mm(target)})"
+                ) from None
+            continue
+        unc = slider_uncertainty(heads, solution, config)
+        new_target = config.k_sigma * unc.std[index]
+        iterations.append(
+            Iteration(
+                margin=proposal,
+                k_sigma=new_target,
+                cost=solution.cost,
+                ipopt_iterations=solution.iterations,
+                solve_time=solution.wall_time,
+                monte_carlo_time=unc.wall_time,
+                damping=beta,
+            )
+        )
+        if on_iteration is not None:
+            on_iteration(iterations[-1])
+        residual = new_target - proposal
+        margin, target, current = proposal, new_target, solution
+        if np.max(np.abs(residual)) < config.margin_tolerance:
+            return RobustResult(
+                nominal=nominal,
+                nominal_uncertainty=nominal_unc,
+                robust=solution,
+                robust_uncertainty=unc,
+                iterations=tuple(iterations),
+                failed_proposals=tuple(failed),
+                wall_time=time.perf_counter() - started,
+            )
+        if np.any(np.sign(residual) * np.sign(last_residual) < 0):
+            beta /= 2
+        last_residual = residual
+    raise RobustError(
+        f"robust margin not settled after {config.max_robust_iterations} iterations: "
+        f"last margin {_mm(margin)}, its k sigma {_mm(target)} (tolerance "
+        f"{config.margin_tolerance * 1e3:g} mm)"
+    )
+
+
+def _mm(values: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v * 1e3:.2f}" for v in values) + "] mm"

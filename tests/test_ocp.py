@@ -1,0 +1,198 @@
+"""Nominal and robust OCP (eqs. 15, 16): constraints met in the torch model, typed failures,
+ocp.json round trip and rejection."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from control.ocp import NominalOCP, OCPConfig, OCPConfigError, OCPError, slider_position
+from control.ocp_file import OCPFileError, read_ocp
+from control.robust import slider_uncertainty, solve_robust
+from control.solve import figure_paths, solve_file
+from ppann.checkpoint import save
+from ppann.model import PPANN, FusedHeads, PPANNConfig, rollout
+from tests.conftest import crank
+from twin.physics import slider_position_formula
+
+SAMPLES = np.array(OCPConfig().constraint_samples) - 1
+
+
+def analytic_ppann(*, sigma: tuple[float, float, float], z_k: float = -0.9) -> PPANN:
+    """A PPANN with constant networks: z_mu = (0, 0, z_k), z_sigma = sigma (exactly, through
+    softplus), and the default prior J_m = 3e-3, B_m = 0.1, K_m = 1. With z_k = -0.9 the
+    stiffness torque still jumps by 2 pi K (1 + z_k) = 0.63 N·m where theta crosses 2 pi."""
+    model = PPANN(PPANNConfig(sigma_floor=1e-4))
+    with torch.no_grad():
+        for nets in (model.mean_nets, model.sigma_nets):
+            for net in nets.values():
+                net[2].weight.zero_()
+        for i, name in enumerate(("J", "B", "K")):
+            model.mean_nets[name][2].bias.fill_((0.0, 0.0, z_k)[i])
+            target = sigma[i] - 1e-4
+            model.sigma_nets[name][2].bias.fill_(math.log(math.expm1(target)))
+    return model.eval()
+
+
+@pytest.fixture(scope="module")
+def model() -> PPANN:
+    return analytic_ppann(sigma=(0.03, 0.05, 0.05))
+
+
+@pytest.fixture(scope="module")
+def ocp(model: PPANN) -> NominalOCP:
+    return NominalOCP(model)
+
+
+def test_slider_formula_matches_the_twin() -> None:
+    theta = np.linspace(-7, 7, 301)
+    np.testing.assert_allclose(slider_position(theta), slider_position_formula(theta), atol=1e-15)
+
+
+def test_nominal_torque_meets_eq15_in_the_torch_model(model: PPANN, ocp: NominalOCP) -> None:
+    solution = ocp.solve()
+    c = ocp.config
+    assert solution.status == "Solve_Succeeded"
+    assert np.all(np.abs(solution.tau) <= c.torque_limit + 1e-9)
+    with torch.no_grad():
+        states = rollout(
+            model,
+            torch.tensor([c.theta_start, c.omega_start], dtype=torch.float64),
+            torch.from_numpy(solution.tau[:-1]),
+        ).numpy()
+    assert states.shape == (c.horizon, 2)
+    # the trajectory crosses theta = 2 pi, where torch's theta_mod wraps, and still agrees
+    assert states[0, 0] < 2 * math.pi < states[-1, 0]
+    np.testing.assert_allclose(states, solution.states, rtol=0, atol=1e-6)
+    assert abs(states[-1, 0] - 3 * math.pi) <= 1e-6
+    assert abs(states[-1, 1]) <= 1e-6
+    assert np.all(slider_position(states[SAMPLES, 0]) >= 0.08 - 1e-6)
+    # the constraint is active: without it the optimum would not dwell near top dead centre
+    assert np.any(np.abs(slider_position(states[SAMPLES, 0]) - 0.08) < 1e-6)
+    # cost as defined in section 3.4.1, recomputed from the torque
+    u = solution.tau
+    cost = np.sum(u**2) + 1e-4 * np.sum((np.diff(u) / ocp.dt) ** 2)
+    assert solution.cost == pytest.approx(cost, rel=1e-9)
+
+
+def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -> None:
+    result = solve_robust(model, ocp.config, ocp=ocp)
+    heads = FusedHeads(model)
+    nominal = slider_uncertainty(heads, result.nominal, ocp.config)
+    robust = slider_uncertainty(heads, result.robust, ocp.config)
+    # the nominal torque breaks eq. 16 (else the test shows nothing) and the robust one keeps it
+    assert np.any(result.nominal.slider[SAMPLES] - 3 * nominal.std[SAMPLES] < 0.08 - 1e-3)
+    assert np.all(result.robust.slider[SAMPLES] - 3 * robust.std[SAMPLES] >= 0.08 - 1e-4)
+    assert result.robust.cost >= result.nominal.cost
+    last = result.iterations[-1]
+    np.testing.assert_array_less(np.abs(last.k_sigma - last.margin), 1e-4)
+    # the robust solution is a solution of eq. 15 with the raised heights, in the torch model
+    with torch.no_grad():
+        states = rollout(
+            model,
+            torch.tensor([math.pi, 0.0], dtype=torch.float64),
+            torch.from_numpy(result.robust.tau[:-1]),
+        ).numpy()
+    np.testing.assert_allclose(states, result.robust.states, rtol=0, atol=1e-6)
+
+
+def test_impossible_height_is_a_typed_error(model: PPANN) -> None:
+    with pytest.raises(OCPError) as info:
+        NominalOCP(model, OCPConfig(height=0.2)).solve()
+    error = info.value
+    assert "slider position ≥ 0.2 m at sample" in error.constraint
+    assert error.violation > 0.09  # the stroke ends at 0.1 m
+    assert error.status in str(error) and "\n" not in str(error)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"horizon": 2}, "horizon"),
+        ({"constraint_samples": (50, 150)}, "outside"),
+        ({"constraint_samples": (50, 50)}, "distinct"),
+        ({"torque_limit": 0.0}, "torque_limit"),
+        ({"height": float("nan")}, "height"),
+        ({"mc_samples": 1}, "mc_samples"),
+        ({"mc_mode": "sometimes"}, "mc_mode"),
+    ],
+)
+def test_bad_settings(change: dict, match: str) -> None:
+    with pytest.raises(OCPConfigError, match=match):
+        OCPConfig(**change)
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory: pytest.TempPathFactory, model: PPANN) -> Path:
+    folder = tmp_path_factory.mktemp("ocp")
+    save(folder / "model.pt", model, kind="ppann", extra={})
+    solve_file(folder / "model.pt", folder / "ocp.json", config=OCPConfig())
+    return folder / "ocp.json"
+
+
+def test_ocp_json_round_trips(solved: Path) -> None:
+    raw = json.loads(solved.read_text())
+    loaded = read_ocp(solved)
+    assert loaded.horizon == 150 and loaded.dt == pytest.approx(1 / 500)
+    for name in ("nominal", "robust"):
+        profile = getattr(loaded, name)
+        np.testing.assert_array_equal(profile.tau, raw[name]["tau"])
+        np.testing.assert_array_equal(profile.slider_sigma, raw[name]["slider_sigma"])
+        assert profile.cost == raw[name]["cost"]
+    assert loaded.robust.cost >= loaded.nominal.cost
+    assert all(p.stat().st_size > 10_000 for p in figure_paths(solved).values())
+
+
+def _broken(solved: Path, tmp_path: Path, edit) -> Path:
+    raw = json.loads(solved.read_text())
+    edit(raw)
+    path = tmp_path / "broken.json"
+    path.write_text(json.dumps(raw))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda r: r.pop("robust"), "missing key 'robust'"),
+        (lambda r: r["nominal"].pop("tau"), "missing key 'nominal.tau'"),
+        (lambda r: r["robust"]["tau"].pop(), "robust.tau has 149 values, expected 150"),
+        (
+            lambda r: r["robust"]["slider"].__setitem__(7, float("nan")),
+            "non-finite value at index 7",
+        ),
+        (lambda r: r["nominal"].__setitem__("cost", float("inf")), "nominal.cost must be a finite"),
+        (lambda r: r.__setitem__("format", "other"), "not a crank-ocp file"),
+    ],
+)
+def test_malformed_ocp_json_is_rejected(solved: Path, tmp_path: Path, edit, match: str) -> None:
+    with pytest.raises(OCPFileError, match=match) as info:
+        read_ocp(_broken(solved, tmp_path, edit))
+    assert "\n" not in str(info.value)
+
+
+def test_cli_solve_impossible_request_writes_nothing(solved: Path, tmp_path: Path) -> None:
+    out = tmp_path / "ocp.json"
+    result = crank(
+        "solve", "--model", str(solved.parent / "model.pt"), "--out", str(out), "--height", "0.2"
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: OCP failed: IPOPT status")
+    assert "slider position ≥ 0.2 m" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_solve_writes_ocp_json(solved: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out" / "ocp.json"
+    result = crank("solve", "--model", str(solved.parent / "model.pt"), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "robust cost" in result.stdout
+    fresh, reference = read_ocp(out), read_ocp(solved)
+    # the same checkpoint and settings give the same torques
+    np.testing.assert_allclose(fresh.robust.tau, reference.robust.tau, rtol=0, atol=1e-9)
