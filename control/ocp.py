@@ -263,10 +263,11 @@ class NominalOCP:
             tried.add(turns.tobytes())
             lower, upper = 2 * math.pi * turns + TURN_EDGE, 2 * math.pi * (turns + 1) - TURN_EDGE
             args["lbx"], args["ubx"] = self._lbx.copy(), self._ubx.copy()
-            args["lbx"][0 : 2 * (n - 1) : 2] = lower
-            args["ubx"][0 : 2 * (n - 1) : 2] = upper
-            w0 = w0.copy()
-            w0[0 : 2 * (n - 1) : 2] = np.clip(w0[0 : 2 * (n - 1) : 2], lower, upper)
+            if passes > 1:  # the first pass is free: it moves the crossing where it wants
+                args["lbx"][0 : 2 * (n - 1) : 2] = lower
+                args["ubx"][0 : 2 * (n - 1) : 2] = upper
+                w0 = w0.copy()
+                w0[0 : 2 * (n - 1) : 2] = np.clip(w0[0 : 2 * (n - 1) : 2], lower, upper)
             started = time.perf_counter()
             result = self._solver(x0=w0, p=turns, **args)
             wall += time.perf_counter() - started
@@ -281,9 +282,17 @@ class NominalOCP:
             args["lam_g0"] = result["lam_g"].full().ravel()
             args["lam_x0"] = result["lam_x"].full().ravel()
             theta = w[0 : 2 * (n - 1) : 2]
-            shift = (theta >= upper - TURN_ACTIVE).astype(float) - (theta <= lower + TURN_ACTIVE)
-            following = turns + shift
-            if not shift.any() or following.tobytes() in tried or passes == MAX_TURN_PASSES:
+            if passes == 1:
+                following = np.floor(theta / (2 * math.pi))
+                if np.array_equal(following, turns):
+                    break
+            else:
+                pressed_up = theta >= upper - TURN_ACTIVE
+                following = turns + pressed_up - (theta <= lower + TURN_ACTIVE)
+                shift = following != turns
+                if not shift.any():
+                    break
+            if following.tobytes() in tried or passes == MAX_TURN_PASSES:
                 break
             turns, w0 = following, w
         return Solution(

@@ -9,13 +9,14 @@ m = k sigma(u*(height + m)), found by damped iteration from m = 0 (the nominal s
 
     proposal = m + beta (k sigma(u) - m)
 
-with beta = 1 until the residual k sigma - m changes sign at some sample (the iteration
-overshot), after which beta halves at each sign change; a proposal IPOPT cannot meet (the
-nominal sigma can eat the whole stroke) halves beta and retries from the last solved margin.
-The loop stops when k sigma of the latest solution is within `margin_tolerance` of the margin it
-was solved with, at every sample, so slider - k sigma >= height - margin_tolerance holds there.
-Each solve is warm-started from the previous one; the Monte-Carlo reuses one seed, so the map
-m -> k sigma is deterministic.
+starting at beta = 1. beta halves whenever the largest residual |k sigma - m| fails to shrink
+from one iteration to the next (the iteration oscillates or diverges) and doubles back towards 1
+when it shrinks; a proposal IPOPT cannot meet (the nominal sigma can eat the whole stroke) halves
+beta and retries from the last solved margin. Each proposal is capped at 95 % of the stroke left
+above the height. The loop stops when k sigma of the latest solution is within
+`margin_tolerance` of the margin it was solved with, at every sample, so that
+slider - k sigma >= height - margin_tolerance holds there. Each solve is warm-started from the
+previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is deterministic.
 """
 
 from __future__ import annotations
@@ -29,8 +30,14 @@ import numpy as np
 from control.ocp import NominalOCP, OCPConfig, OCPError, Solution, slider_position
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import monte_carlo
+from twin.physics import CRANK_LENGTH
 
 MIN_DAMPING = 1 / 256
+STROKE_TOP = 2 * CRANK_LENGTH
+"""Highest slider position (top dead centre), m."""
+STROKE_SHARE = 0.95
+"""A margin asks for at most this share of the stroke left above the height: beyond the top
+dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so."""
 
 
 class RobustError(RuntimeError):
@@ -108,6 +115,7 @@ def solve_robust(
     heads = FusedHeads(model)
     index = np.array(config.constraint_samples) - 1
     base = np.full(len(index), config.height)
+    cap = np.full(len(index), STROKE_SHARE * (STROKE_TOP - config.height))
 
     nominal = ocp.solve()
     nominal_unc = slider_uncertainty(heads, nominal, config)
@@ -119,7 +127,7 @@ def solve_robust(
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
     while len(iterations) < config.max_robust_iterations:
-        proposal = margin + beta * (target - margin)
+        proposal = np.minimum(margin + beta * (target - margin), cap)
         try:
             solution = ocp.solve(base + proposal, warm=current)
         except OCPError:
@@ -158,8 +166,10 @@ def solve_robust(
                 failed_proposals=tuple(failed),
                 wall_time=time.perf_counter() - started,
             )
-        if np.any(np.sign(residual) * np.sign(last_residual) < 0):
-            beta /= 2
+        if np.max(np.abs(residual)) >= np.max(np.abs(last_residual)):
+            beta /= 2  # not contracting: damp
+        else:
+            beta = min(1.0, 2 * beta)  # contracting: undo earlier damping step by step
         last_residual = residual
     raise RobustError(
         f"robust margin not settled after {config.max_robust_iterations} iterations: "

@@ -5,9 +5,9 @@ Split (paper section 3.3.2): the first (1 - validation_fraction) of the samples 
 validate (87 s / 3 s of 90 s by default). A window of N steps starts at sample k and needs samples
 k .. k + N from one episode and one split, so no window crosses an episode boundary.
 
-Acceleration: alpha is the first derivative of measured omega by a Savitzky-Golay filter (window
-11 samples = 22 ms, quadratic), applied within each episode; the first and last 5 samples of each
-episode, where the filter would reach across the boundary, are left out of phase 2.
+Acceleration: alpha is the forward difference (omega_{k+1} - omega_k) / dt within an episode,
+the acceleration forward Euler needs to reach the next sample; the last sample of each episode
+has none and is left out of phase 2.
 """
 
 from __future__ import annotations
@@ -16,12 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.signal import savgol_filter
 
 from twin.dataset import Dataset
-
-SAVGOL_WINDOW = 11
-SAVGOL_ORDER = 2
 
 
 class DataError(ValueError):
@@ -78,17 +74,18 @@ def windows(dataset: Dataset, *, start: int, stop: int, horizon: int) -> Windows
 
 
 def acceleration(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
-    """Measured alpha (n_samples,) and a mask (n_samples,) of samples where it is valid."""
+    """Measured alpha (n_samples,) as the forward difference (omega_{k+1} - omega_k) / dt, and a
+    mask (n_samples,) of samples where it is valid (not the last sample of an episode).
+
+    This is the acceleration the forward-Euler model (eq. 4) must produce to land on the next
+    measured state, so eq. 9 fits the one-step variance that the step-mode Monte-Carlo (eq. 11)
+    propagates. A smoothed derivative (Savitzky-Golay over 11 samples, used before) averages the
+    twin's white slider force over ~11 samples and left the sigma networks ~2x too small.
+    """
     dt = float(dataset.t[1] - dataset.t[0])
     alpha = np.zeros_like(dataset.omega)
-    valid = np.zeros(len(dataset.omega), dtype=bool)
-    half = SAVGOL_WINDOW // 2
-    for e in np.unique(dataset.episode):
-        idx = np.flatnonzero(dataset.episode == e)
-        if idx.size < SAVGOL_WINDOW:
-            continue
-        alpha[idx] = savgol_filter(
-            dataset.omega[idx], SAVGOL_WINDOW, SAVGOL_ORDER, deriv=1, delta=dt
-        )
-        valid[idx[half:-half]] = True
+    alpha[:-1] = np.diff(dataset.omega) / dt
+    valid = np.ones(len(dataset.omega), dtype=bool)
+    valid[-1] = False
+    valid[:-1] &= dataset.episode[1:] == dataset.episode[:-1]
     return alpha, valid

@@ -150,6 +150,29 @@ class PPANN(nn.Module):
         return torch.stack([theta + dt * omega, omega + dt * alpha], dim=-1)
 
 
+def constant_ppann(
+    *,
+    z_mean: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    z_sigma: tuple[float, float, float],
+    config: PPANNConfig | None = None,
+) -> PPANN:
+    """A PPANN whose networks output constants: z_mu = z_mean and z_sigma exactly (through the
+    softplus), for tests and benches that need known dynamics and uncertainty."""
+    model = PPANN(config)
+    floor = model.config.sigma_floor
+    if min(z_sigma) <= floor:
+        raise ModelConfigError(f"z_sigma must exceed the floor {floor}, got {z_sigma}")
+    with torch.no_grad():
+        for i, name in enumerate(Z_NAMES):
+            for net, value in (
+                (model.mean_nets[name], z_mean[i]),
+                (model.sigma_nets[name], math.log(math.expm1(z_sigma[i] - floor))),
+            ):
+                net[2].weight.zero_()
+                net[2].bias.fill_(value)
+    return model.eval()
+
+
 def n_step_prediction(model: nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
     """States after 1..N mean-model steps of any model with `step(x, tau)`, from x0 (..., 2) under
     tau (..., N), all windows at once: (..., N, 2)."""

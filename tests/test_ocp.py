@@ -16,32 +16,18 @@ from control.ocp_file import OCPFileError, read_ocp
 from control.robust import slider_uncertainty, solve_robust
 from control.solve import figure_paths, solve_file
 from ppann.checkpoint import save
-from ppann.model import PPANN, FusedHeads, PPANNConfig, rollout
+from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
 from tests.conftest import crank
 from twin.physics import slider_position_formula
 
 SAMPLES = np.array(OCPConfig().constraint_samples) - 1
 
 
-def analytic_ppann(*, sigma: tuple[float, float, float], z_k: float = -0.9) -> PPANN:
-    """A PPANN with constant networks: z_mu = (0, 0, z_k), z_sigma = sigma (exactly, through
-    softplus), and the default prior J_m = 3e-3, B_m = 0.1, K_m = 1. With z_k = -0.9 the
-    stiffness torque still jumps by 2 pi K (1 + z_k) = 0.63 N·m where theta crosses 2 pi."""
-    model = PPANN(PPANNConfig(sigma_floor=1e-4))
-    with torch.no_grad():
-        for nets in (model.mean_nets, model.sigma_nets):
-            for net in nets.values():
-                net[2].weight.zero_()
-        for i, name in enumerate(("J", "B", "K")):
-            model.mean_nets[name][2].bias.fill_((0.0, 0.0, z_k)[i])
-            target = sigma[i] - 1e-4
-            model.sigma_nets[name][2].bias.fill_(math.log(math.expm1(target)))
-    return model.eval()
-
-
 @pytest.fixture(scope="module")
 def model() -> PPANN:
-    return analytic_ppann(sigma=(0.03, 0.05, 0.05))
+    """Prior J_m = 3e-3, B_m = 0.1, K_m = 1 with z_K = -0.9: the stiffness torque still jumps by
+    2 pi K (1 + z_K) = 0.63 N·m where theta crosses 2 pi."""
+    return constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
 
 
 @pytest.fixture(scope="module")

@@ -21,13 +21,13 @@ from twin.variability import ConfigError, check_finite
 class Excitation:
     """Semi-random torque: held random levels through a low-pass filter."""
 
-    amplitude: float = 5.0
+    amplitude: float = 7.0
     """Largest torque level before filtering, in N·m."""
-    cutoff_hz: float = 4.0
+    cutoff_hz: float = 20.0
     """Cut-off of the second-order Butterworth low-pass filter, in Hz."""
-    min_hold: float = 0.1
+    min_hold: float = 0.05
     """Shortest time a level is held, in s."""
-    max_hold: float = 0.8
+    max_hold: float = 0.4
     """Longest time a level is held, in s."""
 
     def __post_init__(self) -> None:

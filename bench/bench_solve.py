@@ -1,0 +1,60 @@
+"""Benchmark: nominal OCP solve against the whole robust loop (every re-solve and Monte-Carlo),
+measured in the same run (target: robust loop <= 3 × the nominal solve).
+
+    python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
+
+Without --model it solves on a PPANN with constant networks (the test suite's: prior J_m, B_m,
+K_m, z_K = -0.9, z_sigma = 0.03, 0.05, 0.05), so it needs no training run. The CasADi/IPOPT build
+(expanding the networks into SX, once per model) is printed apart: it is paid once per
+`crank solve`, not per solve.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from control.ocp import NominalOCP, OCPConfig
+from control.robust import solve_robust
+from ppann.checkpoint import load
+from ppann.model import constant_ppann
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", default=None, help="PPANN checkpoint (default: constant nets)")
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    if args.model:
+        model, _ = load(args.model)
+        source = args.model
+    else:
+        model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+        source = "constant networks"
+    config = OCPConfig()
+    started = time.perf_counter()
+    ocp = NominalOCP(model, config)
+    build = time.perf_counter() - started
+    nominal, robust, iterations = [], [], []
+    for _ in range(args.repeat):
+        started = time.perf_counter()
+        ocp.solve()
+        nominal.append(time.perf_counter() - started)
+        result = solve_robust(model, config, ocp=ocp)
+        robust.append(result.wall_time)
+        iterations.append(len(result.iterations))
+    n, r = statistics.median(nominal), statistics.median(robust)
+    print(f"model: {source}")
+    print(f"build (SX expansion + IPOPT setup, once): {build:.2f} s")
+    print(f"nominal solve (cold start), median of {args.repeat}: {n * 1e3:.0f} ms")
+    print(
+        f"robust loop ({iterations[-1]} solves + {iterations[-1]} Monte-Carlo, warm-started), "
+        f"median: {r * 1e3:.0f} ms"
+    )
+    print(f"ratio robust / nominal: {r / n:.2f} (target <= 3)")
+    print(f"robust cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
+
+
+if __name__ == "__main__":
+    main()
