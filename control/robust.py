@@ -154,6 +154,15 @@ def solve_robust(
         )
         if on_iteration is not None:
             on_iteration(iterations[-1])
+        beyond = (proposal >= cap) & (new_target > cap)
+        if beyond.any():
+            k = int(np.flatnonzero(beyond)[0])
+            raise RobustError(
+                f"the model's k sigma of the slider at sample {config.constraint_samples[k]} "
+                f"({1e3 * new_target[k]:.1f} mm) exceeds the stroke above the height even for a "
+                f"torque that uses {1e3 * cap[k]:.1f} mm of it: no robust profile (train on more "
+                f"data, or lower k_sigma or height)"
+            )
         residual = new_target - proposal
         margin, target, current = proposal, new_target, solution
         if np.max(np.abs(residual)) < config.margin_tolerance:

@@ -1,4 +1,4 @@
-"""`crank`: generate datasets on the twin and train the PPANN (as the chain grows: solve, replay).
+"""`crank`: generate datasets on the twin, train the PPANN, solve the OCPs (next: replay).
 
 Every command turns a bad input into one line on stderr and exit code 2, with nothing written at
 the target path.
@@ -259,7 +259,7 @@ def run_command(
     drift: Drift = True,
     model: ModelPath = MODEL_PATH,
 ) -> None:
-    """The whole chain into logs/<run>/. So far: generate the dataset, train and validate."""
+    """The whole chain into logs/<run>/. So far: generate, train and validate, solve the OCPs."""
     config = _config(
         seconds=seconds,
         seed=seed,
@@ -268,6 +268,7 @@ def run_command(
         amplitude=Excitation.amplitude,
     )
     train_config = TrainConfig(seed=seed)
+    ocp_config = OCPConfig(mc_seed=seed)
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
     run_dir = logs / name
     if run_dir.exists():
@@ -278,6 +279,7 @@ def run_command(
         "seed": seed,
         "generate": config.as_dict(),
         "train": train_config.as_dict(),
+        "solve": ocp_config.as_dict(),
         "model": str(model),
         "project_version": __version__,
     }
@@ -287,10 +289,17 @@ def run_command(
     trained = train_models(
         data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=train_config
     )
-    report = {"config": resolved, "dataset": summary, "ppann": trained}
+    solved = solve_ocp(model=run_dir / "model.pt", out=run_dir / "ocp.json", config=ocp_config)
+    report = {
+        "config": resolved,
+        "dataset": summary,
+        "ppann": trained,
+        "ocp": _solve_summary(solved),
+    }
     _write_json(run_dir / "report.json", report)
     _print_summary(f"run {run_dir}: dataset", summary)
     _print_summary("PPANN", _train_summary(trained))
+    _print_summary("OCP", _solve_summary(solved))
 
 
 def _samples(text: str) -> tuple[int, ...]:

@@ -39,14 +39,17 @@ def test_generate_writes_a_contract_dataset(tmp_path: Path) -> None:
 
 
 def test_run_writes_config_and_report(tmp_path: Path) -> None:
+    """2 s of data train a PPANN too uncertain for a robust profile: the chain runs to the robust
+    OCP and stops there with one line naming why, leaving no ocp.json or report."""
     result = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
-    assert result.returncode == 0, result.stderr
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1].startswith("error: the model's k sigma")
     run_dir = tmp_path / "r1"
     config = json.loads((run_dir / "config.json").read_text())
     assert config["seed"] == 0 and config["generate"]["seconds"] == 2.0
-    report = json.loads((run_dir / "report.json").read_text())
-    assert report["dataset"]["n_samples"] == 1000
-    assert (run_dir / "dataset.mcap").is_file()
+    assert config["solve"]["horizon"] == 150 and config["solve"]["mc_seed"] == 0
+    assert (run_dir / "dataset.mcap").is_file() and (run_dir / "model.pt").is_file()
+    assert not (run_dir / "ocp.json").exists() and not (run_dir / "report.json").exists()
     again = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
     assert again.returncode == 2 and "already exists" in again.stderr
 
