@@ -13,11 +13,15 @@ Constraints (eq. 15): theta_1, omega_1, theta_N, omega_N fixed; slider position 
 configured samples (50 and 100); |u_k| <= torque limit.
 
 theta mod 2 pi: the PPANN's stiffness term K (1 + z_K) theta_mod jumps where theta crosses a
-multiple of 2 pi. Each shooting interval uses `step_on_turn` with its turn floor(theta_k / 2 pi)
-given as a parameter, taken from the initial guess, which makes the NLP smooth. After a solve the
-turns are recomputed from the solution; where one changed the OCP is solved again, warm-started,
-until they agree, and the solution then satisfies the torch model's own dynamics (with its
-`remainder`) exactly, not an approximation of it.
+multiple of 2 pi. Each shooting interval uses `step_on_turn` with its turn_k = floor(theta_k / 2 pi)
+given as a parameter, which makes the NLP smooth. A first pass takes the turns from the starting
+point and leaves theta free; if its solution lies on other turns, the OCP is solved again with the
+turns of that solution and each theta_k bounded to its turn, [2 pi turn_k, 2 pi (turn_k + 1)), so
+the solution satisfies the torch model's own dynamics (with its `remainder`) exactly, not an
+approximation of them. While the optimum presses theta_k against a turn edge, the crossing moves
+one sample that way and the OCP is solved again, warm-started; if that leads back to an assignment
+already tried (the optimum sits on the edge, where the stiffness torque jumps), or after
+MAX_TURN_PASSES, the last solution, which is consistent, is kept.
 """
 
 from __future__ import annotations
@@ -257,17 +261,18 @@ class NominalOCP:
             w0 = np.concatenate([warm.states.ravel(), warm.tau])
             args.update(lam_g0=warm.lam_g, lam_x0=warm.lam_x)
         iterations, wall = 0, 0.0
-        turns = np.floor(w0[0 : 2 * (n - 1) : 2] / (2 * math.pi))
+        thetas = slice(0, 2 * (n - 1), 2)  # theta_1..theta_{N-1} in the decision vector
+        turns = np.floor(w0[thetas] / (2 * math.pi))
         tried: set[bytes] = set()
         for passes in range(1, MAX_TURN_PASSES + 1):
             tried.add(turns.tobytes())
             lower, upper = 2 * math.pi * turns + TURN_EDGE, 2 * math.pi * (turns + 1) - TURN_EDGE
             args["lbx"], args["ubx"] = self._lbx.copy(), self._ubx.copy()
             if passes > 1:  # the first pass is free: it moves the crossing where it wants
-                args["lbx"][0 : 2 * (n - 1) : 2] = lower
-                args["ubx"][0 : 2 * (n - 1) : 2] = upper
+                args["lbx"][thetas] = lower
+                args["ubx"][thetas] = upper
                 w0 = w0.copy()
-                w0[0 : 2 * (n - 1) : 2] = np.clip(w0[0 : 2 * (n - 1) : 2], lower, upper)
+                w0[thetas] = np.clip(w0[thetas], lower, upper)
             started = time.perf_counter()
             result = self._solver(x0=w0, p=turns, **args)
             wall += time.perf_counter() - started
@@ -281,7 +286,7 @@ class NominalOCP:
                 raise OCPError(status, label, violation, iterations)
             args["lam_g0"] = result["lam_g"].full().ravel()
             args["lam_x0"] = result["lam_x"].full().ravel()
-            theta = w[0 : 2 * (n - 1) : 2]
+            theta = w[thetas]
             if passes == 1:
                 following = np.floor(theta / (2 * math.pi))
                 if np.array_equal(following, turns):
