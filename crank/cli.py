@@ -1,4 +1,4 @@
-"""`crank`: generate datasets on the twin, train the PPANN, solve the OCPs (next: replay).
+"""`crank`: generate datasets on the twin, train the PPANN, solve the OCPs, replay them on the twin.
 
 Every command turns a bad input into one line on stderr and exit code 2, with nothing written at
 the target path.
@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import functools
 import json
+import os
+import subprocess
 import sys
+import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -21,11 +24,17 @@ from control.ocp import OCPConfig, OCPConfigError, OCPError
 from control.ocp_file import OCPFileError
 from control.robust import Iteration, RobustError
 from control.solve import figure_paths, solve_file
+from crank.report import solve_summary, train_summary, write_markdown
 from ppann.checkpoint import CheckpointError
 from ppann.data import DataError
 from ppann.model import ModelConfigError
-from ppann.pipeline import train_and_report
+from ppann.pipeline import finite_or_none, train_and_report
 from ppann.train import TrainConfig, TrainConfigError
+from replay.campaign import MODES, PROFILES, ReplayConfig, ReplayConfigError
+from replay.campaign_log import RecoverError, recover
+from replay.files import output_paths, replay_file
+from replay.recording import RecordingError, check_recording, rerun_version
+from replay.statistics import format_table, summary_rows
 from twin import __version__
 from twin.atomic import OutputError, atomic_path, check_writable
 from twin.dataset import GenerationConfig, summarize
@@ -56,6 +65,9 @@ USER_ERRORS = (
     OCPError,
     RobustError,
     OCPFileError,
+    ReplayConfigError,
+    RecoverError,
+    RecordingError,
 )
 
 
@@ -80,15 +92,15 @@ class _Progress:
     """A progress bar on stderr, created at its first update and shown only if the step takes
     more than 2 s, so short runs print nothing but their result."""
 
-    def __init__(self, total: int, desc: str) -> None:
-        self.total, self.desc, self.bar = total, desc, None
+    def __init__(self, total: int, desc: str, *, unit: str = "sample") -> None:
+        self.total, self.desc, self.unit, self.bar = total, desc, unit, None
 
     def update(self, n: int) -> None:
         if self.bar is None:
             self.bar = tqdm(
                 total=self.total,
                 desc=self.desc,
-                unit="sample",
+                unit=self.unit,
                 unit_scale=True,
                 delay=2.0,
                 leave=False,
@@ -214,20 +226,6 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
         bars.close()
 
 
-def _train_summary(report: dict[str, Any]) -> dict[str, Any]:
-    rows: dict[str, Any] = {}
-    for kind, entry in report["models"].items():
-        r10 = entry["rmse_10_step"]
-        rows[f"{kind} 10-step RMSE θ / ω"] = f"{r10['theta']:.4f} rad / {r10['omega']:.3f} rad/s"
-    for mode in ("step", "trajectory"):
-        c = report["calibration"][mode]
-        rows[f"σ predicted/observed ({mode})"] = (
-            f"θ {c['theta']['median']:.2f}, slider {c['slider_position']['median']:.2f}"
-        )
-    rows["PPANN training"] = f"{report['models']['ppann']['train_seconds']:.1f} s"
-    return rows
-
-
 @app.command("train")
 @_one_line_errors
 def train_command(
@@ -243,7 +241,7 @@ def train_command(
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
     config = TrainConfig(max_epochs=epochs, sigma_epochs=sigma_epochs, horizon=horizon, seed=seed)
     report = train_models(data=data, out=out, config=config)
-    _print_summary(f"wrote {out} and its report", _train_summary(report))
+    _print_summary(f"wrote {out} and its report", train_summary(report))
 
 
 @app.command("run")
@@ -257,9 +255,13 @@ def run_command(
     name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
     episode_seconds: EpisodeSeconds = 10.0,
     drift: Drift = True,
+    runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
+        ReplayConfig.runs
+    ),
     model: ModelPath = MODEL_PATH,
 ) -> None:
-    """The whole chain into logs/<run>/. So far: generate, train and validate, solve the OCPs."""
+    """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
+    them on the twin open and closed loop, report (report.json, report.md, figures)."""
     config = _config(
         seconds=seconds,
         seed=seed,
@@ -269,6 +271,7 @@ def run_command(
     )
     train_config = TrainConfig(seed=seed)
     ocp_config = OCPConfig(mc_seed=seed)
+    replay_config = ReplayConfig(runs=runs, seed=seed)
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
     run_dir = logs / name
     if run_dir.exists():
@@ -280,26 +283,64 @@ def run_command(
         "generate": config.as_dict(),
         "train": train_config.as_dict(),
         "solve": ocp_config.as_dict(),
+        "replay": replay_config.as_dict(),
         "model": str(model),
         "project_version": __version__,
     }
     check_writable(run_dir / "config.json")
     _write_json(run_dir / "config.json", resolved)
+    started = time.perf_counter()
+    steps: dict[str, float] = {}
+
+    def lap(step: str, t0: float) -> None:
+        steps[step] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
     summary = generate_dataset(config=config, out=run_dir / "dataset.mcap", model_path=model)
+    lap("generate", t0)
+    t0 = time.perf_counter()
     trained = train_models(
         data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=train_config
     )
+    lap("train", t0)
+    t0 = time.perf_counter()
     solved = solve_ocp(model=run_dir / "model.pt", out=run_dir / "ocp.json", config=ocp_config)
+    lap("solve", t0)
+    t0 = time.perf_counter()
+    stats = replay_campaign(
+        ocp=run_dir / "ocp.json",
+        out=run_dir / "replay.mcap",
+        config=replay_config,
+        model=model,
+        resolved=resolved,
+    )
+    lap("replay", t0)
+    steps["total"] = time.perf_counter() - started
     report = {
         "config": resolved,
         "dataset": summary,
         "ppann": trained,
-        "ocp": _solve_summary(solved),
+        "ocp": solve_summary(solved),
+        "replay": {
+            "claim": stats["claim"],
+            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
+            "table": summary_rows(stats),
+            "stats": output_paths(run_dir / "replay.mcap")["stats"].name,
+        },
+        "wall_seconds": steps,
     }
     _write_json(run_dir / "report.json", report)
+    write_markdown(run_dir / "report.md", report, stats=stats)
     _print_summary(f"run {run_dir}: dataset", summary)
-    _print_summary("PPANN", _train_summary(trained))
-    _print_summary("OCP", _solve_summary(solved))
+    _print_summary("PPANN", train_summary(trained))
+    _print_summary("OCP", solve_summary(solved))
+    typer.echo("replay on the twin")
+    _print_replay(stats, run_dir / "replay.mcap")
+    typer.echo(
+        "wall time: "
+        + ", ".join(f"{k} {v:.0f} s" for k, v in steps.items())
+        + f"; report: {run_dir / 'report.md'}"
+    )
 
 
 def _samples(text: str) -> tuple[int, ...]:
@@ -323,21 +364,6 @@ def solve_ocp(*, model: Path, out: Path, config: OCPConfig) -> dict[str, Any]:
         )
 
     return solve_file(model, out, config=config, on_iteration=show)
-
-
-def _solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
-    n, r = payload["nominal"], payload["robust"]
-    t = payload["timing"]
-    return {
-        "nominal cost": n["cost"],
-        "robust cost": f"{r['cost']:.6g} ({r['cost'] / n['cost'] - 1:+.1%})",
-        "robust iterations": len(payload["robust_iterations"]),
-        "final margins": ", ".join(
-            f"{1e3 * (h - payload['config']['height']):.2f} mm" for h in r["heights"]
-        ),
-        "nominal solve": f"{t['nominal_solve_s']:.2f} s",
-        "robust loop": f"{t['robust_loop_s']:.2f} s",
-    }
 
 
 @app.command("solve")
@@ -379,12 +405,142 @@ def solve_command(
     )
     payload = solve_ocp(model=model, out=out, config=config)
     figures = ", ".join(str(p) for p in figure_paths(out).values())
-    _print_summary(f"wrote {out} and {figures}", _solve_summary(payload))
+    _print_summary(f"wrote {out} and {figures}", solve_summary(payload))
+
+
+def _modes(text: str) -> tuple[str, ...]:
+    modes = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not modes or any(m not in MODES for m in modes):
+        raise ReplayConfigError(
+            f"--modes must be a comma-separated subset of {MODES}, got {text!r}"
+        )
+    return modes
+
+
+def replay_campaign(
+    *, ocp: Path, out: Path, config: ReplayConfig, model: Path, resolved: dict[str, Any]
+) -> dict[str, Any]:
+    """`replay_file` with a progress bar over the runs."""
+    total = config.runs * len(PROFILES) * len(config.modes)
+    with _Progress(total, "replaying", unit="run") as bar:
+        done = 0
+
+        def on_run(n: int) -> None:
+            nonlocal done
+            bar.update(n - done)
+            done = n
+
+        return replay_file(
+            ocp, out, config=config, model_path=model, resolved=resolved, on_run=on_run
+        )
+
+
+def _print_replay(stats: dict[str, Any], out: Path) -> None:
+    typer.echo(format_table(summary_rows(stats)))
+    claim = stats["claim"]
+    if claim["holds"] is not None:
+        verdict = "holds" if claim["holds"] else "does NOT hold"
+        typer.echo(
+            f"claim {verdict}: robust open loop {claim['robust_open_violating_runs']} of "
+            f"{stats['config']['runs']} runs below the height, nominal "
+            f"{claim['nominal_open_violating_runs']} (needs >= {claim['nominal_needed']})"
+        )
+    files = ", ".join(str(p) for p in output_paths(out).values())
+    typer.echo(f"wrote {files}")
+
+
+@app.command("replay")
+@_one_line_errors
+def replay_command(
+    ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
+    runs: Annotated[int, typer.Option(help="Machines (runs) per profile and mode.")] = (
+        ReplayConfig.runs
+    ),
+    seed: Annotated[int, typer.Option(help="Seed of the machines and disturbances.")] = 0,
+    out: Annotated[Path, typer.Option(help="Campaign log MCAP to write.")] = Path(
+        "logs/replay.mcap"
+    ),
+    modes: Annotated[str, typer.Option(help="open, closed or open,closed.")] = "open,closed",
+    kp: Annotated[float, typer.Option(help="Closed loop: N·m/rad on the angle error.")] = (
+        ReplayConfig.kp
+    ),
+    kd: Annotated[float, typer.Option(help="Closed loop: N·m·s/rad on the speed error.")] = (
+        ReplayConfig.kd
+    ),
+    max_start_time: Annotated[
+        float, typer.Option(help="Machines have run U[0, this] s before (warm-up drift).")
+    ] = ReplayConfig.max_start_time,
+    model: ModelPath = MODEL_PATH,
+) -> None:
+    """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
+    campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
+    config = ReplayConfig(
+        runs=runs, seed=seed, modes=_modes(modes), kp=kp, kd=kd, max_start_time=max_start_time
+    )
+    resolved = {
+        "command": "crank replay",
+        "argv": sys.argv[1:],
+        "ocp": str(ocp),
+        "replay": config.as_dict(),
+        "model": str(model),
+        "project_version": __version__,
+    }
+    stats = replay_campaign(ocp=ocp, out=out, config=config, model=model, resolved=resolved)
+    _print_replay(stats, out)
+
+
+@app.command("recover")
+@_one_line_errors
+def recover_command(
+    broken: Annotated[Path, typer.Argument(help="MCAP left by a crashed campaign (.partial).")],
+    fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
+) -> None:
+    """Rebuild a readable, indexed MCAP from what a crashed campaign writer left."""
+    result = recover(broken, fixed)
+    state = "was complete" if result.complete else "was cut short"
+    typer.echo(
+        f"wrote {fixed}: {result.runs} complete runs, {result.messages} messages "
+        f"({result.dropped_messages} of an unfinished run dropped); {broken} {state}"
+    )
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or (
+        sys.platform in ("darwin", "win32")
+    )
+
+
+@app.command("view")
+@_one_line_errors
+def view_command(
+    path: Annotated[Path, typer.Argument(help="A campaign's .rrd (or an .mcap log).")],
+) -> None:
+    """Open a recording in the Rerun viewer, or say how to open it where there is no display."""
+    if not path.is_file():
+        raise OutputError(f"file not found: {path}")
+    if path.suffix == ".mcap":
+        typer.echo(
+            f"{path} is an MCAP log: open it in Foxglove (Open local file), or view the "
+            f"Rerun recording beside it: crank view {path.with_suffix('.rrd')}"
+        )
+        return
+    if path.suffix != ".rrd":
+        raise OutputError(f"crank view opens .rrd recordings (or names .mcap logs), got {path}")
+    check_recording(path)
+    if not _has_display():
+        typer.echo(
+            f"no display here: copy {path} to a machine with a display and run "
+            f"`rerun {path.name}` (rerun-sdk {rerun_version()}), or drop it on the Rerun "
+            "web viewer of the same version"
+        )
+        return
+    subprocess.Popen([sys.executable, "-m", "rerun", str(path)], start_new_session=True)
+    typer.echo(f"opened {path} in the Rerun viewer")
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2) + "\n")
+        tmp.write_text(json.dumps(finite_or_none(payload), indent=2, allow_nan=False) + "\n")
 
 
 def main() -> None:

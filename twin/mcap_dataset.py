@@ -39,6 +39,11 @@ MEASUREMENT_TOPIC = "/slider_crank/measurement"
 TRUTH_TOPIC = "/slider_crank/truth"
 RUN_METADATA = "run"
 MODEL_ATTACHMENT = "model.xml"
+CHANNELS = (
+    (MEASUREMENT_TOPIC, "slider_crank.Measurement", MEASUREMENT_FIELDS),
+    (TRUTH_TOPIC, "slider_crank.Truth", TRUTH_FIELDS),
+)
+"""(topic, schema title, field names) of the contract's channels."""
 
 _DESCRIPTIONS = {
     "t": "simulated time in s, running across episodes",
@@ -63,12 +68,16 @@ class ContractError(ValueError):
     """A file is not a dataset MCAP, or breaks the contract; the message names what is wrong."""
 
 
-def _schema(title: str, names: tuple[str, ...]) -> bytes:
+def message_schema(
+    title: str, names: tuple[str, ...], *, extra: dict[str, dict] | None = None
+) -> bytes:
+    """JSON schema of a contract channel's messages; `extra` adds tagged properties (e.g. a
+    replay's run, profile and mode) that readers of the contract ignore."""
     props = {
         n: {"type": "integer" if n == "episode" else "number", "description": _DESCRIPTIONS[n]}
         for n in names
-    }
-    schema = {"title": title, "type": "object", "properties": props, "required": list(names)}
+    } | (extra or {})
+    schema = {"title": title, "type": "object", "properties": props, "required": list(props)}
     return json.dumps(schema).encode()
 
 
@@ -98,11 +107,8 @@ def write_dataset(
         writer.add_metadata(RUN_METADATA, {k: json.dumps(v) for k, v in run.items()})
         writer.add_attachment(0, 0, MODEL_ATTACHMENT, "application/xml", model_xml.encode())
         channels = {}
-        for topic, title, names in (
-            (MEASUREMENT_TOPIC, "slider_crank.Measurement", MEASUREMENT_FIELDS),
-            (TRUTH_TOPIC, "slider_crank.Truth", TRUTH_FIELDS),
-        ):
-            schema_id = writer.register_schema(title, "jsonschema", _schema(title, names))
+        for topic, title, names in CHANNELS:
+            schema_id = writer.register_schema(title, "jsonschema", message_schema(title, names))
             channels[topic] = writer.register_channel(topic, "json", schema_id)
         rows = {topic: list(zip(*cols.values(), strict=True)) for topic, cols in columns.items()}
         keys = {topic: tuple(cols) for topic, cols in columns.items()}

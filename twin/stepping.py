@@ -12,6 +12,10 @@ the S steps from t_k to t_{k+1}.
 
 Because the MJCF disables solver warm-starting, a trajectory does not depend on where it is cut
 into chunks, and it equals a plain `mj_step` loop bit for bit (tests/test_stepping.py).
+
+Closed loop: with a `feedback` law the rollout advances one sample at a time; before sample k the
+law sees every run's state at t_k and returns a torque added to `tau[:, k]` (then clipped). With
+a law that returns zeros the result equals the open-loop one bit for bit.
 """
 
 from __future__ import annotations
@@ -101,6 +105,7 @@ def simulate(
     chunk_samples: int = 250,
     nthread: int | None = None,
     on_chunk: Callable[[int], None] | None = None,
+    feedback: Callable[[int, np.ndarray], np.ndarray] | None = None,
 ) -> Runs:
     """Run one machine per draw through its torque and disturbance, natively and in chunks.
 
@@ -115,6 +120,8 @@ def simulate(
       chunk_samples: samples per native rollout call; the drift is held constant over one.
       nthread: rollout threads (default: all cores).
       on_chunk: called with the number of samples just completed, for progress reporting.
+      feedback: closed-loop law `(k, states at t_k (n_runs, nstate)) -> torque (n_runs,)`, added
+        to `tau[:, k]` before clipping; `Runs.tau` then holds the torque actually applied.
     """
     n_runs, n_samples = tau.shape
     if len(draws) != n_runs or disturbance.shape != tau.shape:
@@ -133,9 +140,10 @@ def simulate(
 
     layout = physics.layout
     limit = physics.torque_limit
-    tau = np.clip(tau, -limit, limit)
+    motor = layout.actuator["motor_torque"]
+    tau = np.clip(tau, -limit, limit) if feedback is None else np.array(tau, dtype=float)
     controls = np.zeros((n_runs, n_samples, physics.model.nu))
-    controls[..., layout.actuator["motor_torque"]] = tau
+    controls[..., motor] = tau
     controls[..., layout.actuator["slider_disturbance"]] = disturbance
 
     models = [copy.copy(physics.model) for _ in range(n_runs)]
@@ -151,7 +159,15 @@ def simulate(
             apply(model, draw=draw, friction=now, layout=layout)
             for name, values in friction.items():
                 values[i, start:stop] = getattr(now, name)
-        sensordata[:, start:stop], state = stepper.step(models, state, controls[:, start:stop])
+        if feedback is None:
+            sensordata[:, start:stop], state = stepper.step(models, state, controls[:, start:stop])
+        else:
+            for k in range(start, stop):
+                tau[:, k] = np.clip(tau[:, k] + feedback(k, state), -limit, limit)
+                controls[:, k, motor] = tau[:, k]
+                sensordata[:, k : k + 1], state = stepper.step(
+                    models, state, controls[:, k : k + 1]
+                )
         if on_chunk is not None:
             on_chunk(stop - start)
 

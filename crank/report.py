@@ -1,0 +1,136 @@
+"""What `crank run` tells its user: terminal summaries and `report.md` beside `report.json`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ppann.pipeline import finite_or_none
+from replay.statistics import format_table, summary_rows
+from twin.atomic import atomic_path
+
+FIGURES = (
+    ("dataset.excitation.png", "Dataset: excitation torque and response (paper Fig. 5)"),
+    ("dataset.coverage.png", "Dataset: coverage of θ and ω (Fig. 6)"),
+    ("model.maps.png", "PPANN networks over θ and ω (Fig. 7)"),
+    ("model.validation.png", "Free runs on the validation data (Fig. 8)"),
+    ("model.bands.png", "Monte-Carlo ±3σ bands against the twin (Fig. 9)"),
+    ("model.calibration.png", "Predicted against observed σ"),
+    ("ocp.nominal.png", "Nominal OCP (Fig. 10)"),
+    ("ocp.robust.png", "Robust OCP and its margin iterations (Fig. 11)"),
+    ("replay.png", "Replays on the twin (Fig. 12)"),
+)
+
+
+def _number(value: Any, spec: str) -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+def train_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """The training report in a few lines (n/a where a diverged draw left no number)."""
+    report = finite_or_none(report)
+    rows: dict[str, Any] = {}
+    for kind, entry in report["models"].items():
+        r10 = entry["rmse_10_step"]
+        rows[f"{kind} 10-step RMSE θ / ω"] = (
+            f"{_number(r10['theta'], '.4f')} rad / {_number(r10['omega'], '.3f')} rad/s"
+        )
+    for mode in ("step", "trajectory"):
+        c = report["calibration"][mode]
+        rows[f"σ predicted/observed ({mode})"] = (
+            f"θ {_number(c['theta']['median'], '.2f')}, "
+            f"slider {_number(c['slider_position']['median'], '.2f')}"
+        )
+    rows["PPANN training"] = f"{report['models']['ppann']['train_seconds']:.1f} s"
+    return rows
+
+
+def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
+    """The OCP result in a few lines."""
+    n, r = payload["nominal"], payload["robust"]
+    t = payload["timing"]
+    return {
+        "nominal cost": f"{n['cost']:.6g}",
+        "robust cost": f"{r['cost']:.6g} ({r['cost'] / n['cost'] - 1:+.1%})",
+        "robust iterations": len(payload["robust_iterations"]),
+        "final margins": ", ".join(
+            f"{1e3 * (h - payload['config']['height']):.2f} mm" for h in r["heights"]
+        ),
+        "nominal solve": f"{t['nominal_solve_s']:.2f} s",
+        "robust loop": f"{t['robust_loop_s']:.2f} s",
+    }
+
+
+def _rows(title: str, rows: dict[str, Any]) -> list[str]:
+    lines = [f"## {title}", "", "| | |", "| --- | --- |"]
+    lines += [
+        f"| {k} | {v:.6g} |" if isinstance(v, float) else f"| {k} | {v} |" for k, v in rows.items()
+    ]
+    return [*lines, ""]
+
+
+def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) -> str:
+    """report.md: the verdict first, then the replay table, the steps, the figures, the files."""
+    config = report["config"]
+    claim = stats["claim"]
+    runs = stats["config"]["runs"]
+    samples = ", ".join(str(k) for k in stats["ocp"]["constraint_samples"])
+    if claim["holds"] is None:
+        verdict = "Open loop was not replayed, so the paper's claim was not checked."
+    else:
+        word = "**holds**" if claim["holds"] else "**does not hold**"
+        verdict = (
+            f"The paper's claim {word} on this twin: open loop, the robust torque left the slider "
+            f"below {stats['ocp']['height']:g} m at a constraint sample ({samples}) in "
+            f"{claim['robust_open_violating_runs']} of {runs} runs, the nominal torque in "
+            f"{claim['nominal_open_violating_runs']} (the claim needs 0 and at least "
+            f"{claim['nominal_needed']}). Robust cost premium: "
+            f"{stats['ocp']['robust_cost_premium']:+.1%}."
+        )
+    lines = [
+        f"# crank run `{run_dir.name}`",
+        "",
+        verdict,
+        "",
+        "## Replays on the twin",
+        "",
+        f"{runs} machines per profile and mode (the same machines for all), seed {config['seed']}; "
+        f"violations and lowest slider position at samples {samples}; kσ of the slider observed "
+        "over the runs | predicted by the PPANN's Monte-Carlo; θ error at the last sample; Σu² "
+        "applied (planned).",
+        "",
+        format_table(summary_rows(stats), markdown=True),
+        "",
+        *_rows("Dataset", report["dataset"]),
+        *_rows("PPANN", train_summary(report["ppann"])),
+        *_rows("OCP", report["ocp"]),
+        *_rows("Wall time [s]", {k: f"{v:.1f}" for k, v in report["wall_seconds"].items()}),
+        "## Figures",
+        "",
+    ]
+    for name, caption in FIGURES:
+        if (run_dir / name).exists():
+            lines += [f"### {caption}", "", f"![{caption}]({name})", ""]
+    lines += [
+        "## Files",
+        "",
+        "- `config.json`: the resolved configuration and seeds of every step",
+        "- `dataset.mcap`: the training dataset (Foxglove; `crank inspect`)",
+        "- `model.pt`, `model.report.json`: the PPANN and its validation",
+        "- `ocp.json`: nominal and robust torques with their predicted bands",
+        "- `replay.mcap`: every replay, tagged by run, profile and mode (Foxglove)",
+        "- `replay.rrd`: the same for the Rerun viewer (`crank view replay.rrd`)",
+        "- `replay.stats.json`: the statistics above, per sample",
+        "",
+        "Reproduce with `crank run " + " ".join(config.get("argv", [])[1:]) + "` (same seed, "
+        "same numbers).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_markdown(path: str | Path, report: dict[str, Any], *, stats: dict[str, Any]) -> None:
+    path = Path(path)
+    text = markdown(report, stats=stats, run_dir=path.parent)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)

@@ -1,0 +1,1 @@
+"""Replay campaigns of OCP torques on the twin: simulation, statistics, logs, recordings."""

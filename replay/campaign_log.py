@@ -1,0 +1,298 @@
+"""The campaign log: an MCAP in the dataset contract, one episode per run, flushed run by run.
+
+A campaign log *is* a dataset file (twin/mcap_dataset.py): the same two channels, `t` running on
+across episodes, a `run` metadata record and `model.xml`, so `read_dataset` loads it. Each replay
+(one profile, one mode, one machine) is an episode; every message also carries
+
+  run       index of the machine (0..runs-1), the same machine in every profile and mode
+  profile   "nominal" or "robust"
+  mode      "open" or "closed"
+  sample    the OCP's 1-based sample k (t within the run = (k - 1) Ts)
+
+Records: metadata `run` (the campaign: seed, config, versions; written and flushed first), one
+metadata `replay_run` per completed run (episode, run, profile, mode, machine draw, start time),
+attachments `model.xml`, `ocp.json` and `config.json` (the resolved replay config).
+
+Crash safety: the log is written to `<out>.partial` and renamed when finished. After each run the
+writer closes its chunk and flushes the file, so a killed campaign leaves every completed run on
+disk; `recover` rebuilds an indexed MCAP from such a file, keeping the runs whose `replay_run`
+record made it (a run's record is written after its messages).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import mujoco
+import numpy as np
+import orjson
+import zstandard
+from mcap.exceptions import McapError
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from replay.campaign import Machines, Replay, ReplayConfig
+from twin import __version__
+from twin.atomic import OutputError, atomic_path, check_writable
+from twin.mcap_dataset import (
+    CHANNELS,
+    MCAP_MAGIC,
+    MEASUREMENT_TOPIC,
+    RUN_METADATA,
+    TRUTH_TOPIC,
+    message_schema,
+)
+from twin.physics import SAMPLE_RATE, SliderCrank, model_sha256
+
+REPLAY_RUN_METADATA = "replay_run"
+OCP_ATTACHMENT = "ocp.json"
+CONFIG_ATTACHMENT = "config.json"
+TAGS = {
+    "run": {"type": "integer", "description": "machine index, shared by all profiles and modes"},
+    "profile": {"type": "string", "description": "torque profile: nominal or robust"},
+    "mode": {"type": "string", "description": "open loop or closed loop (feedforward + PD)"},
+    "sample": {"type": "integer", "description": "the OCP's 1-based sample k, t_k = (k - 1) Ts"},
+}
+
+
+class RecoverError(ValueError):
+    """A file cannot be recovered (not an MCAP, or nothing readable in it)."""
+
+
+def partial_path(out: str | Path) -> Path:
+    """Where a campaign log is written until it is complete."""
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+class CampaignLog:
+    """Streams a campaign into an MCAP, run by run. Use as a context manager; the file appears
+    at `out` only when the campaign finished, and stays at `partial_path(out)` if it did not."""
+
+    def __init__(
+        self,
+        out: str | Path,
+        *,
+        header: dict[str, Any],
+        attachments: dict[str, tuple[str, bytes]],
+        physics: SliderCrank,
+        n_samples: int,
+    ) -> None:
+        self.out = check_writable(out)
+        self.partial = partial_path(self.out)
+        self.physics = physics
+        self.n_samples = n_samples
+        self.episodes = 0
+        self.runs_written = 0
+        self._file: BinaryIO = open(self.partial, "wb")  # noqa: SIM115 - closed in close()
+        self.writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self.writer.start(profile="", library=f"crank-replay {__version__}")
+        self.writer.add_metadata(RUN_METADATA, {k: json.dumps(v) for k, v in header.items()})
+        for name, (media_type, data) in attachments.items():
+            self.writer.add_attachment(0, 0, name, media_type, data)
+        self.channels = {}
+        for topic, title, names in CHANNELS:
+            schema = message_schema(title, names, extra=TAGS)
+            schema_id = self.writer.register_schema(title, "jsonschema", schema)
+            self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
+        self.writer.flush()
+
+    def write_replay(
+        self, replay: Replay, machines: Machines, *, on_run: Callable[[int], None] | None = None
+    ) -> None:
+        """Append every run of `replay`, each as one episode, flushing after each run."""
+        n = self.n_samples
+        for run in range(replay.runs):
+            episode = self.episodes
+            t0 = episode * n
+            tags = {"run": run, "profile": replay.profile, "mode": replay.mode}
+            columns = {
+                MEASUREMENT_TOPIC: {
+                    "theta": replay.theta[run],
+                    "omega": replay.omega[run],
+                    "tau": replay.tau[run],
+                    "slider_position": replay.slider_position[run],
+                },
+                TRUTH_TOPIC: {
+                    "crank_angle": replay.crank_angle[run],
+                    "backlash_angle": replay.backlash_angle[run],
+                    "disturbance_force": replay.disturbance[run],
+                    "loop_closure_error": replay.loop_closure_error[run],
+                    **{name: values[run] for name, values in replay.friction.items()},
+                    "backlash_width": np.full(n, machines.draws[run].backlash_width),
+                },
+            }
+            for topic, cols in columns.items():
+                keys = tuple(cols)
+                rows = zip(*(v.tolist() for v in cols.values()), strict=True)
+                for k, values in enumerate(rows):
+                    t = (t0 + k) / SAMPLE_RATE
+                    log_time = round(t * 1e9)
+                    message = {"t": t, "episode": episode, **dict(zip(keys, values, strict=True))}
+                    self.writer.add_message(
+                        self.channels[topic],
+                        log_time=log_time,
+                        publish_time=log_time,
+                        sequence=t0 + k,
+                        data=orjson.dumps(message | tags | {"sample": k + 1}),
+                    )
+            record = {
+                "episode": episode,
+                **tags,
+                "start_time_s": float(machines.start_times[run]),
+                "machine": machines.draws[run].as_dict(),
+            }
+            self.writer.add_metadata(
+                REPLAY_RUN_METADATA, {k: json.dumps(v) for k, v in record.items()}
+            )
+            self.writer.flush()
+            self.episodes += 1
+            self.runs_written += 1
+            if on_run is not None:
+                on_run(self.runs_written)
+
+    def finish(self) -> Path:
+        """Write the summary and index, and move the log to `out`."""
+        self.writer.finish()
+        self._file.close()
+        os.replace(self.partial, self.out)
+        return self.out
+
+    def close(self) -> None:
+        """Close without finishing: the partial file stays for `crank recover`."""
+        if not self._file.closed:
+            self._file.flush()
+            self._file.close()
+
+    def __enter__(self) -> CampaignLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def campaign_header(
+    config: ReplayConfig, *, physics: SliderCrank, n_samples: int, model_path: str | Path
+) -> dict[str, Any]:
+    """The `run` metadata record of a campaign log."""
+    return {
+        "kind": "replay-campaign",
+        "seed": config.seed,
+        "rate_hz": SAMPLE_RATE,
+        "samples_per_run": n_samples,
+        "episodes_planned": config.runs * 2 * len(config.modes),
+        "physics_timestep": physics.model.opt.timestep,
+        "substeps": physics.substeps,
+        "torque_limit": physics.torque_limit,
+        "config": config.as_dict(),
+        "project_version": __version__,
+        "mujoco_version": mujoco.__version__,
+        "numpy_version": np.__version__,
+        "python_version": platform.python_version(),
+        "mjcf_path": str(model_path),
+        "mjcf_sha256": model_sha256(model_path),
+    }
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """What `recover` kept."""
+
+    runs: int
+    messages: int
+    dropped_messages: int
+    complete: bool
+    """Whether the broken file was in fact complete (it had its footer)."""
+
+
+_READ_ERRORS = (McapError, EOFError, struct.error, zstandard.ZstdError, ValueError, OSError)
+
+
+def _records(f: BinaryIO) -> tuple[list[Any], bool]:
+    """Every record readable from the start of `f`, and whether the file ended properly."""
+    records: list[Any] = []
+    try:
+        for record in StreamReader(f, skip_magic=False).records:
+            records.append(record)
+    except _READ_ERRORS:
+        return records, False
+    return records, True
+
+
+def recover(broken: str | Path, fixed: str | Path) -> Recovery:
+    """Rebuild an indexed, readable MCAP at `fixed` from what a crashed writer left in `broken`.
+
+    Keeps the header, attachments, schemas, channels and the messages of every run whose
+    `replay_run` record was written; drops the messages of a run cut short.
+
+    Raises:
+      RecoverError: `broken` is missing, is not an MCAP, or holds no header.
+      OutputError: `fixed` cannot be written.
+    """
+    broken, fixed = Path(broken), Path(fixed)
+    if not broken.is_file():
+        raise RecoverError(f"file not found: {broken}")
+    if broken.resolve() == fixed.resolve():
+        raise RecoverError(f"recover into another file than its input: {broken}")
+    check_writable(fixed)
+    with open(broken, "rb") as f:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise RecoverError(f"{broken}: not an MCAP file (no MCAP magic at its start)")
+        f.seek(0)
+        records, complete = _records(f)
+    schemas = [r for r in records if isinstance(r, Schema)]
+    channels = [r for r in records if isinstance(r, Channel)]
+    metadata = [r for r in records if isinstance(r, Metadata)]
+    attachments = [r for r in records if isinstance(r, Attachment)]
+    messages = [r for r in records if isinstance(r, Message)]
+    if not any(m.name == RUN_METADATA for m in metadata):
+        raise RecoverError(f"{broken}: no `{RUN_METADATA}` metadata record; nothing to recover")
+    done = {json.loads(m.metadata["episode"]) for m in metadata if m.name == REPLAY_RUN_METADATA}
+    keep = [m for m in messages if orjson.loads(m.data).get("episode") in done]
+    with atomic_path(fixed) as tmp, open(tmp, "wb") as out:
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile="", library=f"crank-recover {__version__}")
+        schema_ids = {}
+        for s in {s.id: s for s in schemas}.values():
+            schema_ids[s.id] = writer.register_schema(s.name, s.encoding, s.data)
+        channel_ids = {}
+        for c in {c.id: c for c in channels}.values():
+            channel_ids[c.id] = writer.register_channel(
+                c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata
+            )
+        for m in metadata:
+            writer.add_metadata(m.name, m.metadata)
+        for a in attachments:
+            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        for m in keep:
+            writer.add_message(
+                channel_ids[m.channel_id],
+                log_time=m.log_time,
+                data=m.data,
+                publish_time=m.publish_time,
+                sequence=m.sequence,
+            )
+        writer.finish()
+    return Recovery(
+        runs=len(done),
+        messages=len(keep),
+        dropped_messages=len(messages) - len(keep),
+        complete=complete,
+    )
+
+
+def check_not_partial(path: Path) -> None:
+    """Refuse to write a campaign over a `.partial` left by a crash (it may hold runs to keep)."""
+    if partial_path(path).exists():
+        raise OutputError(
+            f"{partial_path(path)} exists (a crashed campaign?): recover it with "
+            f"`crank recover {partial_path(path)} FIXED.mcap` or delete it"
+        )

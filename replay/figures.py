@@ -1,0 +1,67 @@
+"""Paper Fig. 12 for a campaign: every run's slider position against the constraint, nominal
+beside robust, one row per mode, and the torques actually applied."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from control.figures import constraint_boxes
+from control.ocp_file import OCPFile
+from replay.campaign import PROFILES, Campaign
+
+COLORS = {"nominal": "C0", "robust": "C3"}
+
+
+def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Figure:
+    """Rows: slider position per mode, then torque; columns: nominal, robust."""
+    modes = campaign.config.modes
+    fig = Figure(figsize=(11, 3.2 * (len(modes) + 1)), layout="constrained")
+    axes = fig.subplots(len(modes) + 1, 2, sharex=True, squeeze=False)
+    t = np.arange(ocp.horizon) * ocp.dt
+    k = ocp.config.k_sigma
+    for col, profile in enumerate(PROFILES):
+        color = COLORS[profile]
+        planned = getattr(ocp, profile)
+        for row, mode in enumerate(modes):
+            ax = axes[row, col]
+            replay = campaign.replays[profile, mode]
+            s = stats["profiles"][profile][mode]
+            ax.plot(t, replay.slider_position.T, color=color, lw=0.4, alpha=0.35)
+            ax.fill_between(
+                t,
+                planned.slider_lower,
+                planned.slider_upper,
+                color="k",
+                alpha=0.12,
+                label=f"PPANN ±{k:g}σ",
+            )
+            ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
+            ax.plot(t, s["slider"]["lower"], "k--", lw=0.8, label=f"twin ±{k:g}σ")
+            ax.plot(t, s["slider"]["upper"], "k--", lw=0.8)
+            constraint_boxes(ax, ocp)
+            ax.set_ylim(-0.005, 0.105)
+            shown = ", ".join(f"{v} at k={n}" for n, v in s["violations"].items())
+            ax.set_title(f"{profile}, {mode} loop: {shown} of {s['runs']} below", fontsize=10)
+            ax.set_ylabel("slider position [m]")
+            if row == 0 and col == 0:
+                ax.legend(loc="lower right", fontsize=7)
+        ax = axes[-1, col]
+        for mode, style in zip(modes, ("-", ":"), strict=False):
+            applied = campaign.replays[profile, mode].tau
+            ax.fill_between(t, applied.min(axis=0), applied.max(axis=0), color=color, alpha=0.2)
+            ax.plot(
+                t,
+                applied.mean(axis=0),
+                style,
+                color=color,
+                lw=1,
+                label=f"{mode} loop (mean, range)",
+            )
+        ax.plot(t, planned.tau, color="k", lw=1, label="planned")
+        ax.set_ylabel("τ applied [N·m]")
+        ax.set_xlabel("t [s]")
+        ax.legend(fontsize=7)
+    return fig

@@ -1,0 +1,177 @@
+"""What a campaign showed: violations, spread against the PPANN's prediction, tracking, effort.
+
+`<campaign>.stats.json` keys (stable; `version` changes if any meaning does):
+
+  format, version         "crank-replay-stats", 1
+  ocp                     {path, height, constraint_samples (1-based), k_sigma, robust_cost_premium}
+  config                  the resolved ReplayConfig (runs, seed, modes, gains, variability)
+  claim                   {nominal_open_violating_runs, robust_open_violating_runs, holds}: the
+                          paper's claim, robust open loop 0 runs below the height at any
+                          constraint sample and nominal open loop at least 10 of 100
+  profiles.<nominal|robust>.<open|closed>:
+    runs                  runs played
+    violations            {sample: runs whose measured slider < height at that sample}
+    violating_runs        runs below the height at any constraint sample
+    constraint            {sample: {height, lowest, mean, observed_k_sigma, predicted_k_sigma,
+                          clearance}}: slider at the constraint samples, m; observed k·σ over the
+                          runs beside the PPANN's Monte-Carlo k·σ; clearance = lowest − height
+    final_error           {theta, omega}: each {mean, std, max_abs} of the measured state minus
+                          the OCP's θ_N, ω_N at sample N
+    effort                {applied_mean, applied_std, planned}: Σ u_k² over the N samples
+    slider                {mean, lower, upper}: per-sample mean and mean ∓ k·σ over the runs, m
+  timing                  {simulate_s, log_s, total_s}
+  created                 ISO time of writing
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from control.ocp_file import OCPFile
+from replay.campaign import PROFILES, Campaign, Replay
+from twin.atomic import atomic_path
+
+FORMAT = "crank-replay-stats"
+VERSION = 1
+CLAIM_NOMINAL_MIN = 10
+"""The nominal profile must break the constraint on at least this many of 100 open-loop runs."""
+
+
+def _spread(values: np.ndarray) -> dict[str, float]:
+    return {
+        "mean": float(values.mean()),
+        "std": float(values.std(ddof=1)) if len(values) > 1 else 0.0,
+        "max_abs": float(np.abs(values).max()),
+    }
+
+
+def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
+    """The statistics of one profile in one mode (keys as in the module docstring)."""
+    c = ocp.config
+    planned = getattr(ocp, replay.profile)
+    slider = replay.slider_position
+    k = c.k_sigma
+    ddof = 1 if replay.runs > 1 else 0
+    mean, sigma = slider.mean(axis=0), slider.std(axis=0, ddof=ddof)
+    constraint, violations = {}, {}
+    below = np.zeros(replay.runs, dtype=bool)
+    for sample in c.constraint_samples:
+        at = slider[:, sample - 1]
+        below |= at < c.height
+        violations[str(sample)] = int(np.count_nonzero(at < c.height))
+        constraint[str(sample)] = {
+            "height": c.height,
+            "lowest": float(at.min()),
+            "mean": float(at.mean()),
+            "observed_k_sigma": float(k * sigma[sample - 1]),
+            "predicted_k_sigma": float(k * planned.slider_sigma[sample - 1]),
+            "clearance": float(at.min() - c.height),
+        }
+    return {
+        "runs": replay.runs,
+        "violations": violations,
+        "violating_runs": int(np.count_nonzero(below)),
+        "constraint": constraint,
+        "final_error": {
+            "theta": _spread(replay.theta[:, -1] - c.theta_end),
+            "omega": _spread(replay.omega[:, -1] - c.omega_end),
+        },
+        "effort": {
+            "applied_mean": float(np.sum(replay.tau**2, axis=1).mean()),
+            "applied_std": float(np.sum(replay.tau**2, axis=1).std(ddof=ddof)),
+            "planned": float(np.sum(planned.tau**2)),
+        },
+        "slider": {
+            "mean": mean.tolist(),
+            "lower": (mean - k * sigma).tolist(),
+            "upper": (mean + k * sigma).tolist(),
+        },
+    }
+
+
+def campaign_statistics(
+    campaign: Campaign,
+    ocp: OCPFile,
+    *,
+    ocp_path: str | Path,
+    timing: dict[str, float],
+) -> dict[str, Any]:
+    """Every profile and mode, the claim, and what produced them."""
+    c = ocp.config
+    profiles: dict[str, dict[str, Any]] = {p: {} for p in PROFILES}
+    for (profile, mode), replay in campaign.replays.items():
+        profiles[profile][mode] = replay_statistics(replay, ocp)
+    claim: dict[str, Any] = {"holds": None}
+    if "open" in campaign.config.modes:
+        nominal = profiles["nominal"]["open"]["violating_runs"]
+        robust = profiles["robust"]["open"]["violating_runs"]
+        needed = int(np.ceil(CLAIM_NOMINAL_MIN * campaign.config.runs / 100))
+        claim = {
+            "nominal_open_violating_runs": nominal,
+            "robust_open_violating_runs": robust,
+            "nominal_needed": needed,
+            "holds": robust == 0 and nominal >= needed,
+        }
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "ocp": {
+            "path": str(ocp_path),
+            "height": c.height,
+            "constraint_samples": list(c.constraint_samples),
+            "k_sigma": c.k_sigma,
+            "robust_cost_premium": ocp.robust.cost / ocp.nominal.cost - 1.0,
+        },
+        "config": campaign.config.as_dict(),
+        "claim": claim,
+        "profiles": profiles,
+        "timing": timing,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+
+
+def write_statistics(path: str | Path, stats: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(stats, indent=1, allow_nan=False))
+
+
+def summary_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
+    """One row per profile and mode, for the terminal table and report.md."""
+    rows = []
+    samples = stats["ocp"]["constraint_samples"]
+    k = f"{stats['ocp']['k_sigma']:g}σ"
+    for profile, modes in stats["profiles"].items():
+        for mode, s in modes.items():
+            row = {"profile": profile, "mode": mode}
+            for n in samples:
+                c = s["constraint"][str(n)]
+                row[f"below@{n}"] = f"{s['violations'][str(n)]}/{s['runs']}"
+                row[f"lowest@{n} mm"] = f"{1e3 * c['lowest']:.1f}"
+                row[f"{k}@{n} obs|pred mm"] = (
+                    f"{1e3 * c['observed_k_sigma']:.1f}|{1e3 * c['predicted_k_sigma']:.1f}"
+                )
+            theta = s["final_error"]["theta"]
+            row["θ_N err rad"] = f"{theta['mean']:+.3f}±{theta['std']:.3f}"
+            row["Σu² (plan)"] = f"{s['effort']['applied_mean']:.0f} ({s['effort']['planned']:.0f})"
+            rows.append(row)
+    return rows
+
+
+def format_table(rows: list[dict[str, str]], *, markdown: bool = False) -> str:
+    """The rows as an aligned text table, or a Markdown one."""
+    if not rows:
+        return ""
+    keys = list(rows[0])
+    if markdown:
+        lines = ["| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
+        lines += ["| " + " | ".join(r[k] for k in keys) + " |" for r in rows]
+        return "\n".join(lines)
+    widths = {k: max(len(k), *(len(r[k]) for r in rows)) for k in keys}
+    lines = ["  ".join(k.ljust(widths[k]) for k in keys)]
+    lines += ["  ".join(r[k].ljust(widths[k]) for k in keys) for r in rows]
+    return "\n".join(lines)
