@@ -96,7 +96,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "",
         f"{runs} machines per profile and mode (the same machines for all), seed {config['seed']}; "
         f"violations and lowest slider position at samples {samples}; kσ of the slider observed "
-        "over the runs | predicted by the PPANN's Monte-Carlo; θ error at the last sample; Σu² "
+        "over the runs / predicted by the PPANN's Monte-Carlo; θ error at the last sample; Σu² "
         "applied (planned).",
         "",
         format_table(summary_rows(stats), markdown=True),

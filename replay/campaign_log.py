@@ -144,6 +144,7 @@ class CampaignLog:
                         sequence=t0 + k,
                         data=orjson.dumps(message | tags | {"sample": k + 1}),
                     )
+            self.writer.flush()  # the run's chunk reaches the file before its record
             record = {
                 "episode": episode,
                 **tags,

@@ -152,8 +152,8 @@ def summary_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
                 c = s["constraint"][str(n)]
                 row[f"below@{n}"] = f"{s['violations'][str(n)]}/{s['runs']}"
                 row[f"lowest@{n} mm"] = f"{1e3 * c['lowest']:.1f}"
-                row[f"{k}@{n} obs|pred mm"] = (
-                    f"{1e3 * c['observed_k_sigma']:.1f}|{1e3 * c['predicted_k_sigma']:.1f}"
+                row[f"{k}@{n} obs/pred mm"] = (
+                    f"{1e3 * c['observed_k_sigma']:.1f}/{1e3 * c['predicted_k_sigma']:.1f}"
                 )
             theta = s["final_error"]["theta"]
             row["θ_N err rad"] = f"{theta['mean']:+.3f}±{theta['std']:.3f}"

@@ -1,0 +1,440 @@
+"""Replay campaigns: exact equality with plain mj_step loops, closed loop, the campaign log
+(dataset loader, SIGKILL + recover), the Rerun recording, statistics and one-line errors."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from control.ocp import OCPConfig
+from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
+from replay.campaign import ReplayConfig, ReplayConfigError, draw_machines, play, run_campaign
+from replay.campaign_log import partial_path
+from replay.files import output_paths, replay_file
+from replay.recording import check_recording
+from replay.statistics import campaign_statistics, replay_statistics
+from tests.conftest import crank
+from twin.mcap_dataset import ContractError, read_dataset, read_run, read_truth
+from twin.physics import STATE_SPEC, SliderCrank, slider_position_formula
+from twin.stepping import chunk_time
+from twin.variability import Variability, apply
+
+N = 150
+
+
+def _nominal_twin_trajectory(physics: SliderCrank, tau: np.ndarray) -> np.ndarray:
+    """(θ, ω) of the nominal machine without disturbance under `tau`, sample by sample."""
+    model = copy.copy(physics.model)
+    nominal = Variability.none()
+    draw = nominal.nominal()
+    apply(model, draw=draw, friction=nominal.friction_at(draw, 0.0), layout=physics.layout)
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, physics.initial_state(np.pi, 0.0), STATE_SPEC)
+    motor = physics.layout.actuator["motor_torque"]
+    states = np.empty((len(tau), 2))
+    for k, u in enumerate(tau):
+        state = _state(model, data)
+        states[k] = physics.qpos(state, "motor"), physics.qvel(state, "motor")
+        data.ctrl[motor] = u
+        for _ in range(physics.substeps):
+            mujoco.mj_step(model, data)
+    return states
+
+
+def _state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+    mujoco.mj_getState(model, data, state, STATE_SPEC)
+    return state
+
+
+def _profile(tau: np.ndarray, states: np.ndarray, sigma: float) -> dict:
+    slider = slider_position_formula(states[:, 0])
+    return {
+        "time": (np.arange(N) / 500).tolist(),
+        "tau": tau.tolist(),
+        "theta": states[:, 0].tolist(),
+        "omega": states[:, 1].tolist(),
+        "slider": slider.tolist(),
+        "slider_mc_mean": slider.tolist(),
+        "slider_sigma": [sigma] * N,
+        "slider_lower": (slider - 3 * sigma).tolist(),
+        "slider_upper": (slider + 3 * sigma).tolist(),
+        "heights": [0.08, 0.08],
+        "cost": float(np.sum(tau**2)),
+        "status": "Solve_Succeeded",
+        "ipopt_iterations": 10,
+        "wall_time_s": 0.1,
+    }
+
+
+@pytest.fixture(scope="module")
+def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> Path:
+    """An ocp.json whose predicted states are the nominal twin's own: a torque that swings the
+    crank from rest at θ = π over top dead centre; 'robust' pushes 10 % harder."""
+    t = np.arange(N) / 500
+    base = 2.5 * np.cos(2 * np.pi * t / 0.3) + 0.6
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "index_convention": INDEX_CONVENTION,
+        "dt": 1 / 500,
+        "horizon": N,
+        "constraint_samples": [50, 100],
+        "config": OCPConfig().as_dict(),
+        "model": {"path": "synthetic", "sha256": "", "kind": "ppann"},
+    }
+    for name, tau, sigma in (("nominal", base, 0.006), ("robust", 1.1 * base, 0.004)):
+        payload[name] = _profile(tau, _nominal_twin_trajectory(physics, tau), sigma)
+    path = tmp_path_factory.mktemp("replay") / "ocp.json"
+    path.write_text(json.dumps(payload))
+    return path
+
+
+@pytest.fixture(scope="module")
+def ocp(ocp_path: Path) -> OCPFile:
+    return read_ocp(ocp_path)
+
+
+def _reference_run(physics, config, machines, i, profile, *, feedback: bool) -> dict:
+    """One run as a plain Python mj_step loop: its own model, friction at the replay's middle,
+    and (closed loop) the PD law computed from the state at t_k."""
+    layout = physics.layout
+    model = copy.copy(physics.model)
+    draw = machines.draws[i]
+    start = float(machines.start_times[i])
+    friction = config.variability.friction_at(draw, start + chunk_time(0, N))
+    apply(model, draw=draw, friction=friction, layout=layout)
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, physics.initial_state(np.pi, 0.0), STATE_SPEC)
+    theta, slider, tau = np.empty(N), np.empty(N), np.empty(N)
+    limit = physics.torque_limit
+    for k in range(N):
+        u = profile.tau[k]
+        if feedback:
+            state = _state(model, data)
+            u += config.kp * (profile.theta[k] - physics.qpos(state, "motor")) + config.kd * (
+                profile.omega[k] - physics.qvel(state, "motor")
+            )
+        tau[k] = np.clip(u, -limit, limit)
+        data.ctrl[layout.actuator["motor_torque"]] = tau[k]
+        data.ctrl[layout.actuator["slider_disturbance"]] = machines.disturbance[i, k]
+        for s in range(physics.substeps):
+            mujoco.mj_step(model, data)
+            if s == 0:
+                theta[k] = physics.sensor(data.sensordata, "theta")
+                slider[k] = physics.sensor(data.sensordata, "slider_position")
+    return {"theta": theta, "slider": slider, "tau": tau}
+
+
+def test_zero_variability_replays_one_trajectory_equal_to_direct_simulation(
+    physics: SliderCrank, ocp: OCPFile
+) -> None:
+    config = ReplayConfig(runs=3, variability=Variability.none())
+    machines = draw_machines(config, N)
+    replay = play(physics, ocp, profile="nominal", mode="open", machines=machines, config=config)
+    direct = _nominal_twin_trajectory(physics, ocp.nominal.tau)
+    for run in range(3):
+        np.testing.assert_array_equal(replay.theta[run], direct[:, 0])
+        np.testing.assert_array_equal(replay.omega[run], direct[:, 1])
+    # and the ocp.json was built from the same simulation, so the replay is its prediction
+    np.testing.assert_array_equal(replay.theta[0], ocp.nominal.theta)
+
+
+@pytest.mark.parametrize("mode", ["open", "closed"])
+def test_batched_replay_equals_a_per_run_mj_step_loop(
+    physics: SliderCrank, ocp: OCPFile, mode: str
+) -> None:
+    config = ReplayConfig(runs=4, seed=3, kp=40.0, kd=0.8)
+    machines = draw_machines(config, N)
+    replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
+    for i in range(config.runs):
+        ref = _reference_run(physics, config, machines, i, ocp.robust, feedback=mode == "closed")
+        np.testing.assert_array_equal(replay.theta[i], ref["theta"])
+        np.testing.assert_array_equal(replay.slider_position[i], ref["slider"])
+        np.testing.assert_array_equal(replay.tau[i], ref["tau"])
+
+
+def test_closed_loop_with_zero_gains_equals_open_loop(physics: SliderCrank, ocp: OCPFile) -> None:
+    config = ReplayConfig(runs=5, seed=1, kp=0.0, kd=0.0)
+    machines = draw_machines(config, N)
+    kwargs = {"profile": "nominal", "machines": machines, "config": config}
+    open_loop = play(physics, ocp, mode="open", **kwargs)
+    closed = play(physics, ocp, mode="closed", **kwargs)
+    for name in ("theta", "omega", "slider_position", "tau", "crank_angle"):
+        np.testing.assert_array_equal(getattr(closed, name), getattr(open_loop, name))
+
+
+def test_closed_loop_feedback_uses_the_measurements_and_tracks(
+    physics: SliderCrank, ocp: OCPFile
+) -> None:
+    config = ReplayConfig(runs=20, seed=2)
+    machines = draw_machines(config, N)
+    kwargs = {"profile": "nominal", "machines": machines, "config": config}
+    open_loop = play(physics, ocp, mode="open", **kwargs)
+    closed = play(physics, ocp, mode="closed", **kwargs)
+    # u_k - tau_k is the PD law on the encoder readings of sample k (where not saturated)
+    law = config.kp * (ocp.nominal.theta - closed.theta) + config.kd * (
+        ocp.nominal.omega - closed.omega
+    )
+    unsaturated = np.abs(closed.tau) < physics.torque_limit
+    np.testing.assert_allclose(
+        (closed.tau - ocp.nominal.tau)[unsaturated], law[unsaturated], rtol=0, atol=1e-12
+    )
+    # feedback shrinks the machine-to-machine spread of the angle at the end by > 5x
+    assert closed.theta[:, -1].std() < open_loop.theta[:, -1].std() / 5
+
+
+def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) -> None:
+    config = ReplayConfig(runs=30, seed=4, modes=("open",))
+    campaign = run_campaign(physics, ocp, config=config)
+    stats = campaign_statistics(campaign, ocp, ocp_path="x", timing={})
+    for profile in ("nominal", "robust"):
+        replay = campaign.replays[profile, "open"]
+        s = stats["profiles"][profile]["open"]
+        for k in (50, 100):
+            at = replay.slider_position[:, k - 1]
+            assert s["violations"][str(k)] == np.count_nonzero(at < 0.08)
+            assert s["constraint"][str(k)]["lowest"] == at.min()
+            assert s["constraint"][str(k)]["observed_k_sigma"] == pytest.approx(3 * at.std(ddof=1))
+        assert s["effort"]["applied_mean"] == pytest.approx(np.sum(replay.tau**2, axis=1).mean())
+        assert s["final_error"]["theta"]["mean"] == pytest.approx(
+            replay.theta[:, -1].mean() - 3 * np.pi
+        )
+    claim = stats["claim"]
+    assert claim["holds"] == (
+        claim["robust_open_violating_runs"] == 0 and claim["nominal_open_violating_runs"] >= 3
+    )
+    # same seed, same numbers
+    again = replay_statistics(
+        run_campaign(physics, ocp, config=config).replays["robust", "open"], ocp
+    )
+    assert again == stats["profiles"]["robust"]["open"]
+
+
+@pytest.fixture(scope="module")
+def campaign_files(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("campaign") / "replay.mcap"
+    replay_file(ocp_path, out, config=ReplayConfig(runs=6, seed=5))
+    return output_paths(out)
+
+
+def test_campaign_log_reads_back_through_the_dataset_loader(
+    physics: SliderCrank, ocp: OCPFile, campaign_files: dict[str, Path]
+) -> None:
+    path = campaign_files["mcap"]
+    dataset, truth, run = read_dataset(path), read_truth(path), read_run(path)
+    assert run["kind"] == "replay-campaign" and run["config"]["runs"] == 6
+    assert len(dataset) == 4 * 6 * N
+    assert np.array_equal(np.unique(dataset.episode), np.arange(24))
+    campaign = run_campaign(physics, ocp, config=ReplayConfig(runs=6, seed=5))
+    order = [("nominal", "open"), ("nominal", "closed"), ("robust", "open"), ("robust", "closed")]
+    for block, key in enumerate(order):
+        replay = campaign.replays[key]
+        rows = slice(block * 6 * N, (block + 1) * 6 * N)
+        np.testing.assert_array_equal(dataset.theta[rows], replay.theta.ravel())
+        np.testing.assert_array_equal(dataset.tau[rows], replay.tau.ravel())
+        np.testing.assert_array_equal(truth.disturbance_force[rows], replay.disturbance.ravel())
+    # every message is tagged; one metadata record per run; OCP and config attached
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        first = next(reader.iter_messages())[2]
+        tags = json.loads(first.data)
+        runs = [m for m in reader.iter_metadata() if m.name == "replay_run"]
+        attachments = {a.name for a in reader.iter_attachments()}
+    assert {tags["run"], tags["profile"], tags["mode"], tags["sample"]} == {0, "nominal", "open", 1}
+    assert len(runs) == 24
+    assert json.loads(runs[7].metadata["machine"]) == campaign.machines.draws[1].as_dict()
+    assert attachments == {"model.xml", "ocp.json", "config.json"}
+
+
+def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> None:
+    from rerun.chunk import RrdReader
+
+    path = campaign_files["rrd"]
+    assert check_recording(path) == ["crank_replay"]
+    reader = RrdReader(path)
+    assert len(reader.blueprints()) == 1
+    summary = reader.store().summary()
+    lines = {line.split()[0]: line for line in summary.splitlines()}
+    for entity in (
+        "/mechanism/nominal/linkage",
+        "/mechanism/robust/slider",
+        "/slider/nominal/open/runs",
+        "/slider/robust/closed/predicted_upper",
+        "/torque/robust/closed/runs",
+    ):
+        assert f"rows={N}" in lines[entity], lines.get(entity)
+        assert "timelines=['sample', 'time']" in lines[entity] or "'sample'" in lines[entity]
+    assert "/fig12/robust_open/constraint" in lines
+    assert (
+        "/slider/nominal/open/constraint" in lines
+        and "rows=2" in lines["/slider/nominal/open/constraint"]
+    )
+
+
+KILLER = textwrap.dedent(
+    """
+    import os, signal, sys
+    from replay.campaign import ReplayConfig
+    from replay.files import replay_file
+
+    def on_run(n):
+        if n == int(sys.argv[3]):
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    replay_file(sys.argv[1], sys.argv[2], config=ReplayConfig(runs=4, seed=6), on_run=on_run)
+    """
+)
+
+
+def test_killed_campaign_is_recovered_with_every_completed_run(
+    physics: SliderCrank, ocp: OCPFile, ocp_path: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "replay.mcap"
+    root = Path(__file__).resolve().parent.parent
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLER, str(ocp_path), str(out), "6"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    broken = partial_path(out)
+    assert broken.exists() and not out.exists()
+    with pytest.raises(ContractError, match="truncated"):
+        read_dataset(broken)
+    fixed = tmp_path / "fixed.mcap"
+    result = crank("recover", str(broken), str(fixed))
+    assert result.returncode == 0, result.stderr
+    assert "6 complete runs" in result.stdout
+    dataset = read_dataset(fixed)
+    assert np.array_equal(np.unique(dataset.episode), np.arange(6))
+    campaign = run_campaign(physics, ocp, config=ReplayConfig(runs=4, seed=6))
+    first = np.concatenate(
+        [
+            campaign.replays["nominal", "open"].theta.ravel(),
+            campaign.replays["nominal", "closed"].theta[:2].ravel(),
+        ]
+    )
+    np.testing.assert_array_equal(dataset.theta, first)
+    # a new campaign refuses to overwrite the crashed one's partial file
+    again = crank("replay", "--ocp", str(ocp_path), "--out", str(out), "--runs", "2")
+    assert again.returncode == 2 and "crank recover" in again.stderr
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.55, 0.8])
+def test_recover_keeps_the_complete_runs_before_any_cut(
+    campaign_files: dict[str, Path], tmp_path: Path, fraction: float
+) -> None:
+    from replay.campaign_log import recover
+
+    full = campaign_files["mcap"].read_bytes()
+    broken = tmp_path / "cut.mcap"
+    broken.write_bytes(full[: int(fraction * len(full))])  # mid-record, mid-chunk
+    result = recover(broken, tmp_path / "fixed.mcap")
+    assert not result.complete and 0 < result.runs < 24
+    recovered, reference = (
+        read_dataset(tmp_path / "fixed.mcap"),
+        read_dataset(campaign_files["mcap"]),
+    )
+    assert np.array_equal(np.unique(recovered.episode), np.arange(result.runs))
+    np.testing.assert_array_equal(
+        recovered.slider_position, reference.slider_position[: result.runs * N]
+    )
+
+
+def _broken_ocp(ocp_path: Path, tmp_path: Path, edit) -> Path:
+    raw = json.loads(ocp_path.read_text())
+    edit(raw)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(raw).replace("Infinity", "NaN"))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda r: r["robust"].pop("tau"), "missing key 'robust.tau'"),
+        (lambda r: r["nominal"]["theta"].pop(), "nominal.theta has 149 values, expected 150"),
+        (lambda r: r["nominal"]["tau"].__setitem__(3, float("inf")), "non-finite value at index 3"),
+    ],
+)
+def test_replay_rejects_a_bad_ocp_json_in_one_line(
+    ocp_path: Path, tmp_path: Path, edit, match: str
+) -> None:
+    bad = _broken_ocp(ocp_path, tmp_path, edit)
+    out = tmp_path / "out" / "replay.mcap"
+    result = crank("replay", "--ocp", str(bad), "--out", str(out), "--runs", "2")
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and match in result.stderr, result.stderr
+    assert not any(out.parent.glob("*")) if out.parent.exists() else True
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--runs", "0"], "runs must be >= 1"),
+        (["--runs", "-3"], "runs must be >= 1"),
+        (["--modes", "open,sideways"], "--modes must be"),
+        (["--kp", "nan"], "kp must be finite"),
+        (["--out", "FILE/replay.mcap"], "cannot write"),
+        (["--out", "OUT/replay.txt"], "must end in .mcap"),
+    ],
+)
+def test_replay_bad_input(ocp_path: Path, tmp_path: Path, args: list[str], match: str) -> None:
+    (tmp_path / "FILE").write_text("a file, not a folder")
+    args = [a.replace("FILE", str(tmp_path / "FILE")).replace("OUT", str(tmp_path)) for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "replay.mcap")]
+    result = crank("replay", "--ocp", str(ocp_path), *args)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and match in result.stderr, result.stderr
+    assert not list(tmp_path.glob("replay*"))
+
+
+def test_replay_config_validation() -> None:
+    with pytest.raises(ReplayConfigError, match="runs must be an integer"):
+        ReplayConfig(runs=2.5)  # type: ignore[arg-type]
+    with pytest.raises(ReplayConfigError, match="modes repeat"):
+        ReplayConfig(modes=("open", "open"))
+    assert replace(ReplayConfig(), runs=3).runs == 3
+
+
+def test_cli_replay_writes_every_file_and_view_explains(ocp_path: Path, tmp_path: Path) -> None:
+    out = tmp_path / "campaign" / "replay.mcap"
+    result = crank("replay", "--ocp", str(ocp_path), "--out", str(out), "--runs", "3")
+    assert result.returncode == 0, result.stderr
+    assert "robust" in result.stdout and "below@50" in result.stdout
+    paths = output_paths(out)
+    assert all(p.is_file() for p in paths.values())
+    stats = json.loads(paths["stats"].read_text())
+    assert stats["format"] == "crank-replay-stats" and stats["config"]["runs"] == 3
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    view = subprocess.run(
+        [sys.executable, "-m", "crank", "view", str(paths["rrd"])],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=False,
+    )
+    assert view.returncode == 0 and "no display" in view.stdout and "rerun" in view.stdout
+    garbage = tmp_path / "garbage.rrd"
+    garbage.write_text("not a recording")
+    bad = crank("view", str(garbage))
+    assert bad.returncode == 2 and "not a readable Rerun recording" in bad.stderr
