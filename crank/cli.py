@@ -82,7 +82,7 @@ def _one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt:
-            typer.echo("error: interrupted; nothing was written at the target path", err=True)
+            typer.echo("error: interrupted; no unfinished file was put at a target path", err=True)
             raise typer.Exit(130) from None
 
     return wrapper

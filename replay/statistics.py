@@ -19,7 +19,8 @@
                           the OCP's θ_N, ω_N at sample N
     effort                {applied_mean, applied_std, planned}: Σ u_k² over the N samples
     slider                {mean, lower, upper}: per-sample mean and mean ∓ k·σ over the runs, m
-  timing                  {simulate_s, log_s, total_s}
+  timing                  {simulate_s, log_s, rerun_s, total_s}: seconds simulating, writing
+                          the MCAP, writing the .rrd, and in all (figures included)
   created                 ISO time of writing
 """
 
