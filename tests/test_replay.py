@@ -288,14 +288,22 @@ def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> N
 KILLER = textwrap.dedent(
     """
     import os, signal, sys
+    from mcap.writer import Writer
     from replay.campaign import ReplayConfig
     from replay.files import replay_file
 
-    def on_run(n):
-        if n == int(sys.argv[3]):
-            os.kill(os.getpid(), signal.SIGKILL)
+    # SIGKILL in the middle of writing run 7: after half of its 2 x 150 messages
+    limit, written, add_message = 6 * 300 + 150, 0, Writer.add_message
 
-    replay_file(sys.argv[1], sys.argv[2], config=ReplayConfig(runs=4, seed=6), on_run=on_run)
+    def counting(self, *args, **kwargs):
+        global written
+        written += 1
+        if written == limit:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return add_message(self, *args, **kwargs)
+
+    Writer.add_message = counting
+    replay_file(sys.argv[1], sys.argv[2], config=ReplayConfig(runs=4, seed=6))
     """
 )
 
@@ -306,7 +314,7 @@ def test_killed_campaign_is_recovered_with_every_completed_run(
     out = tmp_path / "replay.mcap"
     root = Path(__file__).resolve().parent.parent
     killed = subprocess.run(
-        [sys.executable, "-c", KILLER, str(ocp_path), str(out), "6"],
+        [sys.executable, "-c", KILLER, str(ocp_path), str(out)],
         cwd=root,
         capture_output=True,
         text=True,
