@@ -41,7 +41,12 @@ def monte_carlo(
     mode: Mode = "step",
     seed: int = 0,
 ) -> Bands:
-    """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,)."""
+    """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
+
+    A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
+    effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
+    null rather than let NumPy print overflow warnings at the user.
+    """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if n_samples < 2:
@@ -56,10 +61,11 @@ def monte_carlo(
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
     samples[:, 0, 0], samples[:, 0, 1] = theta, omega
     dt = heads.dt
-    for k in range(steps):
-        mean, sigma = heads(theta, omega)
-        z = mean + sigma * eps[0 if mode == "trajectory" else k]
-        alpha = heads.acceleration(theta, omega, tau[k], z)
-        theta, omega = theta + dt * omega, omega + dt * alpha
-        samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
-    return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(steps):
+            mean, sigma = heads(theta, omega)
+            z = mean + sigma * eps[0 if mode == "trajectory" else k]
+            alpha = heads.acceleration(theta, omega, tau[k], z)
+            theta, omega = theta + dt * omega, omega + dt * alpha
+            samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
+        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))

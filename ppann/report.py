@@ -133,10 +133,13 @@ def ratio_summary(predicted: np.ndarray, observed: np.ndarray) -> dict[str, floa
 
 
 def calibration(band: Bands, replay: TwinReplay) -> dict[str, Any]:
-    """Predicted σ / observed σ over time for theta and the slider position."""
+    """Predicted σ / observed σ over time for theta and the slider position (NaN, reported as
+    null, where a diverged draw left no number)."""
     length = replay.theta.shape[1]
     predicted_theta = band.std[:length, 0]
-    predicted_slider = slider_position_formula(band.samples[:, :length, 0]).std(axis=0, ddof=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        slider = slider_position_formula(band.samples[:, :length, 0])
+        predicted_slider = slider.std(axis=0, ddof=1)
     observed_theta = replay.theta.std(axis=0, ddof=1)
     observed_slider = replay.slider_position.std(axis=0, ddof=1)
     return {
