@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import mujoco
 import numpy as np
 import orjson
 import zstandard
@@ -42,6 +40,7 @@ from mcap.writer import CompressionType, Writer
 from replay.campaign import Machines, Replay, ReplayConfig
 from twin import __version__
 from twin.atomic import OutputError, atomic_path, check_writable
+from twin.generation import provenance
 from twin.mcap_dataset import (
     CHANNELS,
     MCAP_MAGIC,
@@ -50,7 +49,7 @@ from twin.mcap_dataset import (
     TRUTH_TOPIC,
     message_schema,
 )
-from twin.physics import SAMPLE_RATE, SliderCrank, model_sha256
+from twin.physics import SAMPLE_RATE, SliderCrank
 
 REPLAY_RUN_METADATA = "replay_run"
 OCP_ATTACHMENT = "ocp.json"
@@ -194,12 +193,7 @@ def campaign_header(
         "substeps": physics.substeps,
         "torque_limit": physics.torque_limit,
         "config": config.as_dict(),
-        "project_version": __version__,
-        "mujoco_version": mujoco.__version__,
-        "numpy_version": np.__version__,
-        "python_version": platform.python_version(),
-        "mjcf_path": str(model_path),
-        "mjcf_sha256": model_sha256(model_path),
+        **provenance(model_path),
     }
 
 

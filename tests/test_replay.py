@@ -387,10 +387,11 @@ def test_replay_rejects_a_bad_ocp_json_in_one_line(
 ) -> None:
     bad = _broken_ocp(ocp_path, tmp_path, edit)
     out = tmp_path / "out" / "replay.mcap"
+    out.parent.mkdir()
     result = crank("replay", "--ocp", str(bad), "--out", str(out), "--runs", "2")
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and match in result.stderr, result.stderr
-    assert not any(out.parent.glob("*")) if out.parent.exists() else True
+    assert list(out.parent.iterdir()) == []  # nothing half-written, not even a .partial
 
 
 @pytest.mark.parametrize(

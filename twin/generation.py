@@ -47,6 +47,13 @@ def run_metadata(
             }
             for e in episodes
         ],
+        **provenance(model_path),
+    }
+
+
+def provenance(model_path: str | Path) -> dict[str, str]:
+    """Versions and the MJCF's path and sha256: what a file needs to say how it was made."""
+    return {
         "project_version": __version__,
         "mujoco_version": mujoco.__version__,
         "numpy_version": np.__version__,
