@@ -87,7 +87,6 @@ def main() -> None:
                 Path(tmp) / "replay.mcap",
                 header={"kind": "bench"},
                 attachments={"model.xml": ("application/xml", xml.encode())},
-                physics=physics,
                 n_samples=ocp.horizon,
             ) as log:
                 for replay in replays:

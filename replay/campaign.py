@@ -19,7 +19,6 @@ Random streams: the seed's SeedSequence spawns one child per run, and each child
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -29,7 +28,7 @@ import numpy as np
 from control.ocp_file import OCPFile, Profile
 from twin.physics import SliderCrank
 from twin.stepping import simulate
-from twin.variability import MachineDraw, Variability
+from twin.variability import MachineDraw, Variability, check_finite
 
 PROFILES = ("nominal", "robust")
 MODES = ("open", "closed")
@@ -65,11 +64,7 @@ class ReplayConfig:
         if self.seed < 0:
             raise ReplayConfigError(f"seed must be >= 0, got {self.seed}")
         for name in ("kp", "kd", "max_start_time"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ReplayConfigError(f"{name} must be a number, got {value!r}")
-            if not math.isfinite(value) or value < 0:
-                raise ReplayConfigError(f"{name} must be finite and >= 0, got {value!r}")
+            check_finite(name, getattr(self, name), nonneg=True, error=ReplayConfigError)
         if not self.modes or any(m not in MODES for m in self.modes):
             raise ReplayConfigError(
                 f"modes must be a non-empty subset of {MODES}, got {self.modes}"

@@ -82,12 +82,10 @@ class CampaignLog:
         *,
         header: dict[str, Any],
         attachments: dict[str, tuple[str, bytes]],
-        physics: SliderCrank,
         n_samples: int,
     ) -> None:
         self.out = check_writable(out)
         self.partial = partial_path(self.out)
-        self.physics = physics
         self.n_samples = n_samples
         self.episodes = 0
         self.runs_written = 0

@@ -399,8 +399,9 @@ def test_replay_rejects_a_bad_ocp_json_in_one_line(
     [
         (["--runs", "0"], "runs must be >= 1"),
         (["--runs", "-3"], "runs must be >= 1"),
-        (["--modes", "open,sideways"], "--modes must be"),
-        (["--kp", "nan"], "kp must be finite"),
+        (["--modes", "open,sideways"], "modes must be a non-empty subset of ('open', 'closed')"),
+        (["--kp", "nan"], "kp must be a finite number, got nan"),
+        (["--kd", "-1"], "kd must be >= 0"),
         (["--out", "FILE/replay.mcap"], "cannot write"),
         (["--out", "OUT/replay.txt"], "must end in .mcap"),
     ],
