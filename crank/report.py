@@ -122,11 +122,24 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "- `replay.rrd`: the same for the Rerun viewer (`crank view replay.rrd`)",
         "- `replay.stats.json`: the statistics above, per sample",
         "",
-        "Reproduce with `crank run " + " ".join(config.get("argv", [])[1:]) + "` (same seed, "
-        "same numbers).",
+        f"Reproduce with `{_rerun_args(config.get('argv', []))}` (same seed, same "
+        "numbers; `--name` for another folder name).",
         "",
     ]
     return "\n".join(lines)
+
+
+def _rerun_args(argv: list[str]) -> str:
+    """The command that repeats a run: its own arguments without its folder name."""
+    args = list(argv[1:])
+    for i, arg in enumerate(args):
+        if arg == "--name":
+            del args[i : i + 2]
+            break
+        if arg.startswith("--name="):
+            del args[i]
+            break
+    return " ".join(["crank", "run", *args])
 
 
 def write_markdown(path: str | Path, report: dict[str, Any], *, stats: dict[str, Any]) -> None:
