@@ -14,7 +14,8 @@
     violating_runs        runs below the height at any constraint sample
     constraint            {sample: {height, lowest, mean, observed_k_sigma, predicted_k_sigma,
                           clearance}}: slider at the constraint samples, m; observed k·σ over the
-                          runs beside the PPANN's Monte-Carlo k·σ; clearance = lowest − height
+                          runs beside the PPANN's Monte-Carlo k·σ (an open-loop prediction, the
+                          same in both modes); clearance = lowest − height
     final_error           {theta, omega}: each {mean, std, max_abs} of the measured state minus
                           the OCP's θ_N, ω_N at sample N
     effort                {applied_mean, applied_std, planned}: Σ u_k² over the N samples
