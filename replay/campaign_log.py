@@ -88,7 +88,7 @@ class CampaignLog:
         self.partial = partial_path(self.out)
         self.n_samples = n_samples
         self.episodes = 0
-        self.runs_written = 0
+        """Runs written so far (each run is one episode)."""
         self._file: BinaryIO = open(self.partial, "wb")  # noqa: SIM115 - closed in close()
         self.writer = Writer(self._file, compression=CompressionType.ZSTD)
         self.writer.start(profile="", library=f"crank-replay {__version__}")
@@ -153,9 +153,8 @@ class CampaignLog:
             )
             self.writer.flush()
             self.episodes += 1
-            self.runs_written += 1
             if on_run is not None:
-                on_run(self.runs_written)
+                on_run(self.episodes)
 
     def finish(self) -> Path:
         """Write the summary and index, and move the log to `out`."""

@@ -74,6 +74,7 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "predicted_k_sigma": float(k * planned.slider_sigma[sample - 1]),
             "clearance": float(at.min() - c.height),
         }
+    effort = np.sum(replay.tau**2, axis=1)
     return {
         "runs": replay.runs,
         "violations": violations,
@@ -84,8 +85,8 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "omega": _spread(replay.omega[:, -1] - c.omega_end),
         },
         "effort": {
-            "applied_mean": float(np.sum(replay.tau**2, axis=1).mean()),
-            "applied_std": float(np.sum(replay.tau**2, axis=1).std(ddof=ddof)),
+            "applied_mean": float(effort.mean()),
+            "applied_std": float(effort.std(ddof=ddof)),
             "planned": float(np.sum(planned.tau**2)),
         },
         "slider": {
