@@ -70,7 +70,10 @@ def robust_figure(ocp: OCPFile) -> Figure:
         steps = range(1, len(iterations) + 1)
         bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin used, sample {k}")
         bottom.plot(steps, sigmas, "x--", color=f"C{i}", label=f"kσ of its solution, sample {k}")
-    bottom.set_xlabel("robust iteration")
+    full = [step for step, it in enumerate(iterations, 1) if not it.get("draft", False)]
+    for step in full:
+        bottom.axvline(step, color="0.6", lw=0.8, ls=":")
+    bottom.set_xlabel("robust iteration (dotted: full solve, others drafts)")
     bottom.set_ylabel("[mm]")
     bottom.legend(fontsize=7)
     return fig

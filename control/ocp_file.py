@@ -12,7 +12,8 @@ Top-level keys (stable; `version` changes if any meaning does):
   nominal, robust            profiles (below)
   robust_iterations          one entry per robust solve: margin, k_sigma (m, per constraint
                              sample), cost, ipopt_iterations, solve_time_s, monte_carlo_time_s,
-                             damping
+                             damping, draft (true: a draft solve, control/ocp.py; the last entry
+                             is always a full solve, the one in `robust`)
   failed_margins             margins IPOPT could not meet during the loop, m
   timing                     build_s, nominal_solve_s, robust_loop_s
   versions                   project, casadi, torch, numpy, python
@@ -164,6 +165,7 @@ def write_ocp(
                 "solve_time_s": it.solve_time,
                 "monte_carlo_time_s": it.monte_carlo_time,
                 "damping": it.damping,
+                "draft": it.draft,
             }
             for it in result.iterations
         ],

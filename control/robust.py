@@ -17,6 +17,12 @@ above the height. The loop stops when k sigma of the latest solution is within
 `margin_tolerance` of the margin it was solved with, at every sample, so that
 slider - k sigma >= height - margin_tolerance holds there. Each solve is warm-started from the
 previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is deterministic.
+
+Draft, then final: the iteration runs on draft solves (control/ocp.py: one loose IPOPT pass; its
+torque is all the Monte-Carlo needs), which cost a fraction of a full solve. When a draft meets
+the tolerance, the next proposal is solved in full (turn passes, tolerance 1e-10) and its own
+Monte-Carlo must meet the tolerance too; otherwise the drafts resume from it. Only a full solve is
+ever returned.
 """
 
 from __future__ import annotations
@@ -64,6 +70,8 @@ class Iteration:
     solve_time: float
     monte_carlo_time: float
     damping: float
+    draft: bool
+    """A draft solve (one loose pass) rather than a full one."""
 
 
 @dataclass(frozen=True)
@@ -126,10 +134,11 @@ def solve_robust(
     beta, last_residual = 1.0, target - margin
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
+    draft = True
     while len(iterations) < config.max_robust_iterations:
         proposal = np.minimum(margin + beta * (target - margin), cap)
         try:
-            solution = ocp.solve(base + proposal, warm=current)
+            solution = ocp.solve(base + proposal, warm=current, draft=draft)
         except OCPError:
             failed.append(proposal)
             beta /= 2
@@ -150,6 +159,7 @@ def solve_robust(
                 solve_time=solution.wall_time,
                 monte_carlo_time=unc.wall_time,
                 damping=beta,
+                draft=draft,
             )
         )
         if on_iteration is not None:
@@ -165,7 +175,11 @@ def solve_robust(
             )
         residual = new_target - proposal
         margin, target, current = proposal, new_target, solution
-        if np.max(np.abs(residual)) < config.margin_tolerance:
+        settled = np.max(np.abs(residual)) < config.margin_tolerance
+        if settled and draft:
+            draft = False  # confirm with a full solve
+            continue
+        if settled:
             return RobustResult(
                 nominal=nominal,
                 nominal_uncertainty=nominal_unc,
@@ -180,6 +194,7 @@ def solve_robust(
         else:
             beta = min(1.0, 2 * beta)  # contracting: undo earlier damping step by step
         last_residual = residual
+        draft = True
     raise RobustError(
         f"robust margin not settled after {config.max_robust_iterations} iterations: "
         f"last margin {_mm(margin)}, its k sigma {_mm(target)} (tolerance "

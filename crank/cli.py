@@ -358,8 +358,10 @@ def solve_ocp(*, model: Path, out: Path, config: OCPConfig) -> dict[str, Any]:
     def show(it: Iteration) -> None:
         margin = ", ".join(f"{1e3 * v:.2f}" for v in it.margin)
         k_sigma = ", ".join(f"{1e3 * v:.2f}" for v in it.k_sigma)
+        kind = "draft" if it.draft else "full "
         typer.echo(
-            f"  robust iteration: margin [{margin}] mm -> kσ [{k_sigma}] mm, cost {it.cost:.5g}",
+            f"  robust iteration ({kind}): margin [{margin}] mm -> kσ [{k_sigma}] mm, "
+            f"cost {it.cost:.5g}, {it.ipopt_iterations} IPOPT iterations",
             err=True,
         )
 

@@ -77,6 +77,10 @@ def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -
     assert result.robust.cost >= result.nominal.cost
     last = result.iterations[-1]
     np.testing.assert_array_less(np.abs(last.k_sigma - last.margin), 1e-4)
+    # drafts drive the iteration; the result is the full solve that confirmed the margin
+    assert not last.draft and result.robust.status == "Solve_Succeeded"
+    assert result.iterations[0].draft
+    np.testing.assert_array_equal(result.robust.heights, 0.08 + last.margin)
     # the robust solution is a solution of eq. 15 with the raised heights, in the torch model
     with torch.no_grad():
         states = rollout(
@@ -85,6 +89,23 @@ def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -
             torch.from_numpy(result.robust.tau[:-1]),
         ).numpy()
     np.testing.assert_allclose(states, result.robust.states, rtol=0, atol=1e-6)
+
+
+def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
+    """A draft (one loose pass, shared derivative functions) started at a full optimum returns
+    it; after a jump (primal warm start only) it still meets the raised heights."""
+    full = ocp.solve()
+    again = ocp.solve(full.heights, warm=full, draft=True)
+    np.testing.assert_allclose(again.tau, full.tau, rtol=0, atol=1e-6)
+    assert again.cost == pytest.approx(full.cost, rel=1e-8)
+    raised = full.heights + np.array([0.004, 0.006])  # beyond DRAFT_JUMP
+    jump = ocp.solve(raised, warm=full, draft=True)
+    assert jump.turn_passes == 1
+    assert np.all(jump.slider[SAMPLES] >= raised - 1e-8)
+    assert np.all(np.abs(jump.tau) <= ocp.config.torque_limit + 1e-9)
+    assert jump.cost > full.cost
+    with pytest.raises(ValueError, match="warm start"):
+        ocp.solve(raised, draft=True)
 
 
 def test_impossible_height_is_a_typed_error(model: PPANN) -> None:
