@@ -64,6 +64,13 @@ def main() -> None:
         f"{min(ratios):.2f}-{max(ratios):.2f}"
     )
     print(f"robust cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
+    if not args.model:
+        mc = statistics.median(it.monte_carlo_time for it in result.iterations)
+        print(
+            f"note: constant networks: the loop's {len(result.iterations)} Monte-Carlo runs alone "
+            f"({mc * 1e3:.0f} ms each) take {len(result.iterations) * mc / n:.1f}x this toy "
+            f"model's nominal solve; judge the target with --model logs/<run>/model.pt"
+        )
 
 
 if __name__ == "__main__":
