@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ppann.pipeline import finite_or_none
+from common.atomic import atomic_path
+from common.jsonio import finite_or_none
+from ppann.montecarlo import MODES
 from replay.statistics import format_table, summary_rows
-from twin.atomic import atomic_path
 
 FIGURES = (
     ("dataset.excitation.png", "Dataset: excitation torque and response (paper Fig. 5)"),
@@ -35,7 +36,7 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
         rows[f"{kind} 10-step RMSE θ / ω"] = (
             f"{_number(r10['theta'], '.4f')} rad / {_number(r10['omega'], '.3f')} rad/s"
         )
-    for mode in ("step", "trajectory"):
+    for mode in MODES:
         c = report["calibration"][mode]
         rows[f"σ predicted/observed ({mode})"] = (
             f"θ {_number(c['theta']['median'], '.2f')}, "

@@ -11,17 +11,19 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.atomic import atomic_path
+from common.errors import CrankError
 from ppann.baselines import BlackBox, BlackBoxConfig
 from ppann.model import PPANN, PPANNConfig
-from twin.atomic import atomic_path
 from twin.dataset import Dataset
 
 FORMAT = "crank-ppann-checkpoint"
-VERSION = 1
+VERSION = 2
+"""2: the PPANN carries machine_sigma (the machine-level spread of ppann/machine.py)."""
 KINDS = ("ppann", "physics", "blackbox")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(CrankError, ValueError):
     """A file is not a checkpoint of this version and architecture."""
 
 

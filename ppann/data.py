@@ -17,10 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from common.errors import CrankError
 from twin.dataset import Dataset
 
 
-class DataError(ValueError):
+class DataError(CrankError, ValueError):
     """A dataset cannot be used for training; the message says why."""
 
 

@@ -37,9 +37,10 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from common.atomic import OutputError, atomic_path, check_writable
+from common.errors import CrankError
 from replay.campaign import Machines, Replay, ReplayConfig
 from twin import __version__
-from twin.atomic import OutputError, atomic_path, check_writable
 from twin.generation import provenance
 from twin.mcap_dataset import (
     CHANNELS,
@@ -62,7 +63,7 @@ TAGS = {
 }
 
 
-class RecoverError(ValueError):
+class RecoverError(CrankError, ValueError):
     """A file cannot be recovered (not an MCAP, or nothing readable in it)."""
 
 

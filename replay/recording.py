@@ -23,9 +23,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from common.atomic import atomic_path
+from common.errors import CrankError
 from control.ocp_file import OCPFile
 from replay.campaign import PROFILES, Campaign
-from twin.atomic import atomic_path
 from twin.physics import CRANK_LENGTH, ROD_LENGTH
 
 APPLICATION_ID = "crank_replay"
@@ -206,7 +207,7 @@ def write_recording(
         rec.disconnect()
 
 
-class RecordingError(ValueError):
+class RecordingError(CrankError, ValueError):
     """A file is not a readable Rerun recording."""
 
 

@@ -27,16 +27,15 @@
 
 from __future__ import annotations
 
-import json
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from common.jsonio import write_json
 from control.ocp_file import OCPFile
 from replay.campaign import PROFILES, Campaign, Replay
-from twin.atomic import atomic_path
 
 FORMAT = "crank-replay-stats"
 VERSION = 1
@@ -139,8 +138,7 @@ def campaign_statistics(
 
 
 def write_statistics(path: str | Path, stats: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(stats, indent=1, allow_nan=False))
+    write_json(path, stats)
 
 
 def summary_rows(stats: dict[str, Any]) -> list[dict[str, str]]:

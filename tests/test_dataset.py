@@ -7,9 +7,10 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from common.errors import ConfigError
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
 from twin.physics import SliderCrank
-from twin.variability import ConfigError, Variability
+from twin.variability import Variability
 
 
 def test_paper_dataset_shape(paper_dataset) -> None:
@@ -116,8 +117,8 @@ def test_episodes_are_different_machines(paper_dataset, physics: SliderCrank) ->
         ({"seconds": float("inf")}, "seconds must be a finite number"),
         ({"seconds": 0.001}, "at least 2 samples"),
         ({"episode_seconds": 0.0}, "episode_seconds must be > 0"),
-        ({"seed": -1}, "seed must be a non-negative integer"),
-        ({"seed": 1.5}, "seed must be a non-negative integer"),
+        ({"seed": -1}, "seed must be an integer in 0..9223372036854775807, got -1"),
+        ({"seed": 1.5}, "seed must be an integer in 0..9223372036854775807, got 1.5"),
     ],
 )
 def test_bad_generation_config(kwargs: dict, match: str) -> None:

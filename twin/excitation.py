@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from twin.variability import ConfigError, check_finite
+from common.checks import check_finite
+from common.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from common.atomic import check_writable
 from twin import __version__
-from twin.atomic import check_writable
 from twin.dataset import Episode, GenerationConfig, generate, summarize
 from twin.mcap_dataset import write_dataset
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model, model_sha256

@@ -24,8 +24,9 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from common.atomic import atomic_path
+from common.errors import CrankError
 from twin import __version__
-from twin.atomic import atomic_path
 from twin.dataset import (
     MEASUREMENT_FIELDS,
     TRUTH_FIELDS,
@@ -64,7 +65,7 @@ _DESCRIPTIONS = {
 }
 
 
-class ContractError(ValueError):
+class ContractError(CrankError, ValueError):
     """A file is not a dataset MCAP, or breaks the contract; the message names what is wrong."""
 
 

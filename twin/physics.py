@@ -15,6 +15,8 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from common.errors import CrankError
+
 MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "slider_crank.xml"
 
 CRANK_LENGTH = 0.05
@@ -40,7 +42,7 @@ JOINT_NAMES = ("motor", "backlash", "rod_pivot", "slider")
 ACTUATOR_NAMES = ("motor_torque", "slider_disturbance")
 
 
-class ModelError(ValueError):
+class ModelError(CrankError, ValueError):
     """The MJCF cannot be read, does not compile, or lacks an element the twin needs."""
 
 

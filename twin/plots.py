@@ -7,14 +7,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from twin.atomic import atomic_path
+from common.figures import save_figure
 from twin.dataset import Dataset
-
-
-def save_figure(fig: Figure, path: str | Path) -> None:
-    """Write `fig` as a PNG at `path`, atomically."""
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
 
 
 def coverage_map(dataset: Dataset, path: str | Path, *, bins: int = 60) -> None:

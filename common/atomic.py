@@ -8,8 +8,10 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from common.errors import CrankError
 
-class OutputError(OSError):
+
+class OutputError(CrankError, OSError):
     """The output path cannot be written."""
 
 

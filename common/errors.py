@@ -1,0 +1,17 @@
+"""One error family: everything the project raises for bad input or an impossible request is a
+`CrankError`, so the CLI catches one thing and prints one line.
+
+Subclasses also derive from the built-in exception that fits (ValueError for bad values, OSError
+for files that cannot be written, RuntimeError for solvers that fail), so library callers can keep
+catching those.
+"""
+
+from __future__ import annotations
+
+
+class CrankError(Exception):
+    """Base of every error the `crank` command reports as one line and exit code 2."""
+
+
+class ConfigError(CrankError, ValueError):
+    """A configuration value is out of its valid range."""
