@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
+from common.streams import torch_seed
 from ppann.baselines import BlackBox, BlackBoxConfig
 from ppann.checkpoint import KINDS
 from ppann.model import PPANN, PPANNConfig
@@ -51,7 +52,7 @@ def fit(
 ) -> Fitted:
     """Train a model of `kind`; `on_epoch(phase, epoch, loss)` reports progress."""
     splits = splits or make_splits(dataset, config)
-    torch.manual_seed(config.seed)
+    torch.manual_seed(torch_seed(config.seed, "training"))
     model = new_model(kind, ppann_config=ppann_config)
     history = History()
     started = time.perf_counter()

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from common import streams
 from ppann.data import split_index, windows
 from ppann.model import n_step_prediction, rollout
 from ppann.montecarlo import MODES, Bands, monte_carlo
@@ -83,7 +84,8 @@ def free_run(model: torch.nn.Module, dataset: Dataset, segment: Segment) -> np.n
 def bands(model: torch.nn.Module, dataset: Dataset, segment: Segment, *, n: int, seed: int):
     x0 = [dataset.theta[segment.start], dataset.omega[segment.start]]
     tau = dataset.tau[segment.start : segment.stop - 1]
-    return {mode: monte_carlo(model, x0, tau, n_samples=n, mode=mode, seed=seed) for mode in MODES}
+    seq = streams.stream(seed, "validation_monte_carlo")
+    return {mode: monte_carlo(model, x0, tau, n_samples=n, mode=mode, seed=seq) for mode in MODES}
 
 
 def inside_3sigma(band: Bands, measured: np.ndarray) -> dict[str, float]:
@@ -104,8 +106,9 @@ def twin_replay(
 ) -> TwinReplay:
     """Replay the segment's torque on n_runs fresh machines from its initial measured state."""
     variability = Variability.from_dict(dataset.run["config"]["variability"])
-    rng = np.random.default_rng(seed)
+    rng = streams.rng(seed, "calibration_machines")
     draws = [variability.sample(rng) for _ in range(n_runs)]
+    noise = streams.rng(seed, "calibration_noise")
     state = physics.initial_state(dataset.theta[segment.start], dataset.omega[segment.start])
     episode_start = np.flatnonzero(dataset.episode == dataset.episode[segment.start])[0]
     warm = float(dataset.t[segment.start] - dataset.t[episode_start])
@@ -116,7 +119,7 @@ def twin_replay(
         draws=draws,
         initial_states=np.tile(state, (n_runs, 1)),
         tau=tau,
-        disturbance=variability.disturbance(rng, tau.size).reshape(tau.shape),
+        disturbance=variability.disturbance(noise, tau.size).reshape(tau.shape),
         start_times=np.full(n_runs, warm),
     )
     return TwinReplay(

@@ -13,8 +13,9 @@ Modes:
           trajectory, u_k = τ_k + K_p (θ̂_k − θ_k) + K_d (ω̂_k − ω_k), saturated at the torque
           limit, computed at every 2 ms sample from the state at t_k only.
 
-Random streams: the seed's SeedSequence spawns one child per run, and each child three streams
-(machine, start time, disturbance); changing the number of runs leaves the first runs as they were.
+Random streams (common/streams.py): replay_machines spawns one child per run (machine, start
+time), replay_noise one per run (disturbance); changing the number of runs leaves the first runs
+as they were. Held-out machines come from heldout_machines and heldout_noise instead.
 """
 
 from __future__ import annotations
@@ -25,16 +26,21 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from common.checks import check_count, check_finite, check_seed
+from common.errors import CrankError
+from common.streams import stream
 from control.ocp_file import OCPFile, Profile
 from twin.physics import SliderCrank
 from twin.stepping import simulate
-from twin.variability import MachineDraw, Variability, check_finite
+from twin.variability import MachineDraw, Variability
 
 PROFILES = ("nominal", "robust")
 MODES = ("open", "closed")
+MAX_RUNS = 100_000
+"""Most runs per profile and mode (100 000 runs of 150 samples hold ~1 GB of arrays)."""
 
 
-class ReplayConfigError(ValueError):
+class ReplayConfigError(CrankError, ValueError):
     """A replay setting is out of its valid range."""
 
 
@@ -55,14 +61,8 @@ class ReplayConfig:
     variability: Variability = field(default_factory=Variability)
 
     def __post_init__(self) -> None:
-        for name in ("runs", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ReplayConfigError(f"{name} must be an integer, got {value!r}")
-        if self.runs < 1:
-            raise ReplayConfigError(f"runs must be >= 1, got {self.runs}")
-        if self.seed < 0:
-            raise ReplayConfigError(f"seed must be >= 0, got {self.seed}")
+        check_count("runs", self.runs, high=MAX_RUNS, error=ReplayConfigError)
+        check_seed("seed", self.seed, error=ReplayConfigError)
         for name in ("kp", "kd", "max_start_time"):
             check_finite(name, getattr(self, name), nonneg=True, error=ReplayConfigError)
         if not self.modes or any(m not in MODES for m in self.modes):
@@ -120,14 +120,22 @@ class Campaign:
     """Seconds spent simulating (all profiles and modes)."""
 
 
-def draw_machines(config: ReplayConfig, n_samples: int) -> Machines:
-    """The campaign's machines, start times and disturbances, from its seed."""
+def draw_machines(config: ReplayConfig, n_samples: int, *, held_out: bool = False) -> Machines:
+    """The campaign's machines, start times and disturbances, from its seed.
+
+    Campaign machines come from the streams replay_machines and replay_noise, held-out machines
+    (`held_out=True`) from heldout_machines and heldout_noise: neither ever equals a dataset's
+    machine, nor each other, whatever the seeds (common/streams.py).
+    """
+    kind = "heldout" if held_out else "replay"
+    machine_children = stream(config.seed, f"{kind}_machines").spawn(config.runs)
+    noise_children = stream(config.seed, f"{kind}_noise").spawn(config.runs)
     draws, starts, forces = [], [], []
-    for child in np.random.SeedSequence(config.seed).spawn(config.runs):
-        machine_rng, start_rng, noise_rng = (np.random.default_rng(s) for s in child.spawn(3))
+    for machine_child, noise_child in zip(machine_children, noise_children, strict=True):
+        machine_rng, start_rng = (np.random.default_rng(s) for s in machine_child.spawn(2))
         draws.append(config.variability.sample(machine_rng))
         starts.append(start_rng.uniform(0.0, config.max_start_time))
-        forces.append(config.variability.disturbance(noise_rng, n_samples))
+        forces.append(config.variability.disturbance(np.random.default_rng(noise_child), n_samples))
     return Machines(draws=draws, start_times=np.array(starts), disturbance=np.array(forces))
 
 

@@ -5,9 +5,10 @@ draw (friction, backlash, warm-up) starting cold from a state drawn uniformly ov
 stroke, under the slider disturbance throughout. `t` keeps running across episodes and every
 sample carries its episode index, so training windows never cross a boundary.
 
-Random streams: the seed's SeedSequence spawns one child per episode, and each episode's child
-spawns four streams (machine, initial state, torque, disturbance). Changing one of them, or the
-number of episodes, leaves the others as they were.
+Random streams (common/streams.py): the named streams dataset_machines, dataset_states,
+dataset_excitation and dataset_noise of the seed each spawn one child per episode. Changing one of
+them, or the number of episodes, leaves the others as they were, and no other stage of the
+project (replays, Monte-Carlo, training) draws from them.
 """
 
 from __future__ import annotations
@@ -18,10 +19,13 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
+from common.checks import check_finite, check_seed
+from common.errors import ConfigError
+from common.streams import stream
 from twin.excitation import Excitation
 from twin.physics import SAMPLE_RATE, SliderCrank
 from twin.stepping import simulate
-from twin.variability import ConfigError, MachineDraw, Variability, check_finite
+from twin.variability import MachineDraw, Variability
 
 MEASUREMENT_FIELDS = ("t", "episode", "theta", "omega", "tau", "slider_position")
 TRUTH_FIELDS = (
@@ -52,8 +56,7 @@ class GenerationConfig:
     def __post_init__(self) -> None:
         check_finite("seconds", self.seconds, positive=True)
         check_finite("episode_seconds", self.episode_seconds, positive=True)
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        check_seed("seed", self.seed)
         if self.n_samples < 2:
             raise ConfigError(
                 f"seconds must cover at least 2 samples at {SAMPLE_RATE:g} Hz, got {self.seconds}"
@@ -136,14 +139,17 @@ def generate(
     physics = physics if physics is not None else SliderCrank()
     lengths = config.episode_lengths()
     longest = max(lengths)
-    children = np.random.SeedSequence(config.seed).spawn(len(lengths))
+    per_episode = {
+        name: stream(config.seed, name).spawn(len(lengths))
+        for name in ("dataset_machines", "dataset_states", "dataset_excitation", "dataset_noise")
+    }
 
     episodes, states = [], []
     tau = np.zeros((len(lengths), longest))
     disturbance = np.zeros((len(lengths), longest))
-    for i, (n, child) in enumerate(zip(lengths, children, strict=True)):
+    for i, n in enumerate(lengths):
         machine_rng, state_rng, torque_rng, noise_rng = (
-            np.random.default_rng(s) for s in child.spawn(4)
+            np.random.default_rng(children[i]) for children in per_episode.values()
         )
         machine = config.variability.sample(machine_rng)
         theta0 = float(state_rng.uniform(0.0, 2.0 * np.pi))

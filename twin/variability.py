@@ -16,34 +16,19 @@ uniformly distributed on [-amplitude, +amplitude] (default 30 N peak, so its sta
 
 from __future__ import annotations
 
+import json
 import math
+import tomllib
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
+from common.checks import check_finite
+from common.errors import ConfigError
 from twin.physics import Layout
-
-
-class ConfigError(ValueError):
-    """A configuration value is out of its valid range."""
-
-
-def check_finite(
-    name: str,
-    value: float,
-    *,
-    positive: bool = False,
-    nonneg: bool = False,
-    error: type[ValueError] = ConfigError,
-) -> None:
-    """Raise `error` unless `value` is a finite number (and > 0 or >= 0 when asked)."""
-    if not isinstance(value, int | float) or not math.isfinite(value):
-        raise error(f"{name} must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise error(f"{name} must be > 0, got {value!r}")
-    if nonneg and value < 0:
-        raise error(f"{name} must be >= 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -125,6 +110,8 @@ class Variability:
     """Whether friction and damping drift within a run as the machine warms up."""
     disturbance_amplitude: float = 30.0
     """Peak of the uniform white-noise force on the slider, in N."""
+    name: str = "paper"
+    """The scenario's name (SCENARIOS, or the stem of a range file)."""
 
     def __post_init__(self) -> None:
         for p in self.parameters():
@@ -134,6 +121,57 @@ class Variability:
         check_finite("disturbance_amplitude", self.disturbance_amplitude, nonneg=True)
         if self.warmup_drop.high >= 1:
             raise ConfigError(f"warmup_drop must stay below 1, got high={self.warmup_drop.high}")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def scenario(cls, name: str) -> Variability:
+        """A named scenario of `SCENARIOS`."""
+        if name not in SCENARIOS:
+            raise ConfigError(
+                f"unknown variability scenario {name!r}; known: {', '.join(SCENARIOS)} "
+                "(or a .toml/.json range file)"
+            )
+        return SCENARIOS[name]()
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> Variability:
+        """A custom scenario: a TOML or JSON table with `base` (a scenario name, default
+        "paper"), optional `name`, and per parameter `{low, high}` (and `nominal`, default the
+        base's), e.g. `[motor_damping] low = 0.06  high = 0.10`."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+            values = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ConfigError(f"cannot read variability file {path}: {exc}") from None
+        if not isinstance(values, dict):
+            raise ConfigError(f"{path}: a variability file holds a table, got {type(values)}")
+        base = cls.scenario(values.pop("base", "paper"))
+        changes: dict = {"name": str(values.pop("name", path.stem))}
+        names = {p.name for p in base.parameters()}
+        for key, value in values.items():
+            if key in names:
+                if not isinstance(value, dict) or set(value) - {"low", "high", "nominal"}:
+                    raise ConfigError(f"{path}: {key} must be a table of low, high (nominal)")
+                old = getattr(base, key)
+                low, high = value.get("low", old.low), value.get("high", old.high)
+                nominal = value.get("nominal", old.nominal)
+                if isinstance(low, int | float) and isinstance(high, int | float) and low > high:
+                    raise ConfigError(f"{path}: {key} low {low} > high {high}")
+                changes[key] = Parameter(key, nominal, low, high, old.unit)
+            elif key in ("warmup_time_constant", "drift", "disturbance_amplitude"):
+                changes[key] = value
+            else:
+                raise ConfigError(f"{path}: unknown variability key {key!r}")
+        return replace(base, **changes)
+
+    @classmethod
+    def resolve(cls, text: str, *, drift: bool = True) -> Variability:
+        """`--variability` as given on the command line: a scenario name or a range file."""
+        chosen = cls.from_file(text) if text.endswith((".toml", ".json")) else cls.scenario(text)
+        return chosen if drift else replace(chosen, drift=False)
 
     @classmethod
     def from_dict(cls, values: dict) -> Variability:
@@ -184,6 +222,35 @@ class Variability:
         return rng.uniform(-a, a, n_samples)
 
 
+def _line(spread: float, name: str) -> Callable[[], Variability]:
+    """A product-line scenario: motor and slider friction and damping ±spread around the MJCF,
+    backlash, warm-up drift and the 30 N disturbance as in "paper"."""
+
+    def build() -> Variability:
+        base = Variability()
+        changes = {
+            p.name: replace(p, low=p.nominal * (1 - spread), high=p.nominal * (1 + spread))
+            for p in (
+                base.motor_frictionloss,
+                base.motor_damping,
+                base.slider_frictionloss,
+                base.slider_damping,
+            )
+        }
+        return replace(base, **changes, name=name)
+
+    return build
+
+
+SCENARIOS: dict[str, Callable[[], Variability]] = {
+    "paper": Variability,
+    "line-15": _line(0.15, "line-15"),
+    "line-30": _line(0.30, "line-30"),
+}
+"""Named variability scenarios: "paper" (friction and damping ±5 %, the default twin), "line-15"
+and "line-30" (±15 % and ±30 %: a product line as it is, not narrowed for the open-loop method)."""
+
+
 def apply(
     model: mujoco.MjModel, *, draw: MachineDraw, friction: FrictionState, layout: Layout
 ) -> None:
@@ -203,6 +270,7 @@ def apply(
 
 
 __all__ = [
+    "SCENARIOS",
     "ConfigError",
     "FrictionState",
     "MachineDraw",

@@ -1,0 +1,72 @@
+"""Named random streams: one root seed per run, one independent child per purpose.
+
+Every random draw of the project comes from `stream(seed, name)`: the root `SeedSequence(seed)`
+with a spawn key fixed by the stream's *name* (a hash of it), so
+
+- two purposes never share numbers (replay machines are never the dataset's machines, replay
+  start times never the dataset's initial angles), whatever seed each command is given;
+- adding a stream, or drawing more from one, changes nothing in the others;
+- the tree is a short record (`describe`) that every artifact carries.
+
+A stream that needs one child per episode or run spawns them from its own sequence
+(`stream(seed, "replay_machines").spawn(runs)`), so the first runs stay the same when more are
+asked for.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from common.checks import check_seed
+
+STREAMS: dict[str, str] = {
+    "dataset_machines": "machine draws of the dataset's episodes",
+    "dataset_states": "initial states of the dataset's episodes",
+    "dataset_excitation": "excitation torque of the dataset's episodes",
+    "dataset_noise": "slider disturbance of the dataset's episodes",
+    "training": "network initialisation and minibatch order",
+    "monte_carlo": "Monte-Carlo draws of the OCP's robust loop",
+    "validation_monte_carlo": "Monte-Carlo bands of the validation report",
+    "calibration_machines": "twin machines of the model report's calibration",
+    "calibration_noise": "slider disturbance of the calibration replays",
+    "replay_machines": "campaign machines and their start times",
+    "replay_noise": "slider disturbance of the campaign replays",
+    "heldout_machines": "held-out machines and their start times",
+    "heldout_noise": "slider disturbance of the held-out replays",
+}
+"""Every stream the project draws from, with what it is for."""
+
+
+def spawn_key(name: str) -> int:
+    """The stream's spawn key: the first 32 bits of sha256(name), stable across versions."""
+    if name not in STREAMS:
+        raise KeyError(f"unknown random stream {name!r}; known: {', '.join(STREAMS)}")
+    return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "big")
+
+
+def stream(seed: int, name: str) -> np.random.SeedSequence:
+    """The SeedSequence of stream `name` under root `seed`."""
+    check_seed("seed", seed)
+    return np.random.SeedSequence(seed, spawn_key=(spawn_key(name),))
+
+
+def rng(seed: int, name: str) -> np.random.Generator:
+    """A generator on stream `name` under root `seed`."""
+    return np.random.default_rng(stream(seed, name))
+
+
+def torch_seed(seed: int, name: str) -> int:
+    """A 63-bit integer seed for torch, from stream `name` under root `seed`."""
+    return int(stream(seed, name).generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def describe(seed: int, names: tuple[str, ...] | None = None) -> dict[str, object]:
+    """The tree as recorded in artifacts: root seed and each stream's spawn key."""
+    names = tuple(STREAMS) if names is None else names
+    return {
+        "root_seed": seed,
+        "scheme": "numpy SeedSequence(root_seed, spawn_key=(key,)); key = sha256(name)[:4]",
+        "streams": {name: spawn_key(name) for name in names},
+    }
