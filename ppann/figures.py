@@ -56,6 +56,17 @@ def validation(t: np.ndarray, measured: np.ndarray, predictions: dict[str, np.nd
     return fig
 
 
+BAND_MODES = ("step", "mixed")
+"""Modes drawn in the band figure (paper eq. 11 and the machine-level model)."""
+RATIO_MODES = ("step", "machine", "mixed")
+"""Modes drawn in the calibration figure. "trajectory" is left out of both figures: its draws can
+diverge (a negative damping), and its numbers are in model.report.json (null where diverged)."""
+
+
+def _finite(band: Bands) -> bool:
+    return bool(np.all(np.isfinite(band.std)))
+
+
 def monte_carlo_bands(
     t: np.ndarray, measured: np.ndarray, bands: dict[str, Bands], replay: TwinReplay
 ) -> Figure:
@@ -67,7 +78,8 @@ def monte_carlo_bands(
     for i, label in enumerate(("θ [rad]", "ω [rad/s]")):
         ax = axes[i]
         ax.plot(t, measured[:, i], "k", lw=1.2, label="validation data")
-        for (mode, b), color in zip(bands.items(), ("C0", "C1"), strict=False):
+        shown = [(m, bands[m]) for m in BAND_MODES if m in bands and _finite(bands[m])]
+        for (mode, b), color in zip(shown, ("C0", "C1"), strict=False):
             ax.plot(t, b.mean[:, i], color=color, lw=1, label=f"PPANN mean ({mode} draws)")
             ax.fill_between(
                 t,
@@ -99,8 +111,9 @@ def sigma_ratio(t: np.ndarray, bands: dict[str, Bands], replay: TwinReplay) -> F
     ax = fig.subplots()
     n = replay.theta.shape[1]
     ax.semilogy(t[:n], replay.theta.std(0, ddof=1), "k", label="observed on the twin")
-    for mode, b in bands.items():
-        ax.semilogy(t[:n], b.std[:n, 0], label=f"PPANN, {mode} draws")
+    for mode in RATIO_MODES:
+        if mode in bands and _finite(bands[mode]):
+            ax.semilogy(t[:n], bands[mode].std[:n, 0], label=f"PPANN, {mode} draws")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("σ(θ) [rad]")
     ax.legend()

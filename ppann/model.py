@@ -23,7 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from twin.variability import check_finite
+from common.checks import check_finite
+from common.errors import CrankError
 
 Z_NAMES = ("J", "B", "K")
 INERTIA_FACTOR_FLOOR = 0.1
@@ -31,7 +32,7 @@ INERTIA_FACTOR_FLOOR = 0.1
 """The three augmented terms, in the order of the last axis of every z tensor."""
 
 
-class ModelConfigError(ValueError):
+class ModelConfigError(CrankError, ValueError):
     """A PPANN configuration value is out of range."""
 
 
@@ -103,6 +104,9 @@ class PPANN(nn.Module):
                 "K": _mlp(2, c.sigma_hidden),
             }
         )
+        # Spread of the per-machine log-factors of inertia, damping and stiffness (phase 2,
+        # ppann/machine.py); zero until fitted, and then "mixed" equals "step".
+        self.register_buffer("machine_sigma", torch.zeros(3, dtype=torch.float64))
         self.double()
 
     @property
@@ -206,6 +210,7 @@ class FusedHeads:
         self.use_networks = c.use_networks
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
         self.dt = c.dt
+        self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         hidden = sum(net[0].out_features for net in nets)
         self.w_in = np.zeros((3, hidden), dtype=np.float32)
@@ -232,11 +237,27 @@ class FusedHeads:
         return mean, sigma
 
     def acceleration(
-        self, theta: np.ndarray, omega: np.ndarray, tau: float | np.ndarray, z: np.ndarray
+        self,
+        theta: np.ndarray,
+        omega: np.ndarray,
+        tau: float | np.ndarray,
+        z: np.ndarray,
+        *,
+        factors: np.ndarray | None = None,
     ) -> np.ndarray:
         """Eq. 14 in NumPy, as `PPANN.acceleration`, except that a sampled inertia factor
         1 + z_J is kept >= INERTIA_FACTOR_FLOOR: a drawn machine cannot have zero or negative
-        inertia (a 3-sigma draw of z_J can reach -1, and the simulation then diverges)."""
+        inertia (a 3-sigma draw of z_J can reach -1, and the simulation then diverges).
+
+        factors: per-sample machine factors (n, 3) multiplying the inertia, damping and stiffness
+        terms (ppann/montecarlo.py, modes "machine" and "mixed"); None means 1.
+        """
         angle = np.remainder(theta, 2 * math.pi)
         inertia = self.j * np.maximum(1 + z[:, 0], INERTIA_FACTOR_FLOOR)
-        return (tau - self.b * (1 + z[:, 1]) * omega - self.k * (1 + z[:, 2]) * angle) / inertia
+        damping = self.b * (1 + z[:, 1]) * omega
+        stiffness = self.k * (1 + z[:, 2]) * angle
+        if factors is not None:
+            inertia = inertia * factors[:, 0]
+            damping = damping * factors[:, 1]
+            stiffness = stiffness * factors[:, 2]
+        return (tau - damping - stiffness) / inertia

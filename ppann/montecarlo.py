@@ -1,9 +1,23 @@
-"""Monte-Carlo simulation of a PPANN (paper eq. 11), vectorised over samples and seeded.
+"""Monte-Carlo simulation of a PPANN (paper eq. 11 and the machine-level extension), vectorised
+over samples and seeded.
 
-Two ways to draw z = z_mu + z_sigma * eps, eps ~ N(0, I):
-- "step": a fresh eps at every step (the paper's eq. 11), white in time;
-- "trajectory": one eps per trajectory, held for its whole length (fully correlated in time), as
-  a machine whose friction differs systematically from the mean would behave.
+Modes (`MONTE_CARLO_MODES`):
+- "step": z = z_mu + z_sigma * eps with a fresh eps at every step (the paper's eq. 11): white in
+  time, what the sigma networks were fitted on (one-step residuals).
+- "trajectory": one eps per trajectory, held for its whole length. A 3σ draw of z_B can make the
+  damping negative, and such a draw diverges; kept for comparison with the paper's text.
+- "machine": one machine per trajectory and no white noise: the inertia, damping and stiffness
+  terms of eq. 14 are multiplied by exp(eta), eta ~ N(0, diag(machine_sigma^2)) drawn once per
+  trajectory (the per-episode spread fitted in phase 2, ppann/machine.py).
+- "mixed": "machine" and "step" together: each trajectory is a machine, and white noise acts on it
+  at every step. With machine_sigma = 0 it equals "step" exactly (exp(0) = 1).
+
+The machine factors are log-normal, so a drawn machine's inertia, damping and stiffness keep the
+sign of the mean model's at any number of σ: no machine draw diverges.
+
+Random numbers: the seed's SeedSequence spawns two children, white (eps) and machine (eta), so
+"mixed" uses exactly the white draws of "step" and the machine draws of "machine" (common random
+numbers across modes and across the iterations of the robust loop).
 
 The loop runs in NumPy on the fused weights (`FusedHeads`): a few dozen array operations per step
 on (n_samples,) arrays, where torch's per-operation overhead would dominate.
@@ -12,15 +26,21 @@ on (n_samples,) arrays, where torch's per-operation overhead would dominate.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from ppann.model import PPANN, FusedHeads
 
-Mode = Literal["step", "trajectory"]
-MODES: tuple[Mode, ...] = ("step", "trajectory")
+MONTE_CARLO_MODES: dict[str, str] = {
+    "step": "fresh z every step (paper eq. 11)",
+    "trajectory": "one z per trajectory (may diverge)",
+    "machine": "one machine per trajectory (log-normal factors), no white noise",
+    "mixed": "one machine per trajectory plus white z every step",
+}
+MODES: tuple[str, ...] = tuple(MONTE_CARLO_MODES)
+WHITE = {"step": True, "trajectory": False, "machine": False, "mixed": True}
+MACHINE = {"step": False, "trajectory": False, "machine": True, "mixed": True}
 
 
 @dataclass(frozen=True)
@@ -32,14 +52,27 @@ class Bands:
     std: np.ndarray
 
 
+def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
+    if mode not in MONTE_CARLO_MODES:
+        raise error(f"Monte-Carlo mode must be one of {', '.join(MODES)}, got {mode!r}")
+
+
+def machine_factors(
+    machine_sigma: npt.ArrayLike, n_samples: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Log-normal factors exp(eta), eta ~ N(0, diag(machine_sigma^2)), (n_samples, 3)."""
+    sigma = np.asarray(machine_sigma, dtype=float)
+    return np.exp(sigma * rng.standard_normal((n_samples, 3)))
+
+
 def monte_carlo(
     model: PPANN | FusedHeads,
     x0: npt.ArrayLike,
     tau: npt.ArrayLike,
     *,
     n_samples: int = 100,
-    mode: Mode = "step",
-    seed: int = 0,
+    mode: str = "step",
+    seed: int | np.random.SeedSequence = 0,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
@@ -47,15 +80,22 @@ def monte_carlo(
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
     null rather than let NumPy print overflow warnings at the user.
     """
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    check_mode(mode)
     if n_samples < 2:
         raise ValueError(f"n_samples must be >= 2 for a standard deviation, got {n_samples}")
     heads = model if isinstance(model, FusedHeads) else FusedHeads(model)
     tau = np.asarray(tau, dtype=float)
-    rng = np.random.default_rng(seed)
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    white_seq, machine_seq = root.spawn(2)
     steps = tau.shape[0]
-    eps = rng.standard_normal((1 if mode == "trajectory" else steps, n_samples, 3))
+    eps = None
+    if mode != "machine":
+        per = steps if WHITE[mode] else 1
+        eps = np.random.default_rng(white_seq).standard_normal((per, n_samples, 3))
+    factors = None
+    if MACHINE[mode]:
+        rng = np.random.default_rng(machine_seq)
+        factors = machine_factors(heads.machine_sigma, n_samples, rng)
     samples = np.empty((n_samples, steps + 1, 2))
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
@@ -64,8 +104,8 @@ def monte_carlo(
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(steps):
             mean, sigma = heads(theta, omega)
-            z = mean + sigma * eps[0 if mode == "trajectory" else k]
-            alpha = heads.acceleration(theta, omega, tau[k], z)
+            z = mean if eps is None else mean + sigma * eps[k if WHITE[mode] else 0]
+            alpha = heads.acceleration(theta, omega, tau[k], z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
         return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))

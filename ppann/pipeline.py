@@ -9,15 +9,18 @@ Outputs for `--out logs/model.pt`:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from common.atomic import check_writable
+from common.figures import save_figure
+from common.jsonio import write_json
 from ppann import checkpoint, figures
 from ppann.fit import Fitted, fit
+from ppann.model import Z_NAMES
 from ppann.report import (
     bands,
     calibration,
@@ -28,24 +31,10 @@ from ppann.report import (
     validation_segment,
 )
 from ppann.train import TrainConfig, make_splits
-from twin.atomic import atomic_path, check_writable
 from twin.mcap_dataset import read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
-from twin.plots import save_figure
 
 KIND_ORDER = ("ppann", "physics", "blackbox")
-
-
-def finite_or_none(value: Any) -> Any:
-    """The report with every non-finite number replaced by None, so it stays strict JSON (a
-    diverged Monte-Carlo draw of a poorly trained model can overflow)."""
-    if isinstance(value, dict):
-        return {k: finite_or_none(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite_or_none(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def sibling(out: Path, suffix: str) -> Path:
@@ -59,6 +48,7 @@ def train_and_report(
     config: TrainConfig,
     mc_samples: int = 100,
     replay_runs: int = 100,
+    baselines: bool = True,
     on_epoch: Callable[[str, str, int, float], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
@@ -69,7 +59,7 @@ def train_and_report(
     splits = make_splits(dataset, config)
     print_stage = on_stage or (lambda _: None)
     fitted: dict[str, Fitted] = {}
-    for kind in KIND_ORDER:
+    for kind in KIND_ORDER if baselines else KIND_ORDER[:1]:
         print_stage(f"training {kind}")
         fitted[kind] = fit(
             dataset,
@@ -89,9 +79,7 @@ def train_and_report(
     physics = SliderCrank(
         compile_mjcf(read_model_xml(data_path), source=f"{data_path}:model.xml")[0]
     )
-    replay = twin_replay(
-        dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed + 1
-    )
+    replay = twin_replay(dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed)
     fingerprint = checkpoint.fingerprint(dataset)
     report: dict[str, Any] = {
         "dataset": {
@@ -122,9 +110,13 @@ def train_and_report(
             "epochs": len(f.history.train),
             "best_epoch": f.history.best_epoch,
         }
+        entry["phase1_converged"] = len(f.history.train) < config.max_epochs
         if kind != "blackbox":
             j, b, k = (float(v) for v in f.model.physical.detach())
             entry["physical"] = {"J_m": j, "B_m": b, "K_m": k}
+        if kind == "ppann":
+            entry["machine_sigma"] = dict(zip(Z_NAMES, f.model.machine_sigma.tolist(), strict=True))
+            entry["machine_offsets"] = f.history.machine_offsets
         report["models"][kind] = entry
         path = out if kind == "ppann" else sibling(out, f"{kind}.pt")
         checkpoint.save(
@@ -137,6 +129,8 @@ def train_and_report(
                 "data_fingerprint": fingerprint,
                 "data_path": str(data_path),
                 "loss_scale": splits.scale.tolist(),
+                "variability": dataset.run["config"]["variability"],
+                "dt": float(dataset.t[1] - dataset.t[0]),
             },
         )
     save_figure(figures.network_maps(ppann), sibling(out, "maps.png"))
@@ -144,6 +138,5 @@ def train_and_report(
     save_figure(figures.validation(t, measured, predictions), sibling(out, "validation.png"))
     save_figure(figures.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
     save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
-    with atomic_path(sibling(out, "report.json")) as tmp:
-        tmp.write_text(json.dumps(finite_or_none(report), indent=2, allow_nan=False) + "\n")
+    write_json(sibling(out, "report.json"), report, indent=2)
     return report

@@ -19,14 +19,20 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
+from common.checks import check_finite, check_seed
+from common.errors import CrankError
+from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
 from ppann.losses import n_step_mse, propagated_nll, propagated_terms
+from ppann.machine import marginal_nll, posterior_offsets
 from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
-from twin.variability import check_finite
+
+MACHINE_SIGMA_START = 0.05
+"""Initial machine-level spread of the log-factors in phase 2."""
 
 
-class TrainConfigError(ValueError):
+class TrainConfigError(CrankError, ValueError):
     """A training option is out of range."""
 
 
@@ -37,20 +43,39 @@ class TrainConfig:
     horizon: int = 10
     lr: float = 5e-3
     batch_size: int = 4096
-    max_epochs: int = 60
+    max_epochs: int = 200
+    """A cap only: early stopping (patience) ends phase 1 well before it (65 epochs on seed 0)."""
     patience: int = 8
+    lr_decay: float = 0.5
+    """Phase 1: multiply the learning rate by this when the validation loss has not improved for
+    lr_patience epochs (1 = constant rate)."""
+    lr_patience: int = 3
     sigma_lr: float = 5e-3
     sigma_epochs: int = 400
     validation_fraction: float = 3 / 90
     seed: int = 0
+    machine_model: bool = True
+    """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""
+    machine_lr: float = 2e-2
+    """Adam learning rate of log machine_sigma in phase 2."""
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "batch_size", "max_epochs", "patience", "sigma_epochs"):
+        for name in (
+            "horizon",
+            "batch_size",
+            "max_epochs",
+            "patience",
+            "sigma_epochs",
+            "lr_patience",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise TrainConfigError(f"{name} must be an integer >= 1, got {value!r}")
-        for name in ("lr", "sigma_lr"):
+        for name in ("lr", "sigma_lr", "machine_lr"):
             check_finite(name, getattr(self, name), positive=True, error=TrainConfigError)
+        check_seed("seed", self.seed, error=TrainConfigError)
+        if not 0 < self.lr_decay <= 1:
+            raise TrainConfigError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"
@@ -68,6 +93,12 @@ class History:
     validation: list[float] = field(default_factory=list)
     sigma: list[float] = field(default_factory=list)
     best_epoch: int = -1
+    machine_offsets: list[list[float]] = field(default_factory=list)
+    """Posterior mean log-factors (J, B, K) of each training episode's machine, around the
+    common offset."""
+    machine_common: list[float] = field(default_factory=list)
+    """Log-factor offset shared by every episode: the one-step bias of the N-step-trained mean
+    model, estimated so that it is not read as machine spread (never propagated)."""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -106,9 +137,14 @@ def train_mean(
     on_epoch: Callable[[int, float, float], None] | None = None,
 ) -> None:
     """Phase 1, in place: N-step MSE with early stopping; the best weights are restored."""
-    generator = torch.Generator().manual_seed(config.seed)
+    generator = torch.Generator().manual_seed(torch_seed(config.seed, "training") + 1)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(params, lr=config.lr)
+    scheduler = None
+    if config.lr_decay < 1:
+        scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            optimizer, factor=config.lr_decay, patience=config.lr_patience
+        )
     best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
     data = splits.train
     for epoch in range(config.max_epochs):
@@ -122,6 +158,8 @@ def train_mean(
             optimizer.step()
             total += float(loss.detach()) * len(batch)
         validation = evaluate(model, splits.validation, splits.scale)
+        if scheduler is not None:
+            scheduler.step(validation)
         history.train.append(total / len(data))
         history.validation.append(validation)
         if on_epoch is not None:
@@ -137,13 +175,18 @@ def train_mean(
 
 
 def sigma_data(dataset: Dataset, stop: int) -> tuple[torch.Tensor, ...]:
-    """(theta, omega, tau, alpha) of the samples before `stop` with a valid acceleration."""
+    """(theta, omega, tau, alpha, episode) of the samples before `stop` with a valid
+    acceleration; episode is renumbered 0..E-1 over the episodes present."""
     alpha, valid = acceleration(dataset)
     valid[stop:] = False
     idx = np.flatnonzero(valid)
-    return tuple(
-        torch.from_numpy(np.ascontiguousarray(v[idx]))
-        for v in (dataset.theta, dataset.omega, dataset.tau, alpha)
+    episode = np.unique(dataset.episode[idx], return_inverse=True)[1]
+    return (
+        *(
+            torch.from_numpy(np.ascontiguousarray(v[idx]))
+            for v in (dataset.theta, dataset.omega, dataset.tau, alpha)
+        ),
+        torch.from_numpy(episode.astype(np.int64)),
     )
 
 
@@ -156,17 +199,58 @@ def train_sigma(
     history: History,
     on_epoch: Callable[[int, float], None] | None = None,
 ) -> None:
-    """Phase 2, in place: eq. 9 NLL on the sigma networks; everything else is frozen."""
-    theta, omega, tau, alpha = sigma_data(dataset, splits.split)
+    """Phase 2, in place; everything but the sigma networks (and machine_sigma) is frozen.
+
+    With `config.machine_model` the sigma networks and the machine-level spread are fitted
+    jointly by the marginal likelihood of ppann/machine.py (every episode one machine); without
+    it, by eq. 9 alone and machine_sigma stays zero.
+    """
+    theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
+    n_episodes = int(episode.max()) + 1
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
-    params = list(model.sigma_nets.parameters())
-    optimizer = torch.optim.Adam(params, lr=config.sigma_lr)
+        design = (1 + model.z_mean(theta, omega)) * derivative
+    groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
+    log_machine = common = None
+    if config.machine_model:
+        log_machine = torch.full((3,), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
+        common = torch.zeros(3, dtype=torch.float64)
+        for tensor in (log_machine, common):
+            tensor.requires_grad_(True)
+        groups.append({"params": [log_machine, common], "lr": config.machine_lr})
+    optimizer = torch.optim.Adam(groups)
     for epoch in range(config.sigma_epochs):
-        loss = propagated_nll(residual, derivative, model.z_sigma(theta, omega))
+        sigma = model.z_sigma(theta, omega)
+        if log_machine is None:
+            loss = propagated_nll(residual, derivative, sigma)
+        else:
+            loss = marginal_nll(
+                residual + design @ common,
+                derivative,
+                design,
+                sigma,
+                log_machine.exp(),
+                episode,
+                n_episodes,
+            )
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         history.sigma.append(float(loss.detach()))
         if on_epoch is not None:
             on_epoch(epoch, history.sigma[-1])
+    if log_machine is not None:
+        with torch.no_grad():
+            model.machine_sigma.copy_(log_machine.exp())
+            sigma = model.z_sigma(theta, omega)
+            offsets = posterior_offsets(
+                residual + design @ common,
+                derivative,
+                design,
+                sigma,
+                model.machine_sigma,
+                episode,
+                n_episodes,
+            )
+        history.machine_offsets = offsets.tolist()
+        history.machine_common = common.detach().tolist()

@@ -1,0 +1,157 @@
+"""The machine-level uncertainty model: the Monte-Carlo modes against each other, no divergence at
+5σ, recovery of a known machine spread, and the marginal likelihood against a dense reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ppann.machine import marginal_nll
+from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
+from ppann.montecarlo import monte_carlo
+from ppann.train import History, TrainConfig, make_splits, train_sigma
+from twin.dataset import Dataset
+
+DT = 0.002
+TAU = np.concatenate([np.full(60, 4.0), np.full(60, -3.0), np.full(29, 1.0)])
+
+
+def _model(machine_sigma: tuple[float, float, float]) -> PPANN:
+    model = constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.05, 0.3, 0.2))
+    with torch.no_grad():
+        model.machine_sigma.copy_(torch.tensor(machine_sigma, dtype=torch.float64))
+    return model
+
+
+def test_mixed_with_zero_machine_sigma_equals_step_exactly() -> None:
+    model = _model((0.0, 0.0, 0.0))
+    step = monte_carlo(model, [math.pi, 0.0], TAU, n_samples=64, mode="step", seed=4)
+    mixed = monte_carlo(model, [math.pi, 0.0], TAU, n_samples=64, mode="mixed", seed=4)
+    assert np.array_equal(step.samples, mixed.samples)
+
+
+def test_mixed_with_zero_white_sigma_equals_per_trajectory_machines() -> None:
+    """White σ exactly zero: each mixed trajectory is the mean model of one drawn machine,
+    simulated here one by one with that machine's factors."""
+    model = _model((0.1, 0.2, 0.15))
+    heads = FusedHeads(model)
+    heads.w_out[:, 3:] = 0.0
+    heads.b_out[3:] = -np.inf  # softplus(-inf) = 0
+    heads.sigma_floor = 0.0
+    mixed = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="mixed", seed=9)
+    machine = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="machine", seed=9)
+    assert np.array_equal(mixed.samples, machine.samples)
+    # The same machines, drawn as montecarlo draws them, simulated one at a time.
+    _, machine_seq = np.random.SeedSequence(9).spawn(2)
+    eta = 0.0 + np.array([0.1, 0.2, 0.15]) * np.random.default_rng(machine_seq).standard_normal(
+        (16, 3)
+    )
+    for i in (0, 7, 15):
+        theta, omega = np.array([math.pi]), np.array([0.0])
+        factors = np.exp(eta[i : i + 1])
+        for k, u in enumerate(TAU):
+            mean, _ = heads(theta, omega)
+            alpha = heads.acceleration(theta, omega, u, mean, factors=factors)
+            theta, omega = theta + DT * omega, omega + DT * alpha
+            assert mixed.samples[i, k + 1, 0] == theta[0]
+    assert mixed.std[-1, 0] > 0.01  # the machines do differ
+
+
+def test_no_machine_draw_diverges_at_five_sigma() -> None:
+    """Log-normal factors keep inertia, damping and stiffness positive: ±5σ machines of a wide
+    spread (0.2 in log, 7× the paper twin's) stay finite and bounded over 1000 steps. (Forward
+    Euler itself needs 2 J / B > dt; at 5σ of 0.2, J / B is 5.5 ms against dt = 2 ms.)"""
+    model = _model((0.2, 0.2, 0.2))
+    heads = FusedHeads(model)
+    corners = np.array([[s1, s2, s3] for s1 in (-5, 5) for s2 in (-5, 5) for s3 in (-5, 5)])
+    factors = np.exp(corners * heads.machine_sigma)
+    theta, omega = np.full(8, math.pi), np.zeros(8)
+    for _ in range(1000):
+        mean, _ = heads(theta, omega)
+        alpha = heads.acceleration(theta, omega, 5.0, mean, factors=factors)
+        theta, omega = theta + DT * omega, omega + DT * alpha
+    assert np.all(np.isfinite(theta)) and np.all(np.abs(omega) < 1e3)
+    bands = monte_carlo(model, [math.pi, 0.0], np.full(1000, 5.0), n_samples=500, mode="mixed")
+    assert np.all(np.isfinite(bands.samples))
+
+
+def test_marginal_likelihood_equals_the_dense_gaussian() -> None:
+    """Woodbury form == log N(r; 0, diag(s²) + D Σ Dᵀ) computed with dense matrices."""
+    rng = np.random.default_rng(1)
+    n, episodes = 40, 3
+    residual = torch.from_numpy(rng.normal(size=n))
+    derivative = torch.from_numpy(rng.normal(size=(n, 3)))
+    design = torch.from_numpy(rng.normal(size=(n, 3)))
+    sigma = torch.from_numpy(rng.uniform(0.2, 1.0, size=(n, 3)))
+    machine = torch.tensor([0.3, 0.1, 0.5], dtype=torch.float64)
+    episode = torch.from_numpy(np.repeat(np.arange(episodes), [10, 20, 10]))
+    value = marginal_nll(residual, derivative, design, sigma, machine, episode, episodes)
+    total = 0.0
+    for e in range(episodes):
+        idx = episode == e
+        d = design[idx]
+        cov = torch.diag(((derivative[idx] * sigma[idx]) ** 2).sum(-1) + 1e-12)
+        cov = cov + d @ torch.diag(machine**2) @ d.T
+        r = residual[idx]
+        total += 0.5 * (r @ torch.linalg.solve(cov, r) + torch.logdet(cov))
+    assert float(value) == pytest.approx(float(total) / n, rel=1e-10)
+
+
+def _machines_dataset(*, episodes: int, seconds: float, inertia_sigma: float, seed: int):
+    """Episodes of a known PPANN (constant networks) whose inertia factor is exp(eta_J) per
+    episode, eta_J ~ N(0, inertia_sigma²), and a small white torque noise."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
+    heads = FusedHeads(model)
+    rng = np.random.default_rng(seed)
+    n = int(seconds / DT)
+    eta = rng.normal(0.0, inertia_sigma, episodes)
+    levels = np.repeat(rng.uniform(-6, 6, (episodes, n // 50 + 1)), 50, axis=1)[:, :n]
+    tau = np.stack([np.convolve(row, np.ones(10) / 10, mode="same") for row in levels])
+    noise = rng.normal(0.0, 0.02, (episodes, n))
+    theta, omega = np.empty((episodes, n)), np.zeros((episodes, n))
+    theta[:, 0] = rng.uniform(0, 2 * np.pi, episodes)
+    factors = np.stack([np.exp(eta), np.ones(episodes), np.ones(episodes)], axis=-1)
+    for k in range(n - 1):  # all episodes at once
+        mean, _ = heads(theta[:, k], omega[:, k])
+        alpha = heads.acceleration(
+            theta[:, k], omega[:, k], tau[:, k] + noise[:, k], mean, factors=factors
+        )
+        theta[:, k + 1] = theta[:, k] + DT * omega[:, k]
+        omega[:, k + 1] = omega[:, k] + DT * alpha
+    episode = np.repeat(np.arange(episodes), n)
+    theta, omega, tau = theta.ravel(), omega.ravel(), tau.ravel()
+    dataset = Dataset(
+        t=np.arange(len(theta)) * DT,
+        episode=episode.astype(np.int64),
+        theta=theta,
+        omega=omega,
+        tau=tau,
+        slider_position=np.zeros(len(theta)),
+    )
+    return dataset, model, eta
+
+
+def test_machine_sigma_recovered_within_20_percent() -> None:
+    """Phase 2 on a synthetic line whose machines differ in inertia only (log-spread 0.15): the
+    fitted machine σ of the inertia is within 20 % of the spread of the 40 machines in the data
+    (their sample σ; with 40 machines it has itself ~11 % standard error around 0.15, so that is
+    the known answer), and the damping and stiffness get next to none."""
+    spread = 0.15
+    dataset, truth_model, eta = _machines_dataset(
+        episodes=40, seconds=2.0, inertia_sigma=spread, seed=3
+    )
+    model = PPANN(PPANNConfig(sigma_hidden=4))
+    model.load_state_dict(
+        {k: v for k, v in truth_model.state_dict().items() if not k.startswith("sigma_nets")}
+        | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
+    )
+    config = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
+    train_sigma(model, dataset, make_splits(dataset, config), config, history=History())
+    drawn = float(np.std(eta, ddof=1))
+    print(f"drawn {drawn:.4f}, fitted {model.machine_sigma.tolist()}")
+    assert model.machine_sigma[0].item() == pytest.approx(drawn, rel=0.2)
+    assert model.machine_sigma[1].item() < 0.3 * drawn
+    assert model.machine_sigma[2].item() < 0.3 * drawn
