@@ -66,7 +66,7 @@ def robust_figure(ocp: OCPFile) -> Figure:
     iterations = ocp.raw.get("robust_iterations", [])
     for i, k in enumerate(ocp.config.constraint_samples):
         margins = [1e3 * it["margin"][i] for it in iterations]
-        sigmas = [1e3 * it["k_sigma"][i] for it in iterations]
+        sigmas = [1e3 * it["tightening"][i] for it in iterations]
         steps = range(1, len(iterations) + 1)
         bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin used, sample {k}")
         bottom.plot(steps, sigmas, "x--", color=f"C{i}", label=f"kσ of its solution, sample {k}")

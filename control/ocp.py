@@ -43,17 +43,19 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from common.checks import check_count, check_finite, check_seed
+from common.errors import CrankError
 from control.dynamics import CasadiPPANN
 from ppann.model import PPANN
+from ppann.montecarlo import check_mode
 from twin.physics import CRANK_LENGTH, ROD_LENGTH
-from twin.variability import check_finite
 
 
-class OCPConfigError(ValueError):
+class OCPConfigError(CrankError, ValueError):
     """An OCP setting is out of range."""
 
 
-class OCPError(RuntimeError):
+class OCPError(CrankError, RuntimeError):
     """IPOPT did not return a solution that meets every constraint.
 
     Attributes:
@@ -71,6 +73,13 @@ class OCPError(RuntimeError):
         )
 
 
+TIGHTENINGS = ("gaussian", "quantile")
+GAUSSIAN_SAMPLES = 1000
+"""Default Monte-Carlo size for gaussian tightening: k·σ to 2.2 % standard error (100 gave 7 %)."""
+QUANTILE_TAIL = 20
+"""Quantile tightening draws enough trajectories that this many fall beyond the quantile."""
+MAX_MC_SAMPLES = 200_000
+"""Most Monte-Carlo trajectories (150 steps of 200 000 samples hold ~0.5 GB)."""
 SOLVED = "Solve_Succeeded"
 FEASIBILITY_TOLERANCE = 1e-8
 """Largest constraint violation accepted in a returned solution (m, rad, rad/s)."""
@@ -108,9 +117,15 @@ class OCPConfig:
     """Weight of sum((du / Ts)^2) in the cost."""
     k_sigma: float = 3.0
     """k of the robust constraint slider - k sigma >= height (eq. 16)."""
-    mc_samples: int = 100
-    mc_mode: str = "step"
-    """Monte-Carlo draws of z: "step" (eq. 11, fresh per step) or "trajectory"."""
+    mc_samples: int = 0
+    """Monte-Carlo trajectories per tightening; 0 chooses them for the tightening's precision:
+    GAUSSIAN_SAMPLES for gaussian (k·σ to ~2 % standard error), and for quantile enough that
+    QUANTILE_TAIL samples fall beyond the quantile."""
+    mc_mode: str = "mixed"
+    """Monte-Carlo mode (ppann/montecarlo.py): step (eq. 11), trajectory, machine or mixed (the
+    default: one machine per trajectory plus white noise, the machine-level model)."""
+    tightening: str = "gaussian"
+    """gaussian: k·σ (eq. 16); quantile: plan − the lower quantile at Φ(−k) (control/robust.py)."""
     mc_seed: int = 0
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
     margin_tolerance: float = 1e-4
@@ -137,10 +152,32 @@ class OCPConfig:
                 f"constraint samples {bad} outside 2..{self.horizon - 1} "
                 f"(1-based, strictly inside the horizon)"
             )
-        if self.mc_samples < 2:
+        check_seed("mc_seed", self.mc_seed, error=OCPConfigError)
+        check_mode(self.mc_mode, error=OCPConfigError)
+        if self.tightening not in TIGHTENINGS:
+            raise OCPConfigError(
+                f"tightening must be one of {', '.join(TIGHTENINGS)}, got {self.tightening!r}"
+            )
+        check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
+        tail = 0.5 * math.erfc(self.k_sigma / math.sqrt(2))
+        needed = GAUSSIAN_SAMPLES
+        if self.tightening == "quantile":
+            needed = math.ceil(QUANTILE_TAIL / tail) if tail > 0 else MAX_MC_SAMPLES + 1
+            if needed > MAX_MC_SAMPLES:
+                raise OCPConfigError(
+                    f"quantile tightening at k_sigma {self.k_sigma:g} (tail {tail:.2e}) needs "
+                    f"{needed} Monte-Carlo samples, more than {MAX_MC_SAMPLES}"
+                )
+        if self.mc_samples == 0:
+            object.__setattr__(self, "mc_samples", needed)
+        elif self.mc_samples < 2:
             raise OCPConfigError(f"mc_samples must be >= 2, got {self.mc_samples}")
-        if self.mc_mode not in ("step", "trajectory"):
-            raise OCPConfigError(f"mc_mode must be 'step' or 'trajectory', got {self.mc_mode!r}")
+        elif self.tightening == "quantile" and self.mc_samples < needed:
+            raise OCPConfigError(
+                f"quantile tightening at k_sigma {self.k_sigma:g} needs >= {needed} Monte-Carlo "
+                f"samples ({QUANTILE_TAIL} beyond the {100 * tail:.3g} % quantile), "
+                f"got {self.mc_samples}"
+            )
         for name in ("max_robust_iterations", "max_ipopt_iterations"):
             if getattr(self, name) < 1:
                 raise OCPConfigError(f"{name} must be >= 1, got {getattr(self, name)}")

@@ -2,7 +2,7 @@
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 1
+  format, version            "crank-ocp", 2
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
@@ -10,10 +10,13 @@ Top-level keys (stable; `version` changes if any meaning does):
   config                     the resolved OCPConfig
   model                      {path, sha256, kind} of the checkpoint solved on
   nominal, robust            profiles (below)
-  robust_iterations          one entry per robust solve: margin, k_sigma (m, per constraint
-                             sample), cost, ipopt_iterations, solve_time_s, monte_carlo_time_s,
-                             damping, draft (true: a draft solve, control/ocp.py; the last entry
-                             is always a full solve, the one in `robust`)
+  variability                the training dataset's variability scenario (replays draw from it)
+  robust_iterations          one entry per robust solve: margin, tightening, tightening_se (m,
+                             per constraint sample: k sigma or plan - quantile, and its standard
+                             error from the finite Monte-Carlo), cost, ipopt_iterations,
+                             solve_time_s, monte_carlo_time_s, damping, draft (true: a draft
+                             solve, control/ocp.py; the last entry is always a full solve, the
+                             one in `robust`)
   failed_margins             margins IPOPT could not meet during the loop, m
   timing                     build_s, nominal_solve_s, robust_loop_s
   versions                   project, casadi, torch, numpy, python
@@ -24,7 +27,7 @@ from t_k to t_{k+1}; the last is the torque after the horizon), `theta`, `omega`
 states), `slider` (mean-model slider position, m), `slider_mc_mean`, `slider_sigma` (Monte-Carlo
 mean and standard deviation of the slider position), `slider_lower`, `slider_upper` (slider ∓ k
 sigma); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus `heights`, the slider
-lower bounds used at the constraint samples.
+lower bounds used at the constraint samples, and `tightening`, `tightening_se` there (m).
 """
 
 from __future__ import annotations
@@ -41,13 +44,15 @@ import casadi as ca
 import numpy as np
 import torch
 
+from common.errors import CrankError
+from common.jsonio import write_json
 from control.ocp import OCPConfig, Solution
 from control.robust import RobustResult, Uncertainty
 from twin import __version__
-from twin.atomic import atomic_path
 
 FORMAT = "crank-ocp"
-VERSION = 1
+VERSION = 2
+"""2: variability, tightening (was k_sigma) and tightening_se."""
 INDEX_CONVENTION = (
     "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
     "t_{k+1}; constraint_samples are 1-based"
@@ -67,7 +72,7 @@ SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
 TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "nominal", "robust")
 
 
-class OCPFileError(ValueError):
+class OCPFileError(CrankError, ValueError):
     """A file is not a valid ocp.json."""
 
 
@@ -124,6 +129,8 @@ def profile_dict(
     return {
         **{k: [float(v) for v in values] for k, values in series.items()},
         "heights": [float(h) for h in solution.heights],
+        "tightening": [float(v) for v in uncertainty.tightening],
+        "tightening_se": [float(v) for v in uncertainty.tightening_se],
         "cost": solution.cost,
         "status": solution.status,
         "ipopt_iterations": solution.iterations,
@@ -139,8 +146,10 @@ def write_ocp(
     dt: float,
     model: dict[str, Any],
     build_s: float,
+    variability: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write ocp.json atomically and return what was written."""
+    """Write ocp.json atomically and return what was written. `variability` is the training
+    dataset's scenario (from the checkpoint), which replays draw their machines from."""
     payload = {
         "format": FORMAT,
         "version": VERSION,
@@ -150,6 +159,7 @@ def write_ocp(
         "constraint_samples": list(config.constraint_samples),
         "config": config.as_dict(),
         "model": model,
+        "variability": variability,
         "nominal": profile_dict(
             result.nominal, result.nominal_uncertainty, k_sigma=config.k_sigma, dt=dt
         ),
@@ -159,7 +169,8 @@ def write_ocp(
         "robust_iterations": [
             {
                 "margin": it.margin.tolist(),
-                "k_sigma": it.k_sigma.tolist(),
+                "tightening": it.tightening.tolist(),
+                "tightening_se": it.tightening_se.tolist(),
                 "cost": it.cost,
                 "ipopt_iterations": it.ipopt_iterations,
                 "solve_time_s": it.solve_time,
@@ -184,9 +195,7 @@ def write_ocp(
         },
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
-    text = json.dumps(payload, indent=1, allow_nan=False)
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
+    write_json(path, payload)
     return payload
 
 

@@ -2,21 +2,26 @@
 
 Eq. 16 tightens the slider constraint to slider_k - k sigma_k >= height, with sigma_k the
 Monte-Carlo standard deviation (eq. 11) of the slider position under the torque being computed.
-sigma depends on that torque: near top dead centre the slider hardly moves with theta, so a torque
-that reaches the constraint far from it (the nominal one) has a far larger sigma than one that
-dwells near it. The margin m (one per constraint sample) is therefore a fixed point,
-m = k sigma(u*(height + m)), found by damped iteration from m = 0 (the nominal solve):
+Beside this "gaussian" tightening, "quantile" uses plan_k - Q_p (Q_p the Monte-Carlo's lower
+quantile at p = Phi(-k)), which holds at the confidence k sigma stands for when the spread is
+skewed (near top dead centre x(theta) is concave) or its mean is not the plan; below, "k sigma"
+stands for either. sigma depends on the torque: near top dead centre the slider hardly moves
+with theta, so a torque that reaches the constraint far from it (the nominal one) has a far
+larger sigma than one that dwells near it. The margin m (one per constraint sample) is
+therefore a fixed point, m = k sigma(u*(height + m)), found by damped iteration from m = 0 (the
+nominal solve):
 
     proposal = m + beta (k sigma(u) - m)
 
-starting at beta = 1. beta halves whenever the largest residual |k sigma - m| fails to shrink
-from one iteration to the next (the iteration oscillates or diverges) and doubles back towards 1
-when it shrinks; a proposal IPOPT cannot meet (the nominal sigma can eat the whole stroke) halves
-beta and retries from the last solved margin. Each proposal is capped at 95 % of the stroke left
-above the height. The loop stops when k sigma of the latest solution is within
-`margin_tolerance` of the margin it was solved with, at every sample, so that
-slider - k sigma >= height - margin_tolerance holds there. Each solve is warm-started from the
-previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is deterministic.
+starting at beta = 1. beta halves whenever the largest residual |k sigma - m| fails to shrink from
+one iteration to the next (the iteration oscillates or diverges), and that halved value becomes its
+ceiling; it doubles back towards the ceiling when the residual shrinks; a proposal IPOPT cannot
+meet (the nominal sigma can eat the whole stroke) halves beta and retries from the last solved
+margin. Each proposal is capped at 95 % of the stroke left above the height. The loop stops when k
+sigma of the latest solution is within `margin_tolerance` of the margin it was solved with, at
+every sample, so that slider - k sigma >= height - margin_tolerance holds there. Each solve is
+warm-started from the previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is
+deterministic.
 
 Draft, then final: the iteration runs on draft solves (control/ocp.py: one loose IPOPT pass; its
 torque is all the Monte-Carlo needs), which cost a fraction of a full solve. When a draft meets
@@ -27,12 +32,15 @@ ever returned.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from common.errors import CrankError
+from common.streams import stream
 from control.ocp import NominalOCP, OCPConfig, OCPError, Solution, slider_position
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import monte_carlo
@@ -46,25 +54,61 @@ STROKE_SHARE = 0.95
 dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so."""
 
 
-class RobustError(RuntimeError):
+class RobustError(CrankError, RuntimeError):
     """The robust iteration did not reach a margin that its own Monte-Carlo confirms."""
 
 
 @dataclass(frozen=True)
 class Uncertainty:
-    """Monte-Carlo slider position under one torque: mean and std per sample, (N,) each, m."""
+    """Monte-Carlo slider position under one torque: mean and std per sample, (N,) each, m; and
+    the tightening it asks for at the constraint samples, with its standard error, m."""
 
     mean: np.ndarray
     std: np.ndarray
     wall_time: float
+    tightening: np.ndarray
+    """Per constraint sample: k·σ (gaussian) or plan − quantile (quantile), m."""
+    tightening_se: np.ndarray
+    """Standard error of `tightening` from the finite Monte-Carlo, m."""
+
+
+def lower_tail(k_sigma: float) -> float:
+    """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
+    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
+
+
+def tightening(
+    samples: np.ndarray, plan: float, *, k_sigma: float, method: str
+) -> tuple[float, float]:
+    """The margin one constraint sample asks for, and its standard error, from Monte-Carlo slider
+    positions `samples` (n,) under a plan whose mean-model slider position is `plan`.
+
+    gaussian  k·σ (paper eq. 16); standard error k·σ / sqrt(2 (n − 1)) (normal samples).
+    quantile  plan − Q_p, Q_p the empirical lower quantile at p = Φ(−k), so that the slider is
+              above the height with the probability k·σ stands for even when the spread is skewed
+              or its mean is not the plan; standard error half the distance between the order
+              statistics n p ∓ sqrt(n p (1 − p)) (distribution-free).
+    """
+    n = samples.shape[0]
+    if method == "gaussian":
+        sigma = float(np.std(samples, ddof=1))
+        return k_sigma * sigma, k_sigma * sigma / math.sqrt(2 * (n - 1))
+    p = lower_tail(k_sigma)
+    ordered = np.sort(samples)
+    spread = math.sqrt(n * p * (1 - p))
+    lo = ordered[max(0, math.floor(n * p - spread))]
+    hi = ordered[min(n - 1, math.ceil(n * p + spread))]
+    return plan - float(np.quantile(samples, p)), float(hi - lo) / 2
 
 
 @dataclass(frozen=True)
 class Iteration:
-    """One robust solve: the margin it used, the k sigma its solution has, its cost."""
+    """One robust solve: the margin it used, the tightening its solution asks for, its cost."""
 
     margin: np.ndarray
-    k_sigma: np.ndarray
+    tightening: np.ndarray
+    """The tightening (k·σ or plan − quantile) the solution's Monte-Carlo asks for, m."""
+    tightening_se: np.ndarray
     cost: float
     ipopt_iterations: int
     solve_time: float
@@ -89,19 +133,31 @@ class RobustResult:
 
 
 def slider_uncertainty(heads: FusedHeads, solution: Solution, config: OCPConfig) -> Uncertainty:
-    """Monte-Carlo (eq. 11) of the slider position under the solution's torque u_1..u_{N-1}."""
+    """Monte-Carlo (eq. 11, or the configured mode) of the slider position under the solution's
+    torque u_1..u_{N-1}, and the tightening of `config.tightening` at the constraint samples.
+    The draws are the same for every call (common random numbers)."""
     started = time.perf_counter()
     bands = monte_carlo(
         heads,
         solution.states[0],
         solution.tau[:-1],
         n_samples=config.mc_samples,
-        mode=config.mc_mode,  # type: ignore[arg-type]
-        seed=config.mc_seed,
+        mode=config.mc_mode,
+        seed=stream(config.mc_seed, "monte_carlo"),
     )
-    slider = slider_position(bands.samples[:, :, 0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        slider = slider_position(bands.samples[:, :, 0])
+    plan = solution.slider
+    margins = [
+        tightening(slider[:, k - 1], plan[k - 1], k_sigma=config.k_sigma, method=config.tightening)
+        for k in config.constraint_samples
+    ]
     return Uncertainty(
-        slider.mean(axis=0), slider.std(axis=0, ddof=1), time.perf_counter() - started
+        slider.mean(axis=0),
+        slider.std(axis=0, ddof=1),
+        time.perf_counter() - started,
+        tightening=np.array([m for m, _ in margins]),
+        tightening_se=np.array([se for _, se in margins]),
     )
 
 
@@ -129,9 +185,9 @@ def solve_robust(
     nominal_unc = slider_uncertainty(heads, nominal, config)
     started = time.perf_counter()
     margin = np.zeros(len(index))
-    target = config.k_sigma * nominal_unc.std[index]
+    target = nominal_unc.tightening
     current = nominal
-    beta, last_residual = 1.0, target - margin
+    beta, ceiling, last_residual = 1.0, 1.0, target - margin
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
     draft = True
@@ -145,15 +201,16 @@ def solve_robust(
             if beta < MIN_DAMPING:
                 raise RobustError(
                     f"robust OCP infeasible for every margin tried; smallest failed margin "
-                    f"{_mm(proposal)} (k sigma of the last solution {_mm(target)})"
+                    f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
                 ) from None
             continue
         unc = slider_uncertainty(heads, solution, config)
-        new_target = config.k_sigma * unc.std[index]
+        new_target = unc.tightening
         iterations.append(
             Iteration(
                 margin=proposal,
-                k_sigma=new_target,
+                tightening=new_target,
+                tightening_se=unc.tightening_se,
                 cost=solution.cost,
                 ipopt_iterations=solution.iterations,
                 solve_time=solution.wall_time,
@@ -168,7 +225,7 @@ def solve_robust(
         if beyond.any():
             k = int(np.flatnonzero(beyond)[0])
             raise RobustError(
-                f"the model's k sigma of the slider at sample {config.constraint_samples[k]} "
+                f"the model's tightening of the slider at sample {config.constraint_samples[k]} "
                 f"({1e3 * new_target[k]:.1f} mm) exceeds the stroke above the height even for a "
                 f"torque that uses {1e3 * cap[k]:.1f} mm of it: no robust profile (train on more "
                 f"data, or lower k_sigma or height)"
@@ -190,14 +247,16 @@ def solve_robust(
                 wall_time=time.perf_counter() - started,
             )
         if np.max(np.abs(residual)) >= np.max(np.abs(last_residual)):
-            beta /= 2  # not contracting: damp
+            # Not contracting: damp, and never again use a damping this weak (going back to it
+            # made a steep map, slope ~ -2 with quantile tightening, cycle between two margins).
+            ceiling = beta = beta / 2
         else:
-            beta = min(1.0, 2 * beta)  # contracting: undo earlier damping step by step
+            beta = min(ceiling, 2 * beta)  # contracting: undo infeasibility damping step by step
         last_residual = residual
         draft = True
     raise RobustError(
         f"robust margin not settled after {config.max_robust_iterations} iterations: "
-        f"last margin {_mm(margin)}, its k sigma {_mm(target)} (tolerance "
+        f"last margin {_mm(margin)}, its tightening {_mm(target)} (tolerance "
         f"{config.margin_tolerance * 1e3:g} mm)"
     )
 

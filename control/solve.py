@@ -8,14 +8,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from common.atomic import check_writable
+from common.figures import save_figure
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP, OCPConfig
 from control.ocp_file import read_ocp, write_ocp
 from control.robust import Iteration, solve_robust
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN
-from twin.atomic import check_writable
-from twin.plots import save_figure
 
 
 def figure_paths(out: Path) -> dict[str, Path]:
@@ -58,6 +58,7 @@ def solve_file(
             "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
             "kind": payload["kind"],
         },
+        variability=payload.get("variability"),
         build_s=build_s,
     )
     loaded = read_ocp(out)

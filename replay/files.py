@@ -13,15 +13,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from common.atomic import OutputError, check_writable
+from common.figures import save_figure
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, ReplayConfig, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
 from replay.figures import replay_figure
 from replay.recording import write_recording
 from replay.statistics import campaign_statistics, write_statistics
-from twin.atomic import OutputError, check_writable
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
-from twin.plots import save_figure
+from twin.variability import Variability
 
 
 def output_paths(out: str | Path) -> dict[str, Path]:
@@ -34,6 +35,13 @@ def output_paths(out: str | Path) -> dict[str, Path]:
         "figure": Path(f"{stem}.png"),
         "rrd": Path(f"{stem}.rrd"),
     }
+
+
+def ocp_variability(ocp_path: str | Path) -> Variability:
+    """The variability scenario recorded in an ocp.json (the training dataset's), or the default
+    twin's for files written before it was recorded."""
+    raw = read_ocp(ocp_path).raw.get("variability")
+    return Variability() if raw is None else Variability.from_dict(raw)
 
 
 def replay_file(

@@ -5,18 +5,21 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from common.streams import stream
 from control.ocp import NominalOCP, OCPConfig, OCPConfigError, OCPError, slider_position
 from control.ocp_file import OCPFileError, read_ocp
-from control.robust import slider_uncertainty, solve_robust
+from control.robust import lower_tail, slider_uncertainty, solve_robust
 from control.solve import figure_paths, solve_file
 from ppann.checkpoint import save
 from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
+from ppann.montecarlo import monte_carlo
 from tests.conftest import crank
 from twin.physics import slider_position_formula
 
@@ -76,7 +79,7 @@ def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -
     assert np.all(result.robust.slider[SAMPLES] - 3 * robust.std[SAMPLES] >= 0.08 - 1e-4)
     assert result.robust.cost >= result.nominal.cost
     last = result.iterations[-1]
-    np.testing.assert_array_less(np.abs(last.k_sigma - last.margin), 1e-4)
+    np.testing.assert_array_less(np.abs(last.tightening - last.margin), 1e-4)
     # drafts drive the iteration; the result is the full solve that confirmed the margin
     assert not last.draft and result.robust.status == "Solve_Succeeded"
     assert result.iterations[0].draft
@@ -89,6 +92,28 @@ def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -
             torch.from_numpy(result.robust.tau[:-1]),
         ).numpy()
     np.testing.assert_allclose(states, result.robust.states, rtol=0, atol=1e-6)
+
+
+def test_quantile_tightening_keeps_the_monte_carlo_quantile(model: PPANN) -> None:
+    """With quantile tightening the robust torque's own Monte-Carlo has at most Φ(−3) of its
+    trajectories below the height at each constraint sample (to the margin tolerance)."""
+    config = replace(OCPConfig(), tightening="quantile", mc_samples=0)
+    result = solve_robust(model, config)
+    unc = slider_uncertainty(FusedHeads(model), result.robust, config)
+    bands = monte_carlo(
+        model,
+        result.robust.states[0],
+        result.robust.tau[:-1],
+        n_samples=config.mc_samples,
+        mode=config.mc_mode,
+        seed=stream(config.mc_seed, "monte_carlo"),
+    )
+    slider = slider_position(bands.samples[:, :, 0])
+    for i, k in enumerate(SAMPLES):
+        quantile = np.quantile(slider[:, k], lower_tail(3.0))
+        assert quantile >= 0.08 - 1.5e-4
+        assert result.robust.slider[k] - unc.tightening[i] == pytest.approx(quantile, abs=1e-12)
+    assert config.mc_samples == 14816
 
 
 def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
@@ -126,7 +151,7 @@ def test_impossible_height_is_a_typed_error(model: PPANN) -> None:
         ({"torque_limit": 0.0}, "torque_limit"),
         ({"height": float("nan")}, "height"),
         ({"mc_samples": 1}, "mc_samples"),
-        ({"mc_mode": "sometimes"}, "mc_mode"),
+        ({"mc_mode": "sometimes"}, "Monte-Carlo mode"),
     ],
 )
 def test_bad_settings(change: dict, match: str) -> None:

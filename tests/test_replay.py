@@ -397,8 +397,10 @@ def test_replay_rejects_a_bad_ocp_json_in_one_line(
 @pytest.mark.parametrize(
     ("args", "match"),
     [
-        (["--runs", "0"], "runs must be >= 1"),
-        (["--runs", "-3"], "runs must be >= 1"),
+        (["--runs", "0"], "runs must be an integer 1..100000, got 0"),
+        (["--runs", "-3"], "runs must be an integer 1..100000, got -3"),
+        (["--runs", "1000000"], "runs must be an integer 1..100000, got 1000000"),
+        (["--variability", "line-99"], "unknown variability scenario 'line-99'"),
         (["--modes", "open,sideways"], "modes must be a non-empty subset of ('open', 'closed')"),
         (["--kp", "nan"], "kp must be a finite number, got nan"),
         (["--kd", "-1"], "kd must be >= 0"),

@@ -1,0 +1,207 @@
+"""The held-out check: both torques of an ocp.json, open loop, on many machines drawn from streams
+no other stage uses (heldout_machines, heldout_noise), and the PPANN's calibration there.
+
+100 campaign replays cannot tell 0.1 % from 2 % (P(0 of 100 | 2 %) = 13 %); this check plays each
+profile on `runs` (default 1000) machines and reports the violation rate with its exact
+(Clopper-Pearson) 95 % upper bound. Beside it, calibration under the OCP's own torque: the slider's
+observed σ, k·σ and one-sided quantile at each constraint sample against the PPANN's prediction
+in every Monte-Carlo mode (same torque, same start state), and the same for θ at the last sample.
+
+`heldout.json` keys (stable):
+
+  format, version        "crank-heldout", 1
+  runs, seed, streams    machines per profile, root seed, and the stream tree
+  variability, max_start_time
+  mc_samples             trajectories of each predicted σ
+  target_rate            0.005: the robust profile's allowed violation rate
+  profiles.<nominal|robust>:
+    violating_runs, rate, rate_upper_95
+    samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
+                          observed_quantile (at Φ(-k_sigma)), skew,
+                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ)}}
+    theta_final          {observed_sigma, predicted.<mode> {sigma, ratio}}
+  holds                  robust rate <= target_rate (null if no robust profile)
+  timing                 {simulate_s, monte_carlo_s}
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats as scistats
+
+from common import streams
+from common.atomic import check_writable
+from common.jsonio import write_json
+from control.ocp import slider_position
+from control.ocp_file import read_ocp
+from ppann.checkpoint import CheckpointError, load
+from ppann.model import PPANN, FusedHeads
+from ppann.montecarlo import MODES, monte_carlo
+from replay.campaign import PROFILES, ReplayConfig, draw_machines, play
+from twin.physics import MODEL_PATH, SliderCrank, load_model
+from twin.variability import Variability
+
+FORMAT = "crank-heldout"
+VERSION = 1
+TARGET_RATE = 0.005
+"""Largest violation rate of the robust profile on held-out machines that counts as holding."""
+
+
+def rate_upper(violations: int, runs: int, *, confidence: float = 0.95) -> float:
+    """Exact one-sided Clopper-Pearson upper bound of a binomial rate."""
+    if violations >= runs:
+        return 1.0
+    return float(scistats.beta.ppf(confidence, violations + 1, runs - violations))
+
+
+def one_sided_level(k_sigma: float) -> float:
+    """The lower-tail probability that k·σ stands for under a normal law, Φ(-k)."""
+    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
+
+
+def _ratio(predicted: float, observed: float) -> float | None:
+    return predicted / observed if observed > 0 and math.isfinite(predicted) else None
+
+
+def heldout_check(
+    physics: SliderCrank,
+    ocp_path: str | Path,
+    model: PPANN,
+    *,
+    runs: int,
+    seed: int,
+    variability: Variability,
+    max_start_time: float = 60.0,
+    mc_samples: int = 1000,
+) -> dict[str, Any]:
+    """Play both profiles open loop on `runs` held-out machines; return heldout.json's content."""
+    ocp = read_ocp(ocp_path)
+    config = ReplayConfig(
+        runs=runs,
+        seed=seed,
+        modes=("open",),
+        variability=variability,
+        max_start_time=max_start_time,
+    )
+    machines = draw_machines(config, ocp.horizon, held_out=True)
+    heads = FusedHeads(model)
+    c = ocp.config
+    level = one_sided_level(c.k_sigma)
+    out: dict[str, Any] = {
+        "format": FORMAT,
+        "version": VERSION,
+        "ocp": str(ocp_path),
+        "runs": runs,
+        "seed": seed,
+        "streams": streams.describe(seed, ("heldout_machines", "heldout_noise")),
+        "variability": variability.as_dict(),
+        "max_start_time": max_start_time,
+        "mc_samples": mc_samples,
+        "target_rate": TARGET_RATE,
+        "profiles": {},
+    }
+    simulate_s = mc_s = 0.0
+    for profile in PROFILES:
+        t0 = time.perf_counter()
+        replay = play(physics, ocp, profile=profile, mode="open", machines=machines, config=config)
+        simulate_s += time.perf_counter() - t0
+        planned = getattr(ocp, profile)
+        t0 = time.perf_counter()
+        predicted = {
+            mode: monte_carlo(
+                heads,
+                [planned.theta[0], planned.omega[0]],
+                planned.tau[:-1],
+                n_samples=mc_samples,
+                mode=mode,
+                seed=streams.stream(c.mc_seed, "monte_carlo"),
+            )
+            for mode in MODES
+        }
+        mc_s += time.perf_counter() - t0
+        below = np.zeros(runs, dtype=bool)
+        samples: dict[str, Any] = {}
+        for k in c.constraint_samples:
+            x = replay.slider_position[:, k - 1]
+            violated = x < c.height
+            below |= violated
+            observed = float(x.std(ddof=1))
+            entry: dict[str, Any] = {
+                "height": c.height,
+                "violations": int(violated.sum()),
+                "lowest": float(x.min()),
+                "mean": float(x.mean()),
+                "plan": float(planned.slider[k - 1]),
+                "observed_sigma": observed,
+                "observed_quantile": float(np.quantile(x, level)),
+                "skew": float(scistats.skew(x)),
+                "predicted": {},
+            }
+            for mode, bands in predicted.items():
+                with np.errstate(over="ignore", invalid="ignore"):
+                    slider = slider_position(bands.samples[:, k - 1, 0])
+                    sigma = float(np.std(slider, ddof=1))
+                entry["predicted"][mode] = {
+                    "sigma": sigma,
+                    "mean": float(np.mean(slider)),
+                    "ratio": _ratio(sigma, observed),
+                }
+            samples[str(k)] = entry
+        theta_observed = float(replay.theta[:, -1].std(ddof=1))
+        violating = int(below.sum())
+        out["profiles"][profile] = {
+            "violating_runs": violating,
+            "rate": violating / runs,
+            "rate_upper_95": rate_upper(violating, runs),
+            "samples": samples,
+            "theta_final": {
+                "observed_sigma": theta_observed,
+                "predicted": {
+                    mode: {
+                        "sigma": float(b.std[-1, 0]),
+                        "ratio": _ratio(float(b.std[-1, 0]), theta_observed),
+                    }
+                    for mode, b in predicted.items()
+                },
+            },
+        }
+    out["holds"] = out["profiles"]["robust"]["rate"] <= TARGET_RATE
+    out["timing"] = {"simulate_s": simulate_s, "monte_carlo_s": mc_s}
+    return out
+
+
+def heldout_file(
+    ocp_path: str | Path,
+    out: str | Path,
+    *,
+    model: str | Path,
+    runs: int = 1000,
+    seed: int,
+    variability: Variability,
+    max_start_time: float = 60.0,
+    model_path: str | Path = MODEL_PATH,
+) -> dict[str, Any]:
+    """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
+    check_writable(out)
+    ppann, payload = load(model)
+    if not isinstance(ppann, PPANN):
+        raise CheckpointError(
+            f"{model}: a {payload['kind']} model; the held-out check needs a PPANN"
+        )
+    physics = SliderCrank(load_model(model_path)[0])
+    result = heldout_check(
+        physics,
+        ocp_path,
+        ppann,
+        runs=runs,
+        seed=seed,
+        variability=variability,
+        max_start_time=max_start_time,
+    )
+    write_json(out, result)
+    return result
