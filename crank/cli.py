@@ -6,113 +6,47 @@ the target path.
 
 from __future__ import annotations
 
-import functools
-import json
 import os
 import subprocess
 import sys
-import time
-from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from tqdm import tqdm
 
-from control.ocp import OCPConfig, OCPConfigError, OCPError
-from control.ocp_file import OCPFileError
-from control.robust import Iteration, RobustError
+from common.atomic import OutputError
+from control.ocp import OCPConfig, OCPConfigError
 from control.solve import figure_paths, solve_file
-from crank.report import solve_summary, train_summary, write_markdown
-from ppann.checkpoint import CheckpointError
-from ppann.data import DataError
-from ppann.model import ModelConfigError
-from ppann.pipeline import finite_or_none, train_and_report
-from ppann.train import TrainConfig, TrainConfigError
-from replay.campaign import PROFILES, ReplayConfig, ReplayConfigError
-from replay.campaign_log import RecoverError, recover
-from replay.files import output_paths, replay_file
-from replay.recording import RecordingError, check_recording, rerun_version
-from replay.statistics import format_table, summary_rows
+from crank.console import (
+    Amplitude,
+    Drift,
+    EpisodeSeconds,
+    EpochBars,
+    ModelPath,
+    Progress,
+    Seconds,
+    Seed,
+    VariabilityOption,
+    app,
+    one_line_errors,
+    print_replay,
+    print_summary,
+    show_iteration,
+)
+from crank.report import solve_summary, train_summary
+from ppann.pipeline import train_and_report
+from ppann.train import TrainConfig
+from replay.campaign import PROFILES, ReplayConfig
+from replay.campaign_log import recover
+from replay.files import ocp_variability, replay_file
+from replay.recording import check_recording, rerun_version
 from twin import __version__
-from twin.atomic import OutputError, atomic_path, check_writable
 from twin.dataset import GenerationConfig, summarize
 from twin.excitation import Excitation
 from twin.generation import generate_file
-from twin.mcap_dataset import ContractError, read_dataset, read_truth
-from twin.physics import MODEL_PATH, ModelError
-from twin.variability import ConfigError, Variability
-
-app = typer.Typer(
-    add_completion=False,
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-    help="MuJoCo slider-crank twin and PPANN robust-control testbed.",
-)
-
-USER_ERRORS = (
-    ConfigError,
-    ModelError,
-    ContractError,
-    OutputError,
-    DataError,
-    CheckpointError,
-    TrainConfigError,
-    ModelConfigError,
-    OCPConfigError,
-    OCPError,
-    RobustError,
-    OCPFileError,
-    ReplayConfigError,
-    RecoverError,
-    RecordingError,
-)
-
-
-def _one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn the project's input errors into `error: ...` on stderr and exit code 2."""
-
-    @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return command(*args, **kwargs)
-        except USER_ERRORS as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(2) from None
-        except KeyboardInterrupt:
-            typer.echo("error: interrupted; no unfinished file was put at a target path", err=True)
-            raise typer.Exit(130) from None
-
-    return wrapper
-
-
-class _Progress:
-    """A progress bar on stderr, created at its first update and shown only if the step takes
-    more than 2 s, so short runs print nothing but their result."""
-
-    def __init__(self, total: int, desc: str, *, unit: str = "sample") -> None:
-        self.total, self.desc, self.unit, self.bar = total, desc, unit, None
-
-    def update(self, n: int) -> None:
-        if self.bar is None:
-            self.bar = tqdm(
-                total=self.total,
-                desc=self.desc,
-                unit=self.unit,
-                unit_scale=True,
-                delay=2.0,
-                leave=False,
-            )
-        self.bar.update(n)
-
-    def __enter__(self) -> _Progress:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.close()
+from twin.mcap_dataset import read_dataset, read_truth
+from twin.physics import MODEL_PATH
+from twin.variability import Variability
 
 
 def generate_dataset(
@@ -120,8 +54,8 @@ def generate_dataset(
 ) -> dict[str, Any]:
     """`generate_file` with progress bars."""
     with (
-        _Progress(config.n_samples, "simulating") as sim,
-        _Progress(config.n_samples, "writing MCAP") as io,
+        Progress(config.n_samples, "simulating") as sim,
+        Progress(config.n_samples, "writing MCAP") as io,
     ):
         return generate_file(
             config,
@@ -133,36 +67,26 @@ def generate_dataset(
         )
 
 
-def _print_summary(title: str, summary: dict[str, Any]) -> None:
-    typer.echo(title)
-    width = max(len(k) for k in summary)
-    for key, value in summary.items():
-        shown = f"{value:.6g}" if isinstance(value, float) else str(value)
-        typer.echo(f"  {key:<{width}}  {shown}")
-
-
 def _config(
-    *, seconds: float, seed: int, episode_seconds: float, drift: bool, amplitude: float
+    *,
+    seconds: float,
+    seed: int,
+    episode_seconds: float,
+    drift: bool,
+    amplitude: float,
+    variability: str,
 ) -> GenerationConfig:
     return GenerationConfig(
         seconds=seconds,
         seed=seed,
         episode_seconds=episode_seconds,
-        variability=Variability(drift=drift),
+        variability=Variability.resolve(variability, drift=drift),
         excitation=Excitation(amplitude=amplitude),
     )
 
 
-Seconds = Annotated[float, typer.Option(help="Duration of the dataset in s (500 Hz samples).")]
-Seed = Annotated[int, typer.Option(help="Seed of every random draw.")]
-EpisodeSeconds = Annotated[float, typer.Option(help="Length of one episode (machine draw) in s.")]
-Drift = Annotated[bool, typer.Option(help="Friction drifts as each machine warms up.")]
-Amplitude = Annotated[float, typer.Option(help="Peak excitation torque level in N·m.")]
-ModelPath = Annotated[Path, typer.Option("--model", help="The slider-crank MJCF.")]
-
-
 @app.command("generate")
-@_one_line_errors
+@one_line_errors
 def generate_command(
     seconds: Seconds = 90.0,
     seed: Seed = 0,
@@ -170,6 +94,7 @@ def generate_command(
     episode_seconds: EpisodeSeconds = 10.0,
     drift: Drift = True,
     amplitude: Amplitude = Excitation.amplitude,
+    variability: VariabilityOption = "paper",
     model: ModelPath = MODEL_PATH,
     figures: Annotated[bool, typer.Option(help="Write coverage and excitation PNGs.")] = True,
 ) -> None:
@@ -180,46 +105,26 @@ def generate_command(
         episode_seconds=episode_seconds,
         drift=drift,
         amplitude=amplitude,
+        variability=variability,
     )
     summary = generate_dataset(config=config, out=out, model_path=model, figures=figures)
-    _print_summary(f"wrote {out}", summary)
+    print_summary(f"wrote {out}", summary)
 
 
 @app.command("inspect")
-@_one_line_errors
+@one_line_errors
 def inspect_command(
     path: Annotated[Path, typer.Argument(help="A dataset MCAP.")],
 ) -> None:
     """Check a dataset MCAP against the contract and print its summary."""
     dataset = read_dataset(path)
     truth = read_truth(path)
-    _print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
-
-
-class _EpochBars:
-    """One progress bar per model and phase, showing the latest loss."""
-
-    def __init__(self, epochs: dict[str, int]) -> None:
-        self.epochs, self.bar, self.key = epochs, None, None
-
-    def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:
-        if (kind, phase) != self.key:
-            self.close()
-            self.key = (kind, phase)
-            self.bar = tqdm(
-                total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch", leave=False
-            )
-        self.bar.update(1)
-        self.bar.set_postfix(loss=f"{loss:.4g}")
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+    print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
 
 
 def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any]:
     """`train_and_report` with progress bars."""
-    bars = _EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
+    bars = EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
     try:
         return train_and_report(data, out, config=config, on_epoch=bars)
     finally:
@@ -227,7 +132,7 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
 
 
 @app.command("train")
-@_one_line_errors
+@one_line_errors
 def train_command(
     data: Annotated[Path, typer.Option(help="Dataset MCAP.")] = Path("logs/dataset.mcap"),
     out: Annotated[Path, typer.Option(help="PPANN checkpoint to write.")] = Path("logs/model.pt"),
@@ -241,106 +146,7 @@ def train_command(
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
     config = TrainConfig(max_epochs=epochs, sigma_epochs=sigma_epochs, horizon=horizon, seed=seed)
     report = train_models(data=data, out=out, config=config)
-    _print_summary(f"wrote {out} and its report", train_summary(report))
-
-
-@app.command("run")
-@_one_line_errors
-def run_command(
-    seconds: Seconds = 90.0,
-    seed: Seed = 0,
-    logs: Annotated[Path, typer.Option(help="Output root; the run goes in logs/<run>/.")] = Path(
-        "logs"
-    ),
-    name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
-    episode_seconds: EpisodeSeconds = 10.0,
-    drift: Drift = True,
-    runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
-        ReplayConfig.runs
-    ),
-    model: ModelPath = MODEL_PATH,
-) -> None:
-    """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
-    them on the twin open and closed loop, report (report.json, report.md, figures)."""
-    config = _config(
-        seconds=seconds,
-        seed=seed,
-        episode_seconds=episode_seconds,
-        drift=drift,
-        amplitude=Excitation.amplitude,
-    )
-    train_config = TrainConfig(seed=seed)
-    ocp_config = OCPConfig(mc_seed=seed)
-    replay_config = ReplayConfig(runs=runs, seed=seed)
-    name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
-    run_dir = logs / name
-    if run_dir.exists():
-        raise OutputError(f"run folder already exists: {run_dir}")
-    resolved = {
-        "command": "crank run",
-        "argv": sys.argv[1:],
-        "seed": seed,
-        "generate": config.as_dict(),
-        "train": train_config.as_dict(),
-        "solve": ocp_config.as_dict(),
-        "replay": replay_config.as_dict(),
-        "model": str(model),
-        "project_version": __version__,
-    }
-    check_writable(run_dir / "config.json")
-    _write_json(run_dir / "config.json", resolved)
-    started = time.perf_counter()
-    steps: dict[str, float] = {}
-
-    def lap(step: str, t0: float) -> None:
-        steps[step] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    summary = generate_dataset(config=config, out=run_dir / "dataset.mcap", model_path=model)
-    lap("generate", t0)
-    t0 = time.perf_counter()
-    trained = train_models(
-        data=run_dir / "dataset.mcap", out=run_dir / "model.pt", config=train_config
-    )
-    lap("train", t0)
-    t0 = time.perf_counter()
-    solved = solve_ocp(model=run_dir / "model.pt", out=run_dir / "ocp.json", config=ocp_config)
-    lap("solve", t0)
-    t0 = time.perf_counter()
-    stats = replay_campaign(
-        ocp=run_dir / "ocp.json",
-        out=run_dir / "replay.mcap",
-        config=replay_config,
-        model=model,
-        resolved=resolved,
-    )
-    lap("replay", t0)
-    steps["total"] = time.perf_counter() - started
-    report = {
-        "config": resolved,
-        "dataset": summary,
-        "ppann": trained,
-        "ocp": solve_summary(solved),
-        "replay": {
-            "claim": stats["claim"],
-            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
-            "table": summary_rows(stats),
-            "stats": output_paths(run_dir / "replay.mcap")["stats"].name,
-        },
-        "wall_seconds": steps,
-    }
-    _write_json(run_dir / "report.json", report)
-    write_markdown(run_dir / "report.md", report, stats=stats)
-    _print_summary(f"run {run_dir}: dataset", summary)
-    _print_summary("PPANN", train_summary(trained))
-    _print_summary("OCP", solve_summary(solved))
-    typer.echo("replay on the twin")
-    _print_replay(stats, run_dir / "replay.mcap")
-    typer.echo(
-        "wall time: "
-        + ", ".join(f"{k} {v:.0f} s" for k, v in steps.items())
-        + f"; report: {run_dir / 'report.md'}"
-    )
+    print_summary(f"wrote {out} and its report", train_summary(report))
 
 
 def _samples(text: str) -> tuple[int, ...]:
@@ -352,24 +158,8 @@ def _samples(text: str) -> tuple[int, ...]:
         ) from None
 
 
-def solve_ocp(*, model: Path, out: Path, config: OCPConfig) -> dict[str, Any]:
-    """`solve_file`, printing each robust iteration's margins on stderr."""
-
-    def show(it: Iteration) -> None:
-        margin = ", ".join(f"{1e3 * v:.2f}" for v in it.margin)
-        k_sigma = ", ".join(f"{1e3 * v:.2f}" for v in it.k_sigma)
-        kind = "draft" if it.draft else "full "
-        typer.echo(
-            f"  robust iteration ({kind}): margin [{margin}] mm -> kσ [{k_sigma}] mm, "
-            f"cost {it.cost:.5g}, {it.ipopt_iterations} IPOPT iterations",
-            err=True,
-        )
-
-    return solve_file(model, out, config=config, on_iteration=show)
-
-
 @app.command("solve")
-@_one_line_errors
+@one_line_errors
 def solve_command(
     model: Annotated[Path, typer.Option(help="PPANN checkpoint.")] = Path("logs/model.pt"),
     out: Annotated[Path, typer.Option(help="OCP result to write.")] = Path("logs/ocp.json"),
@@ -405,9 +195,9 @@ def solve_command(
         theta_end=theta_end,
         mc_seed=seed,
     )
-    payload = solve_ocp(model=model, out=out, config=config)
+    payload = solve_file(model, out, config=config, on_iteration=show_iteration)
     figures = ", ".join(str(p) for p in figure_paths(out).values())
-    _print_summary(f"wrote {out} and {figures}", solve_summary(payload))
+    print_summary(f"wrote {out} and {figures}", solve_summary(payload))
 
 
 def _modes(text: str) -> tuple[str, ...]:
@@ -420,7 +210,7 @@ def replay_campaign(
 ) -> dict[str, Any]:
     """`replay_file` with a progress bar over the runs."""
     total = config.runs * len(PROFILES) * len(config.modes)
-    with _Progress(total, "replaying", unit="run") as bar:
+    with Progress(total, "replaying", unit="run") as bar:
         done = 0
 
         def on_run(n: int) -> None:
@@ -433,22 +223,8 @@ def replay_campaign(
         )
 
 
-def _print_replay(stats: dict[str, Any], out: Path) -> None:
-    typer.echo(format_table(summary_rows(stats)))
-    claim = stats["claim"]
-    if claim["holds"] is not None:
-        verdict = "holds" if claim["holds"] else "does NOT hold"
-        typer.echo(
-            f"claim {verdict}: robust open loop {claim['robust_open_violating_runs']} of "
-            f"{stats['config']['runs']} runs below the height, nominal "
-            f"{claim['nominal_open_violating_runs']} (needs >= {claim['nominal_needed']})"
-        )
-    files = ", ".join(str(p) for p in output_paths(out).values())
-    typer.echo(f"wrote {files}")
-
-
 @app.command("replay")
-@_one_line_errors
+@one_line_errors
 def replay_command(
     ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
     runs: Annotated[int, typer.Option(help="Machines (runs) per profile and mode.")] = (
@@ -468,12 +244,27 @@ def replay_command(
     max_start_time: Annotated[
         float, typer.Option(help="Machines have run U[0, this] s before (warm-up drift).")
     ] = ReplayConfig.max_start_time,
+    variability: Annotated[
+        str | None,
+        typer.Option(
+            help="Scenario or range file of the machines (default: the one in ocp.json, which "
+            "is the training dataset's)."
+        ),
+    ] = None,
     model: ModelPath = MODEL_PATH,
 ) -> None:
     """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
     campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
     config = ReplayConfig(
-        runs=runs, seed=seed, modes=_modes(modes), kp=kp, kd=kd, max_start_time=max_start_time
+        runs=runs,
+        seed=seed,
+        modes=_modes(modes),
+        kp=kp,
+        kd=kd,
+        max_start_time=max_start_time,
+        variability=(
+            ocp_variability(ocp) if variability is None else Variability.resolve(variability)
+        ),
     )
     resolved = {
         "command": "crank replay",
@@ -484,11 +275,11 @@ def replay_command(
         "project_version": __version__,
     }
     stats = replay_campaign(ocp=ocp, out=out, config=config, model=model, resolved=resolved)
-    _print_replay(stats, out)
+    print_replay(stats, out)
 
 
 @app.command("recover")
-@_one_line_errors
+@one_line_errors
 def recover_command(
     broken: Annotated[Path, typer.Argument(help="MCAP left by a crashed campaign (.partial).")],
     fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
@@ -509,7 +300,7 @@ def _has_display() -> bool:
 
 
 @app.command("view")
-@_one_line_errors
+@one_line_errors
 def view_command(
     path: Annotated[Path, typer.Argument(help="A campaign's .rrd (or an .mcap log).")],
 ) -> None:
@@ -536,10 +327,7 @@ def view_command(
     typer.echo(f"opened {path} in the Rerun viewer")
 
 
-def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(finite_or_none(payload), indent=2, allow_nan=False) + "\n")
-
-
 def main() -> None:
+    import crank.cli_chain  # noqa: F401  (registers `run` and `study` on the app)
+
     app()

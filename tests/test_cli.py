@@ -43,11 +43,14 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     OCP and stops there with one line naming why, leaving no ocp.json or report."""
     result = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1].startswith("error: the model's k sigma")
+    assert result.stderr.strip().splitlines()[-1].startswith("error: the model's tightening")
     run_dir = tmp_path / "r1"
     config = json.loads((run_dir / "config.json").read_text())
-    assert config["seed"] == 0 and config["generate"]["seconds"] == 2.0
-    assert config["solve"]["horizon"] == 150 and config["solve"]["mc_seed"] == 0
+    assert config["seed"] == 0 and config["generation"]["seconds"] == 2.0
+    assert config["ocp"]["horizon"] == 150 and config["ocp"]["mc_seed"] == 0
+    assert config["ocp"]["mc_samples"] == 1000 and config["ocp"]["mc_mode"] == "mixed"
+    assert config["streams"]["root_seed"] == 0 and "replay_machines" in config["streams"]["streams"]
+    assert config["generation"]["variability"]["name"] == "paper"
     assert (run_dir / "dataset.mcap").is_file() and (run_dir / "model.pt").is_file()
     assert not (run_dir / "ocp.json").exists() and not (run_dir / "report.json").exists()
     again = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")

@@ -1,0 +1,241 @@
+"""`crank run` as a library: generate → train → solve → replay (→ held-out check) → report.
+
+`RunConfig` is frozen and holds every stage's resolved config; `config.json` in the run folder is
+exactly `RunConfig.as_dict()`. One root seed feeds every stage through named random streams
+(common/streams.py), so replay and held-out machines are never training machines. The variability
+scenario of the dataset is the one the replays and the held-out check draw from.
+
+The CLI only builds a `RunConfig`, passes progress hooks and prints; the sweep and the seed study
+call `run_chain` directly.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from common import streams
+from common.atomic import OutputError, check_writable
+from common.checks import check_count, check_seed
+from common.errors import ConfigError
+from common.jsonio import write_json
+from control.ocp import OCPConfig
+from control.robust import Iteration
+from control.solve import solve_file
+from crank.report import solve_summary, write_markdown
+from ppann.pipeline import train_and_report
+from ppann.train import TrainConfig
+from replay.campaign import ReplayConfig
+from replay.files import output_paths, replay_file
+from replay.heldout import heldout_file
+from replay.statistics import summary_rows
+from twin import __version__
+from twin.dataset import GenerationConfig
+from twin.generation import generate_file
+from twin.physics import MODEL_PATH
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything `crank run` does, resolved. Build it with `RunConfig.for_seed`.
+
+    Dataset, training and Monte-Carlo use the root `seed`; the replay's seed defaults to it and
+    may differ (its streams are its own, so nothing upstream depends on it).
+    """
+
+    seed: int = 0
+    generation: GenerationConfig = field(default_factory=GenerationConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    ocp: OCPConfig = field(default_factory=OCPConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    heldout_runs: int = 0
+    """Machines of the held-out check (open loop, both profiles); 0 skips it."""
+    heldout_seed: int = 0
+    """Root seed of the held-out machines (streams heldout_machines / heldout_noise)."""
+    model_path: str = str(MODEL_PATH)
+    baselines: bool = True
+    """Train and report the physics-only and black-box baselines too."""
+
+    def __post_init__(self) -> None:
+        check_seed("seed", self.seed)
+        check_seed("heldout_seed", self.heldout_seed)
+        check_count("heldout_runs", self.heldout_runs, low=0, high=100_000)
+        seeds = {
+            "generation": self.generation.seed,
+            "train": self.train.seed,
+            "ocp": self.ocp.mc_seed,
+        }
+        if any(v != self.seed for v in seeds.values()):
+            raise ConfigError(
+                f"every stage up to the OCP must use the run's root seed {self.seed}, got {seeds}"
+            )
+        if self.replay.variability != self.generation.variability:
+            raise ConfigError("replays must draw from the dataset's variability scenario")
+
+    @classmethod
+    def for_seed(
+        cls,
+        seed: int = 0,
+        *,
+        generation: dict[str, Any] | None = None,
+        train: dict[str, Any] | None = None,
+        ocp: dict[str, Any] | None = None,
+        replay: dict[str, Any] | None = None,
+        **options: Any,
+    ) -> RunConfig:
+        """Stage configs from their defaults, `seed` as every stage's root seed, and the
+        dataset's variability for the replays. Keyword dicts override stage fields."""
+        gen = GenerationConfig(**{**(generation or {}), "seed": seed})
+        return cls(
+            seed=seed,
+            generation=gen,
+            train=TrainConfig(**{**(train or {}), "seed": seed}),
+            ocp=OCPConfig(**{**(ocp or {}), "mc_seed": seed}),
+            replay=ReplayConfig(**{**(replay or {}), "seed": seed, "variability": gen.variability}),
+            **options,
+        )
+
+    def with_seed(self, seed: int) -> RunConfig:
+        """The same run under another root seed (the seed study); the replay seed follows."""
+        return replace(
+            self,
+            seed=seed,
+            generation=replace(self.generation, seed=seed),
+            train=replace(self.train, seed=seed),
+            ocp=replace(self.ocp, mc_seed=seed),
+            replay=replace(self.replay, seed=seed),
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["ocp"] = self.ocp.as_dict()
+        out["streams"] = streams.describe(self.seed)
+        out["heldout_streams"] = streams.describe(
+            self.heldout_seed, ("heldout_machines", "heldout_noise")
+        )
+        return out
+
+
+@dataclass(frozen=True)
+class Hooks:
+    """Progress callbacks for a long run; every one optional."""
+
+    on_stage: Callable[[str], None] | None = None
+    on_simulated: Callable[[int], None] | None = None
+    on_written: Callable[[int], None] | None = None
+    on_epoch: Callable[[str, str, int, float], None] | None = None
+    on_iteration: Callable[[Iteration], None] | None = None
+    on_run: Callable[[int], None] | None = None
+
+
+def run_chain(
+    config: RunConfig,
+    run_dir: str | Path,
+    *,
+    hooks: Hooks | None = None,
+    argv: list[str] | None = None,
+) -> dict[str, Any]:
+    """Run every stage into `run_dir` (which must not exist) and return report.json's content.
+
+    Files: config.json first, then each stage's outputs, report.json and report.md last, so a
+    folder without report.md did not finish.
+    """
+    hooks = hooks or Hooks()
+    run_dir = Path(run_dir)
+    if run_dir.exists():
+        raise OutputError(f"run folder already exists: {run_dir}")
+    stage = hooks.on_stage or (lambda _: None)
+    resolved = {
+        "command": "crank run",
+        "argv": sys.argv[1:] if argv is None else argv,
+        "project_version": __version__,
+        **config.as_dict(),
+    }
+    check_writable(run_dir / "config.json")
+    write_json(run_dir / "config.json", resolved, indent=2)
+    steps: dict[str, float] = {}
+    started = time.perf_counter()
+
+    t0 = time.perf_counter()
+    stage("generating the dataset")
+    dataset = generate_file(
+        config.generation,
+        out=run_dir / "dataset.mcap",
+        model_path=config.model_path,
+        on_simulated=hooks.on_simulated,
+        on_written=hooks.on_written,
+    )
+    steps["generate"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    stage("training the PPANN" + (" and its baselines" if config.baselines else ""))
+    trained = train_and_report(
+        run_dir / "dataset.mcap",
+        run_dir / "model.pt",
+        config=config.train,
+        baselines=config.baselines,
+        on_epoch=hooks.on_epoch,
+        on_stage=hooks.on_stage,
+    )
+    steps["train"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    stage("solving the nominal and robust OCP")
+    solved = solve_file(
+        run_dir / "model.pt",
+        run_dir / "ocp.json",
+        config=config.ocp,
+        on_iteration=hooks.on_iteration,
+    )
+    steps["solve"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    stage("replaying on the twin")
+    stats = replay_file(
+        run_dir / "ocp.json",
+        run_dir / "replay.mcap",
+        config=config.replay,
+        model_path=config.model_path,
+        resolved=resolved,
+        on_run=hooks.on_run,
+    )
+    steps["replay"] = time.perf_counter() - t0
+
+    heldout = None
+    if config.heldout_runs:
+        t0 = time.perf_counter()
+        stage(f"held-out check on {config.heldout_runs} machines")
+        heldout = heldout_file(
+            run_dir / "ocp.json",
+            run_dir / "heldout.json",
+            model=run_dir / "model.pt",
+            runs=config.heldout_runs,
+            seed=config.heldout_seed,
+            variability=config.generation.variability,
+            max_start_time=config.replay.max_start_time,
+            model_path=config.model_path,
+        )
+        steps["heldout"] = time.perf_counter() - t0
+    steps["total"] = time.perf_counter() - started
+
+    report = {
+        "config": resolved,
+        "dataset": dataset,
+        "ppann": trained,
+        "ocp": solve_summary(solved),
+        "replay": {
+            "claim": stats["claim"],
+            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
+            "table": summary_rows(stats),
+            "stats": output_paths(run_dir / "replay.mcap")["stats"].name,
+        },
+        "heldout": heldout,
+        "wall_seconds": steps,
+    }
+    write_json(run_dir / "report.json", report, indent=2)
+    write_markdown(run_dir / "report.md", report, stats=stats)
+    return report

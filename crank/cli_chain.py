@@ -1,0 +1,178 @@
+"""`crank run` and `crank study`: the whole chain (crank/chain.py) with progress, and the seed
+study (crank/study.py)."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from control.ocp import OCPConfig
+from crank.chain import Hooks, RunConfig, run_chain
+from crank.console import (
+    HELDOUT_SEED,
+    Drift,
+    EpisodeSeconds,
+    EpochBars,
+    ModelPath,
+    Progress,
+    Seconds,
+    Seed,
+    VariabilityOption,
+    app,
+    one_line_errors,
+    print_heldout,
+    print_replay,
+    print_summary,
+    show_iteration,
+)
+from crank.report import train_summary
+from crank.study import parse_seeds, run_study
+from replay.campaign import ReplayConfig
+from twin.physics import MODEL_PATH
+from twin.variability import Variability
+
+
+@app.command("run")
+@one_line_errors
+def run_command(
+    seconds: Seconds = 90.0,
+    seed: Seed = 0,
+    logs: Annotated[Path, typer.Option(help="Output root; the run goes in logs/<run>/.")] = Path(
+        "logs"
+    ),
+    name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
+    episode_seconds: EpisodeSeconds = 10.0,
+    drift: Drift = True,
+    variability: VariabilityOption = "paper",
+    runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
+        ReplayConfig.runs
+    ),
+    heldout_runs: Annotated[
+        int, typer.Option(help="Held-out machines per profile (open loop); 0 skips the check.")
+    ] = 0,
+    heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
+        HELDOUT_SEED
+    ),
+    model: ModelPath = MODEL_PATH,
+) -> None:
+    """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
+    them on the twin open and closed loop, report (report.json, report.md, figures)."""
+    config = RunConfig.for_seed(
+        seed,
+        generation={
+            "seconds": seconds,
+            "episode_seconds": episode_seconds,
+            "variability": Variability.resolve(variability, drift=drift),
+        },
+        replay={"runs": runs},
+        heldout_runs=heldout_runs,
+        heldout_seed=heldout_seed,
+        model_path=str(model),
+    )
+    name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
+    run_dir = logs / name
+    bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})
+    with (
+        Progress(config.generation.n_samples, "simulating") as sim,
+        Progress(config.generation.n_samples, "writing MCAP") as io,
+        Progress(config.replay.runs * 2 * len(config.replay.modes), "replaying", unit="run") as rp,
+    ):
+        done = 0
+
+        def on_run(n: int) -> None:
+            nonlocal done
+            rp.update(n - done)
+            done = n
+
+        hooks = Hooks(
+            on_simulated=sim.update,
+            on_written=io.update,
+            on_epoch=bars,
+            on_iteration=show_iteration,
+            on_run=on_run,
+        )
+        try:
+            report = run_chain(config, run_dir, hooks=hooks)
+        finally:
+            bars.close()
+    print_summary(f"run {run_dir}: dataset", report["dataset"])
+    print_summary("PPANN", train_summary(report["ppann"]))
+    print_summary("OCP", report["ocp"])
+    typer.echo("replay on the twin")
+    stats = json.loads((run_dir / report["replay"]["stats"]).read_text())
+    print_replay(stats, run_dir / "replay.mcap")
+    if report["heldout"] is not None:
+        print_heldout(report["heldout"])
+    typer.echo(
+        "wall time: "
+        + ", ".join(f"{k} {v:.0f} s" for k, v in report["wall_seconds"].items())
+        + f"; report: {run_dir / 'report.md'}"
+    )
+
+
+@app.command("study")
+@one_line_errors
+def study_command(
+    seeds: Annotated[str, typer.Option(help="Seeds: a range like 0-9 or a list like 0,3,7.")] = (
+        "0-9"
+    ),
+    out: Annotated[Path, typer.Option(help="Study folder (one seed-<s>/ run folder each).")] = Path(
+        "logs/study"
+    ),
+    variability: VariabilityOption = "paper",
+    seconds: Seconds = 90.0,
+    episode_seconds: EpisodeSeconds = 10.0,
+    runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
+    heldout_runs: Annotated[int, typer.Option(help="Held-out machines per profile.")] = 1000,
+    heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
+        HELDOUT_SEED
+    ),
+    mc_mode: Annotated[str, typer.Option(help="Monte-Carlo mode of the robust OCP.")] = (
+        OCPConfig.mc_mode
+    ),
+    tightening: Annotated[str, typer.Option(help="gaussian (k·σ) or quantile.")] = (
+        OCPConfig.tightening
+    ),
+    baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
+    resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
+        False
+    ),
+) -> None:
+    """The chain once per seed, each robust torque checked on held-out machines: study.md,
+    study.csv, study.json and study.png (violation rate and premium against seed)."""
+    chosen = parse_seeds(seeds)
+    base = RunConfig.for_seed(
+        chosen[0],
+        generation={
+            "seconds": seconds,
+            "episode_seconds": episode_seconds,
+            "variability": Variability.resolve(variability),
+        },
+        ocp={"mc_mode": mc_mode, "tightening": tightening},
+        replay={"runs": runs},
+        heldout_runs=heldout_runs,
+        heldout_seed=heldout_seed,
+        baselines=baselines,
+    )
+
+    def hooks(seed: int) -> Hooks:
+        typer.echo(f"seed {seed}: running the chain into {out / f'seed-{seed}'}", err=True)
+        return Hooks(on_stage=lambda text: typer.echo(f"  seed {seed}: {text}", err=True))
+
+    def show(row: dict[str, Any]) -> None:
+        if row.get("error"):
+            typer.echo(f"seed {row['seed']}: error: {row['error']}")
+        elif "robust_heldout_rate" in row:
+            typer.echo(
+                f"seed {row['seed']}: robust {row['robust_open_100']}/100, held-out "
+                f"{100 * row['robust_heldout_rate']:.2f} % (95 % bound "
+                f"{100 * row['robust_heldout_upper_95']:.2f} %), "
+                f"premium {100 * row['premium']:.1f} %"
+            )
+
+    study = run_study(base, chosen, out, resume=resume, hooks=hooks, on_row=show)
+    typer.echo(f"wrote {out / 'study.md'} ({study['wall_s'] / 60:.1f} min)")

@@ -1,0 +1,243 @@
+"""`crank study`: the chain once per seed, each checked on held-out machines, into one table.
+
+A robustness claim needs several training seeds and a held-out check on many machines (1000 by
+default, drawn from the held-out streams with a root seed of their own). For each seed the study
+runs `run_chain` into `<out>/seed-<s>/` and reads one row back from its files; a seed whose chain
+fails (for example no robust profile exists) is a row with its one-line error, and the study goes
+on. A study run again with `resume=True` keeps every seed folder that has its report.md and
+redoes the rest.
+
+Files in `<out>/`: `study.json` (config and rows), `study.csv`, `study.md` (the table and the
+verdict against the targets), `study.png` (violation rates and premium against seed).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+
+from common.atomic import atomic_path
+from common.errors import ConfigError, CrankError
+from common.figures import save_figure
+from common.jsonio import write_json
+from crank.chain import Hooks, RunConfig, run_chain
+
+TARGET_HELDOUT_RATE = 0.005
+MAX_SEEDS = 1000
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """'0-9', '0,3,7' or '2' → seeds; anything else is a ConfigError naming the text."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        part = part.strip()
+        match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        if not match:
+            raise ConfigError(f"--seeds takes a range like 0-9 or a list like 0,3,7; got {text!r}")
+        low = int(match.group(1))
+        high = int(match.group(2)) if match.group(2) else low
+        if high < low:
+            raise ConfigError(f"--seeds range {part!r} runs backwards")
+        seeds.extend(range(low, high + 1))
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds repeats a seed: {text!r}")
+    if not 1 <= len(seeds) <= MAX_SEEDS:
+        raise ConfigError(f"--seeds must name 1..{MAX_SEEDS} seeds, got {len(seeds)}")
+    return tuple(seeds)
+
+
+def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
+    """One row of the study from a finished seed folder."""
+    report = json.loads((run_dir / "report.json").read_text())
+    stats = json.loads((run_dir / report["replay"]["stats"]).read_text())
+    ocp = json.loads((run_dir / "ocp.json").read_text())
+    heldout = report["heldout"]
+    mode = ocp["config"]["mc_mode"]
+    k = ocp["config"]["k_sigma"]
+    open_ = {p: stats["profiles"][p]["open"] for p in ("nominal", "robust")}
+    row: dict[str, Any] = {
+        "seed": seed,
+        "error": None,
+        "robust_open_100": open_["robust"]["violating_runs"],
+        "nominal_open_100": open_["nominal"]["violating_runs"],
+        "premium": stats["ocp"]["robust_cost_premium"],
+        "robust_lowest_mm": 1e3 * min(c["lowest"] for c in open_["robust"]["constraint"].values()),
+        "phase1_epochs": report["ppann"]["models"]["ppann"]["epochs"],
+        "phase1_converged": report["ppann"]["models"]["ppann"]["phase1_converged"],
+        "machine_sigma": report["ppann"]["models"]["ppann"]["machine_sigma"],
+        "mc_mode": mode,
+        "wall_s": report["wall_seconds"]["total"],
+    }
+    if heldout is not None:
+        robust, nominal = heldout["profiles"]["robust"], heldout["profiles"]["nominal"]
+        row |= {
+            "heldout_runs": heldout["runs"],
+            "robust_heldout_rate": robust["rate"],
+            "robust_heldout_upper_95": robust["rate_upper_95"],
+            "nominal_heldout_rate": nominal["rate"],
+            "robust_heldout_lowest_mm": 1e3 * min(s["lowest"] for s in robust["samples"].values()),
+        }
+        for sample, entry in robust["samples"].items():
+            predicted = entry["predicted"][mode]
+            row[f"pred_{k:g}sigma_{sample}_mm"] = 1e3 * k * predicted["sigma"]
+            row[f"obs_{k:g}sigma_{sample}_mm"] = 1e3 * k * entry["observed_sigma"]
+            row[f"ratio_{sample}"] = predicted["ratio"]
+    return row
+
+
+def run_study(
+    base: RunConfig,
+    seeds: tuple[int, ...],
+    out: str | Path,
+    *,
+    resume: bool = False,
+    hooks: Callable[[int], Hooks] | None = None,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """Run the chain per seed into `out`/seed-<s>/ and write the study files; return study.json."""
+    out = Path(out)
+    if out.exists() and not resume:
+        raise ConfigError(f"study folder already exists: {out} (use --resume to continue it)")
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    started = time.perf_counter()
+    for seed in seeds:
+        run_dir = out / f"seed-{seed}"
+        if not (run_dir / "report.md").is_file():
+            shutil.rmtree(run_dir, ignore_errors=True)  # an unfinished seed starts over
+            try:
+                run_chain(
+                    base.with_seed(seed),
+                    run_dir,
+                    hooks=hooks(seed) if hooks else None,
+                    argv=[],
+                )
+            except CrankError as exc:
+                row = {"seed": seed, "error": str(exc)}
+                (run_dir / "error.txt").write_text(str(exc) + "\n")
+                rows.append(row)
+                if on_row:
+                    on_row(row)
+                continue
+        row = seed_row(seed, run_dir)
+        rows.append(row)
+        if on_row:
+            on_row(row)
+    study = {
+        "format": "crank-study",
+        "version": 1,
+        "seeds": list(seeds),
+        "config": base.as_dict(),
+        "target_heldout_rate": TARGET_HELDOUT_RATE,
+        "rows": rows,
+        "wall_s": time.perf_counter() - started,
+    }
+    write_json(out / "study.json", study, indent=2)
+    _write_csv(out / "study.csv", rows)
+    (out / "study.md").write_text(markdown(study))
+    save_figure(figure(rows), out / "study.png")
+    return study
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    keys: list[str] = []
+    for row in rows:
+        keys += [k for k in row if k not in keys and not isinstance(row[k], dict)]
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=keys, extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    with atomic_path(path) as tmp:
+        tmp.write_text(buffer.getvalue())
+
+
+def _cell(value: Any, spec: str = "") -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, float):
+        return format(value, spec or ".3g")
+    return str(value)
+
+
+def markdown(study: dict[str, Any]) -> str:
+    """study.md: verdict against the targets first, then one row per seed."""
+    rows = study["rows"]
+    ok = [r for r in rows if r.get("error") is None]
+    lines = [f"# Seed study: seeds {', '.join(str(s) for s in study['seeds'])}", ""]
+    scenario = study["config"]["generation"]["variability"]["name"]
+    lines.append(
+        f"Variability scenario `{scenario}`, Monte-Carlo `{study['config']['ocp']['mc_mode']}` "
+        f"({study['config']['ocp']['mc_samples']} samples, {study['config']['ocp']['tightening']} "
+        f"tightening), held-out seed {study['config']['heldout_seed']}."
+    )
+    lines.append("")
+    if ok and "robust_heldout_rate" in ok[0]:
+        worst = max(r["robust_heldout_rate"] for r in ok)
+        holds = all(r["robust_heldout_rate"] <= study["target_heldout_rate"] for r in ok)
+        campaign = all(r["robust_open_100"] == 0 for r in ok)
+        lines.append(
+            f"- robust open loop on held-out machines: worst seed {100 * worst:.2f} % "
+            f"(target <= {100 * study['target_heldout_rate']:.1f} %): "
+            f"**{'met' if holds and len(ok) == len(rows) else 'NOT met'}**"
+        )
+        lines.append(
+            f"- robust open loop 0/100 campaign runs on every seed: "
+            f"**{'yes' if campaign and len(ok) == len(rows) else 'no'}**"
+        )
+    failed = [r for r in rows if r.get("error")]
+    if failed:
+        lines.append(f"- {len(failed)} seed(s) gave no result (errors below)")
+    lines += ["", "![violation rate and premium against seed](study.png)", ""]
+    columns = [
+        ("seed", "seed", ""),
+        ("robust_open_100", "robust /100", ""),
+        ("nominal_open_100", "nominal /100", ""),
+        ("robust_heldout_rate", "robust held-out", ".2%"),
+        ("robust_heldout_upper_95", "95 % bound", ".2%"),
+        ("nominal_heldout_rate", "nominal held-out", ".1%"),
+        ("premium", "premium", ".1%"),
+        ("robust_heldout_lowest_mm", "lowest held-out mm", ".1f"),
+        ("phase1_epochs", "phase-1 epochs", ""),
+    ]
+    ratio_keys = sorted({k for r in ok for k in r if k.startswith("ratio_")})
+    columns += [(k, f"pred/obs σ @{k.split('_')[1]}", ".2f") for k in ratio_keys]
+    lines.append("| " + " | ".join(c[1] for c in columns) + " |")
+    lines.append("|" + "---|" * len(columns))
+    for r in rows:
+        if r.get("error"):
+            lines.append(f"| {r['seed']} | error: {r['error']} |")
+            continue
+        lines.append("| " + " | ".join(_cell(r.get(key), spec) for key, _, spec in columns) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(rows: list[dict[str, Any]]) -> Figure:
+    """Violation rates (held-out, with the 95 % bound) and cost premium against seed."""
+    ok = [r for r in rows if r.get("error") is None and "robust_heldout_rate" in r]
+    fig = Figure(figsize=(10, 6), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    seeds = [r["seed"] for r in ok]
+    rate = [100 * r["robust_heldout_rate"] for r in ok]
+    upper = [100 * r["robust_heldout_upper_95"] for r in ok]
+    top.bar(seeds, rate, color="C0", label="robust, held-out violation rate")
+    top.scatter(seeds, upper, color="C3", marker="_", s=300, label="95 % upper bound")
+    top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1, label="target 0.5 %")
+    failed = [r["seed"] for r in rows if r.get("error")]
+    for s in failed:
+        top.axvline(s, color="C3", alpha=0.3, lw=8)
+    top.set_ylabel("open-loop violations [%]")
+    top.legend(fontsize=8)
+    bottom.bar(seeds, [100 * r["premium"] for r in ok], color="C1")
+    bottom.set_ylabel("robust cost premium [%]")
+    bottom.set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
+    fig.suptitle("Robust torque per training seed")
+    return fig

@@ -1,0 +1,99 @@
+"""The chain as a library: an in-process `crank run` on a short configuration succeeds, records
+its resolved configuration and streams, and the same seed reproduces every artifact's numbers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from common.atomic import OutputError
+from crank.chain import RunConfig, run_chain
+from twin.mcap_dataset import read_dataset
+
+SHORT = RunConfig.for_seed(
+    0,
+    generation={"seconds": 12.0, "episode_seconds": 2.0},
+    train={"max_epochs": 3, "sigma_epochs": 20},
+    # A 12 s model is too uncertain for a 3σ profile; 0.5σ still exercises the robust loop.
+    ocp={"k_sigma": 0.5, "mc_samples": 200},
+    replay={"runs": 4},
+    heldout_runs=20,
+    baselines=False,
+)
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
+    root = tmp_path_factory.mktemp("chain")
+    report = run_chain(SHORT, root / "a", argv=[])
+    run_chain(SHORT, root / "b", argv=[])
+    return root / "a", root / "b", report
+
+
+def test_in_process_run_writes_every_artifact(two_runs) -> None:
+    a, _, report = two_runs
+    for name in (
+        "config.json",
+        "dataset.mcap",
+        "model.pt",
+        "model.report.json",
+        "ocp.json",
+        "replay.mcap",
+        "replay.stats.json",
+        "heldout.json",
+        "report.json",
+        "report.md",
+    ):
+        assert (a / name).is_file(), name
+    config = json.loads((a / "config.json").read_text())
+    assert config["generation"]["seconds"] == 12.0 and config["heldout_runs"] == 20
+    assert config["streams"]["root_seed"] == 0
+    assert config["heldout_streams"]["root_seed"] == SHORT.heldout_seed
+    heldout = json.loads((a / "heldout.json").read_text())
+    assert heldout["runs"] == 20 and set(heldout["profiles"]) == {"nominal", "robust"}
+    for entry in heldout["profiles"].values():
+        assert 0 <= entry["violating_runs"] <= 20
+        assert entry["rate_upper_95"] >= entry["rate"]
+        assert set(entry["samples"]["50"]["predicted"]) == {
+            "step",
+            "trajectory",
+            "machine",
+            "mixed",
+        }
+    assert report["heldout"]["runs"] == 20
+    ocp = json.loads((a / "ocp.json").read_text())
+    assert ocp["variability"]["name"] == "paper"
+    assert ocp["config"]["mc_mode"] == "mixed"
+    assert len(ocp["robust"]["tightening"]) == 2
+
+
+def test_same_seed_reproduces_every_artifact(two_runs) -> None:
+    a, b, _ = two_runs
+    da, db = read_dataset(a / "dataset.mcap"), read_dataset(b / "dataset.mcap")
+    for name in ("theta", "omega", "tau", "slider_position"):
+        assert np.array_equal(getattr(da, name), getattr(db, name)), name
+    wa = torch.load(a / "model.pt", weights_only=True)["state_dict"]
+    wb = torch.load(b / "model.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert float(wa["machine_sigma"].max()) > 0
+    oa = json.loads((a / "ocp.json").read_text())
+    ob = json.loads((b / "ocp.json").read_text())
+    for profile in ("nominal", "robust"):
+        for key in ("tau", "slider", "slider_sigma", "tightening"):
+            assert oa[profile][key] == ob[profile][key], (profile, key)
+    sa = json.loads((a / "replay.stats.json").read_text())
+    sb = json.loads((b / "replay.stats.json").read_text())
+    assert sa["profiles"] == sb["profiles"]
+    ha = json.loads((a / "heldout.json").read_text())
+    hb = json.loads((b / "heldout.json").read_text())
+    assert ha["profiles"] == hb["profiles"]
+
+
+def test_run_refuses_an_existing_folder(two_runs) -> None:
+    a, _, _ = two_runs
+    with pytest.raises(OutputError, match="already exists"):
+        run_chain(SHORT, a)
