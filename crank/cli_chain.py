@@ -53,7 +53,7 @@ def run_command(
     ),
     heldout_runs: Annotated[
         int, typer.Option(help="Held-out machines per profile (open loop); 0 skips the check.")
-    ] = 0,
+    ] = 1000,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),

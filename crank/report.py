@@ -93,6 +93,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "",
         verdict,
         "",
+        *heldout_lines(report.get("heldout")),
         "## Replays on the twin",
         "",
         f"{runs} machines per profile and mode (the same machines for all), seed {config['seed']}; "
@@ -122,12 +123,47 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "- `replay.mcap`: every replay, tagged by run, profile and mode (Foxglove)",
         "- `replay.rrd`: the same for the Rerun viewer (`crank view replay.rrd`)",
         "- `replay.stats.json`: the statistics above, per sample",
+        "- `heldout.json`: the held-out check and calibration (if run)",
         "",
         f"Reproduce with `{_rerun_args(config.get('argv', []))}` (same seed, same "
         "numbers; `--name` for another folder name).",
         "",
     ]
     return "\n".join(lines)
+
+
+def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
+    """The held-out verdict and the calibration table of report.md (nothing if not run)."""
+    if heldout is None:
+        return []
+    robust, nominal = heldout["profiles"]["robust"], heldout["profiles"]["nominal"]
+    word = "**holds**" if heldout["holds"] else "**does not hold**"
+    lines = [
+        "## Held-out machines",
+        "",
+        f"On {heldout['runs']} held-out machines (root seed {heldout['seed']}, streams no other "
+        f"stage draws from), open loop, the robust torque left the slider below the height on "
+        f"{100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
+        f"{100 * robust['rate_upper_95']:.2f} %), the nominal one on {100 * nominal['rate']:.1f} %."
+        f" Against the target of <= {100 * heldout['target_rate']:.1f} % the robust torque {word}.",
+        "",
+        "Predicted / observed σ of the slider under the OCP's own torque, per Monte-Carlo mode "
+        f"({heldout['mc_samples']} trajectories):",
+        "",
+    ]
+    modes = list(next(iter(robust["samples"].values()))["predicted"])
+    lines.append(
+        "| profile | sample | observed σ mm | lowest mm | skew | " + " | ".join(modes) + " |"
+    )
+    lines.append("|" + "---|" * (5 + len(modes)))
+    for profile, entry in heldout["profiles"].items():
+        for sample, e in entry["samples"].items():
+            ratios = [_number(e["predicted"][m]["ratio"], ".2f") for m in modes]
+            lines.append(
+                f"| {profile} | {sample} | {1e3 * e['observed_sigma']:.2f} | "
+                f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
+            )
+    return [*lines, ""]
 
 
 def _rerun_args(argv: list[str]) -> str:
