@@ -132,15 +132,23 @@ class RobustResult:
     """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
 
 
-def slider_uncertainty(heads: FusedHeads, solution: Solution, config: OCPConfig) -> Uncertainty:
+def slider_uncertainty(
+    heads: FusedHeads, solution: Solution, config: OCPConfig, *, constraints_only: bool = False
+) -> Uncertainty:
     """Monte-Carlo (eq. 11, or the configured mode) of the slider position under the solution's
     torque u_1..u_{N-1}, and the tightening of `config.tightening` at the constraint samples.
-    The draws are the same for every call (common random numbers)."""
+    The draws are the same for every call (common random numbers).
+
+    constraints_only: simulate only up to the last constraint sample (mean and std then stop
+    there); the tightening is the same to the last bit, since every draw is a prefix of the full
+    run's. The drafts of the robust loop need nothing more.
+    """
     started = time.perf_counter()
+    steps = max(config.constraint_samples) - 1 if constraints_only else len(solution.tau) - 1
     bands = monte_carlo(
         heads,
         solution.states[0],
-        solution.tau[:-1],
+        solution.tau[:steps],
         n_samples=config.mc_samples,
         mode=config.mc_mode,
         seed=stream(config.mc_seed, "monte_carlo"),
@@ -204,7 +212,7 @@ def solve_robust(
                     f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
                 ) from None
             continue
-        unc = slider_uncertainty(heads, solution, config)
+        unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
         new_target = unc.tightening
         iterations.append(
             Iteration(

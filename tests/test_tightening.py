@@ -7,10 +7,12 @@ import math
 
 import numpy as np
 import pytest
+import torch
 from scipy import stats
 
-from control.ocp import OCPConfig, OCPConfigError
-from control.robust import lower_tail, tightening
+from control.ocp import NominalOCP, OCPConfig, OCPConfigError
+from control.robust import lower_tail, slider_uncertainty, tightening
+from ppann.model import FusedHeads, constant_ppann
 from replay.heldout import rate_upper
 
 PLAN = 0.095
@@ -77,3 +79,19 @@ def test_clopper_pearson_bounds() -> None:
     assert rate_upper(0, 1000) == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-9)
     assert rate_upper(1000, 1000) == 1.0
     assert rate_upper(5, 1000) > 0.005
+
+
+def test_draft_monte_carlo_up_to_the_last_constraint_gives_the_same_tightening() -> None:
+    """The robust loop's drafts simulate only up to the last constraint sample: every draw is a
+    prefix of the full run's, so the tightening is the same to the last bit."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    with torch.no_grad():
+        model.machine_sigma.copy_(torch.tensor([0.05, 0.04, 0.03], dtype=torch.float64))
+    config = OCPConfig()
+    solution = NominalOCP(model, config).solve()
+    heads = FusedHeads(model)
+    full = slider_uncertainty(heads, solution, config)
+    short = slider_uncertainty(heads, solution, config, constraints_only=True)
+    assert np.array_equal(full.tightening, short.tightening)
+    assert np.array_equal(full.tightening_se, short.tightening_se)
+    assert len(short.std) == max(config.constraint_samples) < len(full.std)
