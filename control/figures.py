@@ -67,9 +67,18 @@ def robust_figure(ocp: OCPFile) -> Figure:
     for i, k in enumerate(ocp.config.constraint_samples):
         margins = [1e3 * it["margin"][i] for it in iterations]
         sigmas = [1e3 * it["tightening"][i] for it in iterations]
+        errors = [1e3 * it.get("tightening_se", [0.0] * (i + 1))[i] for it in iterations]
         steps = range(1, len(iterations) + 1)
         bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin used, sample {k}")
-        bottom.plot(steps, sigmas, "x--", color=f"C{i}", label=f"kσ of its solution, sample {k}")
+        bottom.errorbar(
+            steps,
+            sigmas,
+            yerr=errors,
+            fmt="x--",
+            color=f"C{i}",
+            capsize=3,
+            label=f"{ocp.config.tightening} tightening of its solution (± s.e.), sample {k}",
+        )
     full = [step for step, it in enumerate(iterations, 1) if not it.get("draft", False)]
     for step in full:
         bottom.axvline(step, color="0.6", lw=0.8, ls=":")
