@@ -89,6 +89,7 @@ def run_command(
             done = n
 
         hooks = Hooks(
+            on_stage=lambda text: typer.echo(f"{text} ...", err=True),
             on_simulated=sim.update,
             on_written=io.update,
             on_epoch=bars,
