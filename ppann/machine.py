@@ -23,6 +23,8 @@ posterior mean of each episode's eta, -S (I + G)^-1 c, is what the report shows 
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import torch
 
 from ppann.losses import VARIANCE_FLOOR
@@ -45,61 +47,56 @@ def episode_sums(
     return m, b
 
 
-def marginal_nll(
-    residual: torch.Tensor,
-    derivative: torch.Tensor,
-    design: torch.Tensor,
-    sigma: torch.Tensor,
-    machine_sigma: torch.Tensor,
-    episode: torch.Tensor,
-    n_episodes: int,
-) -> torch.Tensor:
-    """The phase-2 loss of the module docstring, averaged over samples.
+@dataclass(frozen=True)
+class EpisodeTerms:
+    """What phase 2 needs of the data and the frozen mean model, per sample."""
 
-    Args:
-      residual: r_k at the mean z, (n,).
-      derivative: dr/dz_k, (n, 3).
-      design: D_k = (1 + z_mu) dr/dz, (n, 3).
-      sigma: white sigma-network outputs, (n, 3).
-      machine_sigma: (3,), >= 0.
-      episode: (n,) integer episode index in 0..n_episodes-1.
-    """
-    variance = ((derivative * sigma) ** 2).sum(dim=-1) + VARIANCE_FLOOR
-    white = (residual**2 / variance + torch.log(variance)).sum()
-    g, c = _scaled(residual, design, variance, machine_sigma, episode, n_episodes)
-    eye = torch.eye(3, dtype=g.dtype).expand_as(g)
-    chol = torch.linalg.cholesky(eye + g)
+    residual: torch.Tensor
+    """r_k at the mean z, (n,)."""
+    derivative: torch.Tensor
+    """dr/dz_k, (n, 3)."""
+    design: torch.Tensor
+    """D_k = (1 + z_mu) dr/dz, (n, 3)."""
+    episode: torch.Tensor
+    """(n,) integer episode index in 0..n_episodes-1."""
+    n_episodes: int
+
+    def shifted(self, common: torch.Tensor) -> EpisodeTerms:
+        """The same with the common log-factor offset (3,) taken out of the residual."""
+        return replace(self, residual=self.residual + self.design @ common)
+
+    def white_variance(self, sigma: torch.Tensor) -> torch.Tensor:
+        """s_k^2 for white sigma-network outputs sigma (n, 3)."""
+        return ((self.derivative * sigma) ** 2).sum(dim=-1) + VARIANCE_FLOOR
+
+    def scaled(
+        self, variance: torch.Tensor, machine_sigma: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """G = S M S (E, 3, 3), c = S b (E, 3) of the module docstring, and I + G."""
+        m, b = episode_sums(self.residual, self.design, variance, self.episode, self.n_episodes)
+        s = machine_sigma
+        g = s[None, :, None] * m * s[None, None, :]
+        return g, s[None, :] * b, torch.eye(3, dtype=g.dtype).expand_as(g) + g
+
+
+def marginal_nll(
+    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor
+) -> torch.Tensor:
+    """The phase-2 loss of the module docstring, averaged over samples, for white sigma-network
+    outputs `sigma` (n, 3) and the machine spread `machine_sigma` (3,) >= 0."""
+    variance = terms.white_variance(sigma)
+    white = (terms.residual**2 / variance + torch.log(variance)).sum()
+    _, c, identity_plus_g = terms.scaled(variance, machine_sigma)
+    chol = torch.linalg.cholesky(identity_plus_g)
     solved = torch.cholesky_solve(c[:, :, None], chol)[:, :, 0]
     quad = (c * solved).sum()
     logdet = 2 * torch.log(torch.diagonal(chol, dim1=-2, dim2=-1)).sum()
-    return 0.5 * (white - quad + logdet) / residual.shape[0]
+    return 0.5 * (white - quad + logdet) / terms.residual.shape[0]
 
 
 def posterior_offsets(
-    residual: torch.Tensor,
-    derivative: torch.Tensor,
-    design: torch.Tensor,
-    sigma: torch.Tensor,
-    machine_sigma: torch.Tensor,
-    episode: torch.Tensor,
-    n_episodes: int,
+    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor
 ) -> torch.Tensor:
     """Posterior mean of each episode's log-factors eta_e, (E, 3)."""
-    variance = ((derivative * sigma) ** 2).sum(dim=-1) + VARIANCE_FLOOR
-    g, c = _scaled(residual, design, variance, machine_sigma, episode, n_episodes)
-    eye = torch.eye(3, dtype=g.dtype).expand_as(g)
-    return -machine_sigma[None, :] * torch.linalg.solve(eye + g, c[:, :, None])[:, :, 0]
-
-
-def _scaled(
-    residual: torch.Tensor,
-    design: torch.Tensor,
-    variance: torch.Tensor,
-    machine_sigma: torch.Tensor,
-    episode: torch.Tensor,
-    n_episodes: int,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """G = S M S (E, 3, 3) and c = S b (E, 3) of the module docstring."""
-    m, b = episode_sums(residual, design, variance, episode, n_episodes)
-    s = machine_sigma
-    return s[None, :, None] * m * s[None, None, :], s[None, :] * b
+    _, c, identity_plus_g = terms.scaled(terms.white_variance(sigma), machine_sigma)
+    return -machine_sigma[None, :] * torch.linalg.solve(identity_plus_g, c[:, :, None])[:, :, 0]

@@ -24,7 +24,7 @@ from common.errors import CrankError
 from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
 from ppann.losses import n_step_mse, propagated_nll, propagated_terms
-from ppann.machine import marginal_nll, posterior_offsets
+from ppann.machine import EpisodeTerms, marginal_nll, posterior_offsets
 from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
 
@@ -206,10 +206,10 @@ def train_sigma(
     it, by eq. 9 alone and machine_sigma stays zero.
     """
     theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
-    n_episodes = int(episode.max()) + 1
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = (1 + model.z_mean(theta, omega)) * derivative
+    terms = EpisodeTerms(residual, derivative, design, episode, int(episode.max()) + 1)
     groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
     log_machine = common = None
     if config.machine_model:
@@ -224,15 +224,7 @@ def train_sigma(
         if log_machine is None:
             loss = propagated_nll(residual, derivative, sigma)
         else:
-            loss = marginal_nll(
-                residual + design @ common,
-                derivative,
-                design,
-                sigma,
-                log_machine.exp(),
-                episode,
-                n_episodes,
-            )
+            loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp())
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -243,14 +235,6 @@ def train_sigma(
         with torch.no_grad():
             model.machine_sigma.copy_(log_machine.exp())
             sigma = model.z_sigma(theta, omega)
-            offsets = posterior_offsets(
-                residual + design @ common,
-                derivative,
-                design,
-                sigma,
-                model.machine_sigma,
-                episode,
-                n_episodes,
-            )
+            offsets = posterior_offsets(terms.shifted(common), sigma, model.machine_sigma)
         history.machine_offsets = offsets.tolist()
         history.machine_common = common.detach().tolist()

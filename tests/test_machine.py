@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ppann.machine import marginal_nll
+from ppann.machine import EpisodeTerms, marginal_nll
 from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
 from ppann.montecarlo import monte_carlo
 from ppann.train import History, TrainConfig, make_splits, train_sigma
@@ -88,7 +88,8 @@ def test_marginal_likelihood_equals_the_dense_gaussian() -> None:
     sigma = torch.from_numpy(rng.uniform(0.2, 1.0, size=(n, 3)))
     machine = torch.tensor([0.3, 0.1, 0.5], dtype=torch.float64)
     episode = torch.from_numpy(np.repeat(np.arange(episodes), [10, 20, 10]))
-    value = marginal_nll(residual, derivative, design, sigma, machine, episode, episodes)
+    terms = EpisodeTerms(residual, derivative, design, episode, episodes)
+    value = marginal_nll(terms, sigma, machine)
     total = 0.0
     for e in range(episodes):
         idx = episode == e
