@@ -238,6 +238,7 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     top.legend(fontsize=8)
     bottom.bar(seeds, [100 * r["premium"] for r in ok], color="C1")
     bottom.set_ylabel("robust cost premium [%]")
+    bottom.set_xticks([r["seed"] for r in rows])
     bottom.set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
     fig.suptitle("Robust torque per training seed")
     return fig
