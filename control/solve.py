@@ -44,6 +44,12 @@ def solve_file(
     model, payload = load(model_path)
     if not isinstance(model, PPANN):
         raise CheckpointError(f"{model_path}: a {payload['kind']} model; solve needs a PPANN")
+    data_dt = payload.get("dt")
+    if data_dt is not None and abs(data_dt - model.config.dt) > 1e-12:
+        raise CheckpointError(
+            f"{model_path}: trained on samples {data_dt:g} s apart but integrates at "
+            f"{model.config.dt:g} s"
+        )
     started = time.perf_counter()
     ocp = NominalOCP(model, config)
     build_s = time.perf_counter() - started

@@ -78,6 +78,11 @@ def replay_file(
         raise OCPFileError(
             f"{ocp_path}: dt {ocp.dt} s differs from the twin's {1 / SAMPLE_RATE} s samples"
         )
+    if ocp.config.torque_limit > physics.torque_limit + 1e-12:
+        raise OCPFileError(
+            f"{ocp_path}: solved with |τ| <= {ocp.config.torque_limit:g} N·m but the twin's "
+            f"actuator saturates at {physics.torque_limit:g} N·m (the replay would clip it)"
+        )
 
     started = time.perf_counter()
     logging = 0.0

@@ -17,7 +17,7 @@ from control.ocp import NominalOCP, OCPConfig, OCPConfigError, OCPError, slider_
 from control.ocp_file import OCPFileError, read_ocp
 from control.robust import lower_tail, slider_uncertainty, solve_robust
 from control.solve import figure_paths, solve_file
-from ppann.checkpoint import save
+from ppann.checkpoint import CheckpointError, save
 from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
 from ppann.montecarlo import monte_carlo
 from tests.conftest import crank
@@ -228,3 +228,13 @@ def test_cli_solve_writes_ocp_json(solved: Path, tmp_path: Path) -> None:
     fresh, reference = read_ocp(out), read_ocp(solved)
     # the same checkpoint and settings give the same torques
     np.testing.assert_allclose(fresh.robust.tau, reference.robust.tau, rtol=0, atol=1e-9)
+
+
+def test_solve_refuses_a_model_trained_at_another_sample_time(model: PPANN, tmp_path: Path) -> None:
+    """dt travels in the checkpoint: a model whose data were sampled at 1 kHz but which integrates
+    at 2 ms is refused before any solve, and nothing is written."""
+    path = tmp_path / "model.pt"
+    save(path, model, kind="ppann", extra={"dt": 0.001})
+    with pytest.raises(CheckpointError, match="trained on samples 0.001 s apart but integrates"):
+        solve_file(path, tmp_path / "ocp.json", config=OCPConfig())
+    assert not (tmp_path / "ocp.json").exists()

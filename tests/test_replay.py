@@ -380,6 +380,10 @@ def _broken_ocp(ocp_path: Path, tmp_path: Path, edit) -> Path:
         (lambda r: r["robust"].pop("tau"), "missing key 'robust.tau'"),
         (lambda r: r["nominal"]["theta"].pop(), "nominal.theta has 149 values, expected 150"),
         (lambda r: r["nominal"]["tau"].__setitem__(3, float("inf")), "non-finite value at index 3"),
+        (
+            lambda r: r["config"].__setitem__("torque_limit", 12.0),
+            "solved with |τ| <= 12 N·m but the twin's actuator saturates at 10 N·m",
+        ),
     ],
 )
 def test_replay_rejects_a_bad_ocp_json_in_one_line(
