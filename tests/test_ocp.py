@@ -235,6 +235,6 @@ def test_solve_refuses_a_model_trained_at_another_sample_time(model: PPANN, tmp_
     at 2 ms is refused before any solve, and nothing is written."""
     path = tmp_path / "model.pt"
     save(path, model, kind="ppann", extra={"dt": 0.001})
-    with pytest.raises(CheckpointError, match="trained on samples 0.001 s apart but integrates"):
+    with pytest.raises(CheckpointError, match=r"trained on samples 0\.001 s apart but integrates"):
         solve_file(path, tmp_path / "ocp.json", config=OCPConfig())
     assert not (tmp_path / "ocp.json").exists()
