@@ -28,7 +28,7 @@ TASKS: dict[str, dict] = {
     "paper (0.08 m at 50, 100; N 150)": {},
     "height 0.085": {"height": 0.085},
     "samples 60, 90": {"constraint_samples": (60, 90)},
-    "horizon 200": {"horizon": 200, "constraint_samples": (70, 130)},
+    "horizon 200, samples 70, 130": {"horizon": 200, "constraint_samples": (70, 130)},
     "height 0.075, samples 40, 120": {"height": 0.075, "constraint_samples": (40, 120)},
 }
 
