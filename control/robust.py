@@ -236,7 +236,8 @@ def solve_robust(
                 f"the model's tightening of the slider at sample {config.constraint_samples[k]} "
                 f"({1e3 * new_target[k]:.1f} mm) exceeds the stroke above the height even for a "
                 f"torque that uses {1e3 * cap[k]:.1f} mm of it: no robust profile (train on more "
-                f"data, or lower k_sigma or height)"
+                f"data, lower k_sigma or height, or close the loop: open loop cannot keep this "
+                f"spread)"
             )
         residual = new_target - proposal
         margin, target, current = proposal, new_target, solution
