@@ -123,6 +123,7 @@ def run_study(
                 )
             except CrankError as exc:
                 row = {"seed": seed, "error": str(exc)}
+                run_dir.mkdir(parents=True, exist_ok=True)
                 (run_dir / "error.txt").write_text(str(exc) + "\n")
                 rows.append(row)
                 if on_row:

@@ -1,0 +1,55 @@
+"""The seed study: one row per seed read back from its run folder, resume without redoing finished
+seeds, a seed whose chain fails recorded with its one-line error, and the seed parser."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import pytest
+
+from common.errors import ConfigError
+from crank.study import parse_seeds, run_study
+from tests.test_chain import SHORT
+
+
+def test_study_rows_resume_and_files(tmp_path) -> None:
+    out = tmp_path / "study"
+    study = run_study(SHORT, (0, 1), out)
+    rows = {r["seed"]: r for r in study["rows"]}
+    assert set(rows) == {0, 1}
+    assert rows[0]["error"] is None  # the configuration test_chain runs to the end
+    for seed, row in rows.items():
+        if row["error"] is not None:  # a 12 s toy model may not settle: then it says why
+            assert (out / f"seed-{seed}" / "error.txt").read_text().strip() == row["error"]
+            continue
+        heldout = json.loads((out / f"seed-{seed}" / "heldout.json").read_text())
+        assert row["robust_heldout_rate"] == heldout["profiles"]["robust"]["rate"]
+        assert row["heldout_runs"] == 20
+    for name in ("study.json", "study.csv", "study.md", "study.png"):
+        assert (out / name).stat().st_size > 0
+    assert "| seed |" in (out / "study.md").read_text()
+    stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
+    with pytest.raises(ConfigError, match="already exists"):
+        run_study(SHORT, (0, 1), out)
+    again = run_study(SHORT, (0, 1), out, resume=True)
+    assert (out / "seed-0" / "report.md").stat().st_mtime_ns == stamp  # not redone
+    assert again["rows"] == study["rows"]
+
+
+def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
+    """k_sigma 3 on a 12 s model: no robust profile; the study records it and goes on."""
+    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0))
+    study = run_study(failing, (0,), tmp_path / "study")
+    (row,) = study["rows"]
+    assert row["seed"] == 0 and "no robust profile" in row["error"]
+    assert "no robust profile" in (tmp_path / "study" / "seed-0" / "error.txt").read_text()
+    assert "error:" in (tmp_path / "study" / "study.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("text", "seeds"),
+    [("0-3", (0, 1, 2, 3)), ("4", (4,)), ("0,5, 7", (0, 5, 7)), ("1-2,9", (1, 2, 9))],
+)
+def test_parse_seeds(text: str, seeds: tuple[int, ...]) -> None:
+    assert parse_seeds(text) == seeds
