@@ -1,9 +1,10 @@
 """`crank run` as a library: generate → train → solve → replay (→ held-out check) → report.
 
 `RunConfig` is frozen and holds every stage's resolved config; `config.json` in the run folder is
-exactly `RunConfig.as_dict()`. One root seed feeds every stage through named random streams
-(common/streams.py), so replay and held-out machines are never training machines. The variability
-scenario of the dataset is the one the replays and the held-out check draw from.
+`RunConfig.as_dict()` plus the command, argv and version. One root seed feeds every stage through
+named random streams (common/streams.py), so replay and held-out machines are never training
+machines. The variability scenario of the dataset is the one the replays and the held-out check
+draw from.
 
 The CLI only builds a `RunConfig`, passes progress hooks and prints; the sweep and the seed study
 call `run_chain` directly.
