@@ -27,9 +27,10 @@ from common.checks import check_finite
 from common.errors import CrankError
 
 Z_NAMES = ("J", "B", "K")
+"""The three augmented terms, in the order of the last axis of every z tensor (and of the
+machine-level log-factors, ppann/machine.py)."""
 INERTIA_FACTOR_FLOOR = 0.1
 """Smallest 1 + z_J a Monte-Carlo draw may give (see FusedHeads.acceleration)."""
-"""The three augmented terms, in the order of the last axis of every z tensor."""
 
 
 class ModelConfigError(CrankError, ValueError):
