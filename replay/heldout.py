@@ -39,6 +39,7 @@ from common.atomic import check_writable
 from common.jsonio import write_json
 from control.ocp import slider_position
 from control.ocp_file import read_ocp
+from control.robust import lower_tail
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import MODES, monte_carlo
@@ -57,11 +58,6 @@ def rate_upper(violations: int, runs: int, *, confidence: float = 0.95) -> float
     if violations >= runs:
         return 1.0
     return float(scistats.beta.ppf(confidence, violations + 1, runs - violations))
-
-
-def one_sided_level(k_sigma: float) -> float:
-    """The lower-tail probability that k·σ stands for under a normal law, Φ(-k)."""
-    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
 
 
 def _ratio(predicted: float, observed: float) -> float | None:
@@ -91,7 +87,7 @@ def heldout_check(
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
     c = ocp.config
-    level = one_sided_level(c.k_sigma)
+    level = lower_tail(c.k_sigma)
     out: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
