@@ -32,15 +32,25 @@ import numpy.typing as npt
 
 from ppann.model import PPANN, FusedHeads
 
-MONTE_CARLO_MODES: dict[str, str] = {
-    "step": "fresh z every step (paper eq. 11)",
-    "trajectory": "one z per trajectory (may diverge)",
-    "machine": "one machine per trajectory (log-normal factors), no white noise",
-    "mixed": "one machine per trajectory plus white z every step",
+
+@dataclass(frozen=True)
+class DrawMode:
+    """How one Monte-Carlo mode draws: its white z and its machine."""
+
+    white: str | None
+    """"step": a fresh eps every step; "held": one eps per trajectory; None: z = z_mu."""
+    machine: bool
+    """One log-normal machine exp(eta) per trajectory."""
+    description: str
+
+
+MONTE_CARLO_MODES: dict[str, DrawMode] = {
+    "step": DrawMode("step", False, "fresh z every step (paper eq. 11)"),
+    "trajectory": DrawMode("held", False, "one z per trajectory (may diverge)"),
+    "machine": DrawMode(None, True, "one machine per trajectory (log-normal), no white noise"),
+    "mixed": DrawMode("step", True, "one machine per trajectory plus white z every step"),
 }
 MODES: tuple[str, ...] = tuple(MONTE_CARLO_MODES)
-WHITE = {"step": True, "trajectory": False, "machine": False, "mixed": True}
-MACHINE = {"step": False, "trajectory": False, "machine": True, "mixed": True}
 
 
 @dataclass(frozen=True)
@@ -88,12 +98,13 @@ def monte_carlo(
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     white_seq, machine_seq = root.spawn(2)
     steps = tau.shape[0]
+    draw = MONTE_CARLO_MODES[mode]
     eps = None
-    if mode != "machine":
-        per = steps if WHITE[mode] else 1
+    if draw.white is not None:
+        per = steps if draw.white == "step" else 1
         eps = np.random.default_rng(white_seq).standard_normal((per, n_samples, 3))
     factors = None
-    if MACHINE[mode]:
+    if draw.machine:
         rng = np.random.default_rng(machine_seq)
         factors = machine_factors(heads.machine_sigma, n_samples, rng)
     samples = np.empty((n_samples, steps + 1, 2))
@@ -104,7 +115,7 @@ def monte_carlo(
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(steps):
             mean, sigma = heads(theta, omega)
-            z = mean if eps is None else mean + sigma * eps[k if WHITE[mode] else 0]
+            z = mean if eps is None else mean + sigma * eps[k if draw.white == "step" else 0]
             alpha = heads.acceleration(theta, omega, tau[k], z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
