@@ -97,6 +97,11 @@ start's primal point only: after a jump that large, IPOPT's multiplier warm star
 iterations than it saves (17 against 10 on the seed-0 model's first robust step)."""
 
 
+def lower_tail(k_sigma: float) -> float:
+    """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
+    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
+
+
 @dataclass(frozen=True)
 class OCPConfig:
     """Settings of the nominal OCP (eq. 15) and of the robust iteration (eq. 16)."""
@@ -159,7 +164,7 @@ class OCPConfig:
                 f"tightening must be one of {', '.join(TIGHTENINGS)}, got {self.tightening!r}"
             )
         check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
-        tail = 0.5 * math.erfc(self.k_sigma / math.sqrt(2))
+        tail = lower_tail(self.k_sigma)
         needed = GAUSSIAN_SAMPLES
         if self.tightening == "quantile":
             needed = math.ceil(QUANTILE_TAIL / tail) if tail > 0 else MAX_MC_SAMPLES + 1

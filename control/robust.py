@@ -41,7 +41,14 @@ import numpy as np
 
 from common.errors import CrankError
 from common.streams import stream
-from control.ocp import NominalOCP, OCPConfig, OCPError, Solution, slider_position
+from control.ocp import (
+    NominalOCP,
+    OCPConfig,
+    OCPError,
+    Solution,
+    lower_tail,
+    slider_position,
+)
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import monte_carlo
 from twin.physics import CRANK_LENGTH
@@ -70,11 +77,6 @@ class Uncertainty:
     """Per constraint sample: k·σ (gaussian) or plan − quantile (quantile), m."""
     tightening_se: np.ndarray
     """Standard error of `tightening` from the finite Monte-Carlo, m."""
-
-
-def lower_tail(k_sigma: float) -> float:
-    """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
-    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
 
 
 def tightening(

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from common.checks import check_finite, check_seed
+from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
 from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
@@ -68,9 +68,7 @@ class TrainConfig:
             "sigma_epochs",
             "lr_patience",
         ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise TrainConfigError(f"{name} must be an integer >= 1, got {value!r}")
+            check_count(name, getattr(self, name), error=TrainConfigError)
         for name in ("lr", "sigma_lr", "machine_lr"):
             check_finite(name, getattr(self, name), positive=True, error=TrainConfigError)
         check_seed("seed", self.seed, error=TrainConfigError)

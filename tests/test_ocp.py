@@ -13,9 +13,16 @@ import pytest
 import torch
 
 from common.streams import stream
-from control.ocp import NominalOCP, OCPConfig, OCPConfigError, OCPError, slider_position
+from control.ocp import (
+    NominalOCP,
+    OCPConfig,
+    OCPConfigError,
+    OCPError,
+    lower_tail,
+    slider_position,
+)
 from control.ocp_file import OCPFileError, read_ocp
-from control.robust import lower_tail, slider_uncertainty, solve_robust
+from control.robust import slider_uncertainty, solve_robust
 from control.solve import figure_paths, solve_file
 from ppann.checkpoint import CheckpointError, save
 from ppann.model import PPANN, FusedHeads, constant_ppann, rollout

@@ -10,8 +10,8 @@ import pytest
 import torch
 from scipy import stats
 
-from control.ocp import NominalOCP, OCPConfig, OCPConfigError
-from control.robust import lower_tail, slider_uncertainty, tightening
+from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail
+from control.robust import slider_uncertainty, tightening
 from ppann.model import FusedHeads, constant_ppann
 from replay.heldout import rate_upper
 
