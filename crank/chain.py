@@ -12,9 +12,10 @@ call `run_chain` directly.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -161,66 +162,60 @@ def run_chain(
     steps: dict[str, float] = {}
     started = time.perf_counter()
 
-    t0 = time.perf_counter()
-    stage("generating the dataset")
-    dataset = generate_file(
-        config.generation,
-        out=run_dir / "dataset.mcap",
-        model_path=config.model_path,
-        on_simulated=hooks.on_simulated,
-        on_written=hooks.on_written,
-    )
-    steps["generate"] = time.perf_counter() - t0
+    @contextlib.contextmanager
+    def timed(name: str, text: str) -> Iterator[None]:
+        """Announce a stage, run it, and record its wall time under `name`."""
+        stage(text)
+        t0 = time.perf_counter()
+        yield
+        steps[name] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    stage("training the PPANN" + (" and its baselines" if config.baselines else ""))
-    trained = train_and_report(
-        run_dir / "dataset.mcap",
-        run_dir / "model.pt",
-        config=config.train,
-        baselines=config.baselines,
-        on_epoch=hooks.on_epoch,
-        on_stage=hooks.on_stage,
-    )
-    steps["train"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    stage("solving the nominal and robust OCP")
-    solved = solve_file(
-        run_dir / "model.pt",
-        run_dir / "ocp.json",
-        config=config.ocp,
-        on_iteration=hooks.on_iteration,
-    )
-    steps["solve"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    stage("replaying on the twin")
-    stats = replay_file(
-        run_dir / "ocp.json",
-        run_dir / "replay.mcap",
-        config=config.replay,
-        model_path=config.model_path,
-        resolved=resolved,
-        on_run=hooks.on_run,
-    )
-    steps["replay"] = time.perf_counter() - t0
-
+    with timed("generate", "generating the dataset"):
+        dataset = generate_file(
+            config.generation,
+            out=run_dir / "dataset.mcap",
+            model_path=config.model_path,
+            on_simulated=hooks.on_simulated,
+            on_written=hooks.on_written,
+        )
+    with timed("train", "training the PPANN" + (" and its baselines" if config.baselines else "")):
+        trained = train_and_report(
+            run_dir / "dataset.mcap",
+            run_dir / "model.pt",
+            config=config.train,
+            baselines=config.baselines,
+            on_epoch=hooks.on_epoch,
+            on_stage=hooks.on_stage,
+        )
+    with timed("solve", "solving the nominal and robust OCP"):
+        solved = solve_file(
+            run_dir / "model.pt",
+            run_dir / "ocp.json",
+            config=config.ocp,
+            on_iteration=hooks.on_iteration,
+        )
+    with timed("replay", "replaying on the twin"):
+        stats = replay_file(
+            run_dir / "ocp.json",
+            run_dir / "replay.mcap",
+            config=config.replay,
+            model_path=config.model_path,
+            resolved=resolved,
+            on_run=hooks.on_run,
+        )
     heldout = None
     if config.heldout_runs:
-        t0 = time.perf_counter()
-        stage(f"held-out check on {config.heldout_runs} machines")
-        heldout = heldout_file(
-            run_dir / "ocp.json",
-            run_dir / "heldout.json",
-            model=run_dir / "model.pt",
-            runs=config.heldout_runs,
-            seed=config.heldout_seed,
-            variability=config.generation.variability,
-            max_start_time=config.replay.max_start_time,
-            model_path=config.model_path,
-        )
-        steps["heldout"] = time.perf_counter() - t0
+        with timed("heldout", f"held-out check on {config.heldout_runs} machines"):
+            heldout = heldout_file(
+                run_dir / "ocp.json",
+                run_dir / "heldout.json",
+                model=run_dir / "model.pt",
+                runs=config.heldout_runs,
+                seed=config.heldout_seed,
+                variability=config.generation.variability,
+                max_start_time=config.replay.max_start_time,
+                model_path=config.model_path,
+            )
     steps["total"] = time.perf_counter() - started
 
     report = {
