@@ -36,6 +36,7 @@ build (0.03 s against 3.5 s for the first).
 from __future__ import annotations
 
 import math
+import statistics
 import time
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
@@ -102,6 +103,13 @@ def lower_tail(k_sigma: float) -> float:
     return 0.5 * math.erfc(k_sigma / math.sqrt(2))
 
 
+def confidence_quantile(confidence: float) -> float:
+    """z of a confidence split evenly between the line's mean and its spread (Bonferroni):
+    each one-sided bound at 1 − (1 − confidence) / 2, so both hold together with probability
+    >= confidence. 0 gives 0 (no allowance); 0.95 gives 1.96."""
+    return statistics.NormalDist().inv_cdf(1 - (1 - confidence) / 2)
+
+
 @dataclass(frozen=True)
 class OCPConfig:
     """Settings of the nominal OCP (eq. 15) and of the robust iteration (eq. 16)."""
@@ -131,6 +139,11 @@ class OCPConfig:
     default: one machine per trajectory plus white noise, the machine-level model)."""
     tightening: str = "gaussian"
     """gaussian: k·σ (eq. 16); quantile: plan − the lower quantile at Φ(−k) (control/robust.py)."""
+    confidence: float = 0.95
+    """Confidence about the line that the robust tightening allows for, beyond the paper
+    (control/robust.py): the training machines are a few draws of the line, so its mean and
+    spread are known only to within what they show. 0 takes the fitted line as the truth (the
+    paper's eq. 16)."""
     mc_seed: int = 0
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
     margin_tolerance: float = 1e-4
@@ -158,6 +171,9 @@ class OCPConfig:
                 f"(1-based, strictly inside the horizon)"
             )
         check_seed("mc_seed", self.mc_seed, error=OCPConfigError)
+        check_finite("confidence", self.confidence, nonneg=True, error=OCPConfigError)
+        if self.confidence >= 1:
+            raise OCPConfigError(f"confidence must be in [0, 1), got {self.confidence:g}")
         check_mode(self.mc_mode, error=OCPConfigError)
         if self.tightening not in TIGHTENINGS:
             raise OCPConfigError(

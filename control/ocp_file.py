@@ -2,7 +2,7 @@
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 2
+  format, version            "crank-ocp", 3
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
@@ -27,7 +27,9 @@ from t_k to t_{k+1}; the last is the torque after the horizon), `theta`, `omega`
 states), `slider` (mean-model slider position, m), `slider_mc_mean`, `slider_sigma` (Monte-Carlo
 mean and standard deviation of the slider position), `slider_lower`, `slider_upper` (slider ∓ k
 sigma); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus `heights`, the slider
-lower bounds used at the constraint samples, and `tightening`, `tightening_se` there (m).
+lower bounds used at the constraint samples, and `tightening`, `tightening_se` there (m), and
+`population`, the part of `tightening` that allows for the line's uncertain mean (m,
+control/robust.py; 0 at confidence 0).
 """
 
 from __future__ import annotations
@@ -51,8 +53,9 @@ from control.robust import RobustResult, Uncertainty
 from twin import __version__
 
 FORMAT = "crank-ocp"
-VERSION = 2
-"""2: variability, tightening (was k_sigma) and tightening_se."""
+VERSION = 3
+"""2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
+population in each profile."""
 INDEX_CONVENTION = (
     "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
     "t_{k+1}; constraint_samples are 1-based"
@@ -131,6 +134,7 @@ def profile_dict(
         "heights": [float(h) for h in solution.heights],
         "tightening": [float(v) for v in uncertainty.tightening],
         "tightening_se": [float(v) for v in uncertainty.tightening_se],
+        "population": [float(v) for v in uncertainty.population],
         "cost": solution.cost,
         "status": solution.status,
         "ipopt_iterations": solution.iterations,

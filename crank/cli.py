@@ -20,6 +20,7 @@ from control.solve import figure_paths, solve_file
 from crank.console import (
     HELDOUT_SEED,
     Amplitude,
+    Confidence,
     Drift,
     EpisodeSeconds,
     EpochBars,
@@ -183,6 +184,7 @@ def solve_command(
     tightening: Annotated[
         str, typer.Option(help="gaussian (k·σ, eq. 16) or quantile (at Φ(−k)).")
     ] = OCPConfig.tightening,
+    confidence: Confidence = OCPConfig.confidence,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
     theta_end: Annotated[float, typer.Option(help="θ_N, rad.")] = OCPConfig.theta_end,
@@ -197,6 +199,7 @@ def solve_command(
         mc_samples=mc_samples,
         mc_mode=mc_mode,
         tightening=tightening,
+        confidence=confidence,
         torque_limit=torque_limit,
         theta_start=theta_start,
         theta_end=theta_end,

@@ -14,6 +14,7 @@ from control.ocp import OCPConfig
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.console import (
     HELDOUT_SEED,
+    Confidence,
     Drift,
     EpisodeSeconds,
     EpochBars,
@@ -48,6 +49,7 @@ def run_command(
     episode_seconds: EpisodeSeconds = 10.0,
     drift: Drift = True,
     variability: VariabilityOption = "paper",
+    confidence: Confidence = OCPConfig.confidence,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
@@ -68,6 +70,7 @@ def run_command(
             "episode_seconds": episode_seconds,
             "variability": Variability.resolve(variability, drift=drift),
         },
+        ocp={"confidence": confidence},
         replay={"runs": runs},
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
@@ -138,6 +141,7 @@ def study_command(
     tightening: Annotated[str, typer.Option(help="gaussian (k·σ) or quantile.")] = (
         OCPConfig.tightening
     ),
+    confidence: Confidence = OCPConfig.confidence,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
         False
@@ -153,7 +157,7 @@ def study_command(
             "episode_seconds": episode_seconds,
             "variability": Variability.resolve(variability),
         },
-        ocp={"mc_mode": mc_mode, "tightening": tightening},
+        ocp={"mc_mode": mc_mode, "tightening": tightening, "confidence": confidence},
         replay={"runs": runs},
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,

@@ -85,6 +85,13 @@ Seed = Annotated[int, typer.Option(help="Seed of every random draw.")]
 EpisodeSeconds = Annotated[float, typer.Option(help="Length of one episode (machine draw) in s.")]
 Drift = Annotated[bool, typer.Option(help="Friction drifts as each machine warms up.")]
 Amplitude = Annotated[float, typer.Option(help="Peak excitation torque level in N·m.")]
+Confidence = Annotated[
+    float,
+    typer.Option(
+        help="Confidence about the line the robust tightening allows for (its mean and spread "
+        "are estimated from few machines); 0 = the paper's eq. 16."
+    ),
+]
 ModelPath = Annotated[Path, typer.Option("--model", help="The slider-crank MJCF.")]
 VariabilityOption = Annotated[
     str,

@@ -178,7 +178,8 @@ def markdown(study: dict[str, Any]) -> str:
     lines.append(
         f"Variability scenario `{scenario}`, Monte-Carlo `{study['config']['ocp']['mc_mode']}` "
         f"({study['config']['ocp']['mc_samples']} samples, {study['config']['ocp']['tightening']} "
-        f"tightening), held-out seed {study['config']['heldout_seed']}."
+        f"tightening, confidence {study['config']['ocp'].get('confidence', 0):g}), held-out seed "
+        f"{study['config']['heldout_seed']}."
     )
     lines.append("")
     if ok and "robust_heldout_rate" in ok[0]:

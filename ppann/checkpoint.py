@@ -18,8 +18,9 @@ from ppann.model import PPANN, PPANNConfig
 from twin.dataset import Dataset
 
 FORMAT = "crank-ppann-checkpoint"
-VERSION = 2
-"""2: the PPANN carries machine_sigma (the machine-level spread of ppann/machine.py)."""
+VERSION = 3
+"""2: the PPANN carries machine_sigma (the machine-level spread of ppann/machine.py); 3: and what
+the training machines leave open about the line (common_covariance, machine_profile)."""
 KINDS = ("ppann", "physics", "blackbox")
 
 

@@ -19,15 +19,32 @@ written with S = diag(machine_sigma) so that machine_sigma -> 0 is regular):
 Phase 2 minimises the sum over episodes divided by the number of samples, over the sigma
 networks and log machine_sigma jointly. With machine_sigma = 0 the loss is exactly eq. 9. The
 posterior mean of each episode's eta, -S (I + G)^-1 c, is what the report shows per machine.
+
+What a handful of machines cannot tell (`population`): the fitted line is E machines' worth of
+evidence (9 in the default dataset), so its mean and its spread are estimates. The mean model
+sits on the average of the training machines, which differs from the line's mean by about
+machine_sigma / sqrt(E) (measured on line-15: the training machines were 2-4 % more damped than
+the line, and the twin ran 0.1 rad ahead of the model at sample 100); and machine_sigma itself
+has a ~1 / sqrt(2 E) relative error (24 % at E = 9). Two summaries of the marginal likelihood
+carry this into the checkpoint:
+- `common_covariance` (3, 3): the inverse Hessian of the summed NLL in the common offset, exact
+  (the NLL is quadratic in it), the covariance of the line's mean log-factors;
+- `profile` (3, len(PROFILE_GRID)): the summed NLL with one machine_sigma component moved to
+  each grid value and everything else at its estimate, minus the NLL at the estimate, so that a
+  likelihood-ratio upper bound at any confidence can be read off later (`sigma_upper`): unlike
+  a Hessian in log sigma it stays finite when a component's estimate is ~0 (the bound is then
+  the smallest spread the data would have shown).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 
 from ppann.losses import VARIANCE_FLOOR
+from ppann.model import PROFILE_GRID
 
 
 def episode_sums(
@@ -100,3 +117,64 @@ def posterior_offsets(
     """Posterior mean of each episode's log-factors eta_e, (E, 3)."""
     _, c, identity_plus_g = terms.scaled(terms.white_variance(sigma), machine_sigma)
     return -machine_sigma[None, :] * torch.linalg.solve(identity_plus_g, c[:, :, None])[:, :, 0]
+
+
+@dataclass(frozen=True)
+class Population:
+    """What the training machines tell about the line (module docstring, last section)."""
+
+    common_covariance: torch.Tensor
+    """(3, 3) covariance of the line's mean log-factors."""
+    profile: torch.Tensor
+    """(3, len(PROFILE_GRID)) NLL increase with one machine_sigma component at each grid value."""
+
+
+def population(
+    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor, common: torch.Tensor
+) -> Population:
+    """`Population` at the phase-2 estimate: white sigma-network outputs `sigma` (n, 3), the fitted
+    `machine_sigma` (3,) and common offset (3,)."""
+    sigma, machine_sigma, common = sigma.detach(), machine_sigma.detach(), common.detach()
+    n = terms.residual.shape[0]
+
+    def total(offset: torch.Tensor) -> torch.Tensor:
+        return n * marginal_nll(terms.shifted(offset), sigma, machine_sigma)
+
+    hessian = torch.autograd.functional.hessian(total, common)
+    hessian = 0.5 * (hessian + hessian.T)
+    shifted = terms.shifted(common)
+    with torch.no_grad():
+        base = n * marginal_nll(shifted, sigma, machine_sigma)
+        profile = torch.empty((3, len(PROFILE_GRID)), dtype=torch.float64)
+        for i in range(3):
+            for j, value in enumerate(PROFILE_GRID):
+                moved = machine_sigma.clone()
+                moved[i] = float(value)
+                profile[i, j] = n * marginal_nll(shifted, sigma, moved) - base
+    return Population(torch.linalg.inv(hessian), profile)
+
+
+def sigma_upper(machine_sigma: np.ndarray, profile: np.ndarray, z: float) -> np.ndarray:
+    """Likelihood-ratio upper bound of each machine_sigma component at one-sided normal quantile
+    z: the smallest value above the estimate where the profile NLL rises by z^2 / 2 (linear
+    interpolation on PROFILE_GRID; the grid's end if it never does). z = 0, or a profile row of
+    zeros (no machine model fitted), gives the estimate."""
+    machine_sigma = np.asarray(machine_sigma, dtype=float)
+    upper = machine_sigma.copy()
+    if z <= 0:
+        return upper
+    level = 0.5 * z * z
+    for i, (estimate, rise) in enumerate(zip(machine_sigma, profile, strict=True)):
+        if not np.any(rise):
+            continue
+        above = estimate < PROFILE_GRID
+        grid, values = PROFILE_GRID[above], rise[above]
+        crossing = np.flatnonzero(values >= level)
+        if crossing.size == 0:
+            upper[i] = PROFILE_GRID[-1]
+            continue
+        j = int(crossing[0])
+        x0, y0 = (estimate, 0.0) if j == 0 else (grid[j - 1], max(values[j - 1], 0.0))
+        x1, y1 = grid[j], values[j]
+        upper[i] = x0 + (x1 - x0) * (level - y0) / (y1 - y0) if y1 > y0 else x1
+    return upper

@@ -27,6 +27,9 @@ from common.checks import check_finite
 from common.errors import CrankError
 
 Z_NAMES = ("J", "B", "K")
+PROFILE_GRID = np.geomspace(1e-4, 1.0, 97)
+"""machine_sigma values (log-factor standard deviations) at which the likelihood profile of
+ppann/machine.py is kept in the model (`machine_profile`): 1e-4 to 1 in steps of a factor 1.1."""
 """The three augmented terms, in the order of the last axis of every z tensor (and of the
 machine-level log-factors, ppann/machine.py)."""
 INERTIA_FACTOR_FLOOR = 0.1
@@ -108,6 +111,12 @@ class PPANN(nn.Module):
         # Spread of the per-machine log-factors of inertia, damping and stiffness (phase 2,
         # ppann/machine.py); zero until fitted, and then "mixed" equals "step".
         self.register_buffer("machine_sigma", torch.zeros(3, dtype=torch.float64))
+        # What the training machines leave open about the line (ppann/machine.py, Population):
+        # zeros until fitted, and then no allowance is made.
+        self.register_buffer("common_covariance", torch.zeros((3, 3), dtype=torch.float64))
+        self.register_buffer(
+            "machine_profile", torch.zeros((3, len(PROFILE_GRID)), dtype=torch.float64)
+        )
         self.double()
 
     @property
@@ -212,6 +221,8 @@ class FusedHeads:
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
         self.dt = c.dt
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
+        self.common_covariance = model.common_covariance.detach().numpy().copy()
+        self.machine_profile = model.machine_profile.detach().numpy().copy()
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         hidden = sum(net[0].out_features for net in nets)
         self.w_in = np.zeros((3, hidden), dtype=np.float32)

@@ -60,6 +60,8 @@ class Bands:
     samples: np.ndarray
     mean: np.ndarray
     std: np.ndarray
+    log_factors: np.ndarray | None = None
+    """Each trajectory's machine eta (n_samples, 3) in the modes that draw one, else None."""
 
 
 def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
@@ -67,12 +69,12 @@ def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
         raise error(f"Monte-Carlo mode must be one of {', '.join(MODES)}, got {mode!r}")
 
 
-def machine_factors(
+def machine_log_factors(
     machine_sigma: npt.ArrayLike, n_samples: int, rng: np.random.Generator
 ) -> np.ndarray:
-    """Log-normal factors exp(eta), eta ~ N(0, diag(machine_sigma^2)), (n_samples, 3)."""
+    """eta ~ N(0, diag(machine_sigma^2)), (n_samples, 3): the machine factors are exp(eta)."""
     sigma = np.asarray(machine_sigma, dtype=float)
-    return np.exp(sigma * rng.standard_normal((n_samples, 3)))
+    return sigma * rng.standard_normal((n_samples, 3))
 
 
 def monte_carlo(
@@ -83,8 +85,12 @@ def monte_carlo(
     n_samples: int = 100,
     mode: str = "step",
     seed: int | np.random.SeedSequence = 0,
+    machine_sigma: npt.ArrayLike | None = None,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
+
+    machine_sigma: the spread of the machine draws (3,) in place of the model's (e.g. its upper
+    confidence bound, control/robust.py); the same standard normals are scaled either way.
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -103,10 +109,30 @@ def monte_carlo(
     if draw.white is not None:
         per = steps if draw.white == "step" else 1
         eps = np.random.default_rng(white_seq).standard_normal((per, n_samples, 3))
-    factors = None
+    eta = factors = None
     if draw.machine:
-        rng = np.random.default_rng(machine_seq)
-        factors = machine_factors(heads.machine_sigma, n_samples, rng)
+        spread = heads.machine_sigma if machine_sigma is None else machine_sigma
+        eta = machine_log_factors(spread, n_samples, np.random.default_rng(machine_seq))
+        factors = np.exp(eta)
+    samples = rollout(heads, x0, tau, n_samples=n_samples, eps=eps, factors=factors)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1), eta)
+
+
+def rollout(
+    heads: FusedHeads,
+    x0: npt.ArrayLike,
+    tau: np.ndarray,
+    *,
+    n_samples: int,
+    eps: np.ndarray | None = None,
+    factors: np.ndarray | None = None,
+) -> np.ndarray:
+    """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
+    (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
+    mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine)."""
+    steps = tau.shape[0]
+    per_step = eps is not None and eps.shape[0] == steps and steps > 1
     samples = np.empty((n_samples, steps + 1, 2))
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
@@ -115,8 +141,19 @@ def monte_carlo(
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(steps):
             mean, sigma = heads(theta, omega)
-            z = mean if eps is None else mean + sigma * eps[k if draw.white == "step" else 0]
+            z = mean if eps is None else mean + sigma * eps[k if per_step else 0]
             alpha = heads.acceleration(theta, omega, tau[k], z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
-        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
+    return samples
+
+
+def line_sensitivity(
+    model: PPANN | FusedHeads, x0: npt.ArrayLike, tau: npt.ArrayLike, *, step: float = 1e-3
+) -> np.ndarray:
+    """d theta_k / d delta (T + 1, 3): how the mean model's crank angle moves when the whole
+    line's inertia, damping and stiffness log-factors shift by delta (central differences)."""
+    heads = model if isinstance(model, FusedHeads) else FusedHeads(model)
+    shifts = np.concatenate([step * np.eye(3), -step * np.eye(3)])
+    theta = rollout(heads, x0, np.asarray(tau, dtype=float), n_samples=6, factors=np.exp(shifts))
+    return ((theta[:3, :, 0] - theta[3:, :, 0]) / (2 * step)).T

@@ -24,7 +24,7 @@ from common.errors import CrankError
 from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
 from ppann.losses import n_step_mse, propagated_nll, propagated_terms
-from ppann.machine import EpisodeTerms, marginal_nll, posterior_offsets
+from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets
 from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
 
@@ -234,5 +234,9 @@ def train_sigma(
             model.machine_sigma.copy_(log_machine.exp())
             sigma = model.z_sigma(theta, omega)
             offsets = posterior_offsets(terms.shifted(common), sigma, model.machine_sigma)
+        line = population(terms, sigma, model.machine_sigma, common)
+        with torch.no_grad():
+            model.common_covariance.copy_(line.common_covariance)
+            model.machine_profile.copy_(line.profile)
         history.machine_offsets = offsets.tolist()
         history.machine_common = common.detach().tolist()

@@ -18,8 +18,10 @@ SHORT = RunConfig.for_seed(
     0,
     generation={"seconds": 12.0, "episode_seconds": 2.0},
     train={"max_epochs": 3, "sigma_epochs": 20},
-    # A 12 s model is too uncertain for a 3σ profile; 0.5σ still exercises the robust loop.
-    ocp={"k_sigma": 0.5, "mc_samples": 200},
+    # A 12 s model is too uncertain for a 3σ profile; 0.5σ still exercises the robust loop. Its
+    # 6 machines of 2 s leave the line too open for any allowance at the default confidence
+    # (tests/test_tightening.py covers that), so this chain takes the fitted line as it is.
+    ocp={"k_sigma": 0.5, "mc_samples": 200, "confidence": 0.0},
     replay={"runs": 4},
     heldout_runs=20,
     baselines=False,

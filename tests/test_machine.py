@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ppann.machine import EpisodeTerms, marginal_nll
+from ppann.machine import EpisodeTerms, marginal_nll, sigma_upper
 from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
 from ppann.montecarlo import monte_carlo
 from ppann.train import History, TrainConfig, make_splits, train_sigma
@@ -135,11 +135,9 @@ def _machines_dataset(*, episodes: int, seconds: float, inertia_sigma: float, se
     return dataset, model, eta
 
 
-def test_machine_sigma_recovered_within_20_percent() -> None:
-    """Phase 2 on a synthetic line whose machines differ in inertia only (log-spread 0.15): the
-    fitted machine σ of the inertia is within 20 % of the spread of the 40 machines in the data
-    (their sample σ; with 40 machines it has itself ~11 % standard error around 0.15, so that is
-    the known answer), and the damping and stiffness get next to none."""
+@pytest.fixture(scope="module")
+def fitted_line():
+    """Phase 2 on a synthetic line whose 40 machines differ in inertia only (log-spread 0.15)."""
     spread = 0.15
     dataset, truth_model, eta = _machines_dataset(
         episodes=40, seconds=2.0, inertia_sigma=spread, seed=3
@@ -150,9 +148,46 @@ def test_machine_sigma_recovered_within_20_percent() -> None:
         | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
     )
     config = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
-    train_sigma(model, dataset, make_splits(dataset, config), config, history=History())
+    splits = make_splits(dataset, config)
+    train_sigma(model, dataset, splits, config, history=History())
+    machines = int(np.unique(dataset.episode[: splits.split]).size)
+    return model, eta, machines
+
+
+def test_machine_sigma_recovered_within_20_percent(fitted_line) -> None:
+    """The fitted machine σ of the inertia is within 20 % of the spread of the 40 machines in the
+    data (their sample σ; with 40 machines it has itself ~11 % standard error around 0.15, so that
+    is the known answer), and the damping and stiffness get next to none."""
+    model, eta, _ = fitted_line
     drawn = float(np.std(eta, ddof=1))
     print(f"drawn {drawn:.4f}, fitted {model.machine_sigma.tolist()}")
     assert model.machine_sigma[0].item() == pytest.approx(drawn, rel=0.2)
     assert model.machine_sigma[1].item() < 0.3 * drawn
     assert model.machine_sigma[2].item() < 0.3 * drawn
+
+
+def test_population_uncertainty_matches_directly_observed_machines(fitted_line) -> None:
+    """With little white noise each machine's inertia factor is as good as observed, and the
+    population summaries take their textbook values for E directly observed normal draws with
+    estimate s: the line's mean log-factor has standard error s / sqrt(E), and the
+    likelihood-ratio upper bound u of σ solves E (log(u / s) + s² / (2 u²) − 1/2) = z² / 2."""
+    model, _, machines = fitted_line
+    s = model.machine_sigma[0].item()
+    se = math.sqrt(model.common_covariance[0, 0].item())
+    assert se == pytest.approx(s / math.sqrt(machines), rel=0.1)
+    z = 1.96
+    upper = sigma_upper(model.machine_sigma.numpy(), model.machine_profile.numpy(), z)
+    lo, hi = s, 3 * s  # bisection of the closed form
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        rise = machines * (math.log(mid / s) + s * s / (2 * mid * mid) - 0.5)
+        lo, hi = (mid, hi) if rise < 0.5 * z * z else (lo, mid)
+    print(f"machines {machines}, s {s:.4f}, upper {upper[0]:.4f}, closed form {lo:.4f}")
+    assert upper[0] == pytest.approx(lo, rel=0.05)
+    assert upper[0] > 1.15 * s
+    # z = 0: the estimate itself; a component the data show none of gets a small bound.
+    assert np.array_equal(
+        sigma_upper(model.machine_sigma.numpy(), model.machine_profile.numpy(), 0.0),
+        model.machine_sigma.numpy(),
+    )
+    assert upper[1] < 0.3 * s and upper[2] < 0.3 * s

@@ -10,9 +10,10 @@ import pytest
 import torch
 from scipy import stats
 
-from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail
-from control.robust import slider_uncertainty, tightening
-from ppann.model import FusedHeads, constant_ppann
+from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail, slider_position
+from control.robust import line_allowance, population_margin, slider_uncertainty, tightening
+from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
+from ppann.montecarlo import rollout
 from replay.heldout import rate_upper
 
 PLAN = 0.095
@@ -95,3 +96,70 @@ def test_draft_monte_carlo_up_to_the_last_constraint_gives_the_same_tightening()
     assert np.array_equal(full.tightening, short.tightening)
     assert np.array_equal(full.tightening_se, short.tightening_se)
     assert len(short.std) == max(config.constraint_samples) < len(full.std)
+
+
+def _line_model():
+    """A constant PPANN with a machine spread, its likelihood profile from 9 directly observed
+    machines at that spread (closed form), and an uncertain line mean."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    spread = torch.tensor([0.05, 0.04, 0.03], dtype=torch.float64)
+    machines = 9
+    grid = torch.from_numpy(PROFILE_GRID)[None, :]
+    profile = machines * (torch.log(grid / spread[:, None]) + spread[:, None] ** 2 / (2 * grid**2))
+    with torch.no_grad():
+        model.machine_sigma.copy_(spread)
+        model.machine_profile.copy_(profile - machines / 2)
+        model.common_covariance.copy_(torch.diag(spread**2 / machines))
+    return model
+
+
+def test_confidence_zero_is_the_papers_tightening_bit_for_bit() -> None:
+    """confidence 0: no allowance for the line, the Monte-Carlo draws the model's own spread, and
+    the tightening equals that of a model that carries no line summaries at all."""
+    model = _line_model()
+    config = OCPConfig(confidence=0.0)
+    solution = NominalOCP(model, config).solve()
+    bare = _line_model()
+    with torch.no_grad():
+        bare.machine_profile.zero_()
+        bare.common_covariance.zero_()
+    with_line = slider_uncertainty(FusedHeads(model), solution, config)
+    without = slider_uncertainty(FusedHeads(bare), solution, OCPConfig())
+    assert np.array_equal(with_line.tightening, without.tightening)
+    assert not np.any(with_line.population)
+    assert line_allowance(FusedHeads(model), config) == (None, 0.0)
+
+
+def test_population_margin_is_the_largest_drop_over_the_confidence_ellipsoid() -> None:
+    """At confidence 0.95 the allowance for the line's mean is the largest drop of the mean
+    model's slider over line shifts delta with delta^T C^-1 delta = z^2. Against 2000 random
+    shifts on that ellipsoid, simulated one by one: none drops the slider more than the margin
+    (to 1 %), and the best of them comes within 3 % of it. The linear bound z sqrt(g^T C g) is
+    short of it here (the slider is concave near top dead centre). The machine spread drawn is
+    the closed-form likelihood-ratio bound, above the estimate."""
+    model = _line_model()
+    config = OCPConfig(confidence=0.95)
+    solution = NominalOCP(model, config).solve()
+    heads = FusedHeads(model)
+    spread, z = line_allowance(heads, config)
+    assert z == pytest.approx(1.959964, abs=1e-6)
+    assert np.all(spread > 1.3 * heads.machine_sigma)
+    margin = population_margin(heads, solution, config, z)
+    index = np.array(config.constraint_samples) - 1
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((2000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    delta = z * u @ np.linalg.cholesky(heads.common_covariance).T
+    paths = rollout(
+        heads,
+        solution.states[0],
+        solution.tau[: index.max()],
+        n_samples=len(delta) + 1,
+        factors=np.exp(np.concatenate([np.zeros((1, 3)), delta])),
+    )
+    slider = slider_position(paths[:, index, 0])
+    dense = (slider[0] - slider[1:]).max(axis=0)
+    print(f"margin {margin * 1e3} mm, dense {dense * 1e3} mm")
+    assert np.all(dense <= 1.01 * margin)
+    assert np.all(dense >= 0.97 * margin)
+    assert np.all(margin > 1e-3)
