@@ -1,14 +1,20 @@
-"""Atomic file output: write beside the target, rename on success, never leave a half file."""
+"""Safe file output: write beside the target and rename on success (never a half file), one
+writer per output at a time (`output_lock`, `writes`), and never an output over an input."""
 
 from __future__ import annotations
 
 import contextlib
+import functools
+import inspect
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any, TypeVar
 
 from common.errors import CrankError
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 
 class OutputError(CrankError, OSError):
@@ -50,3 +56,141 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def lock_path(path: str | Path) -> Path:
+    """The lock file of an output: `.<name>.lock` beside it."""
+    path = Path(path)
+    return path.parent / f".{path.name}.lock"
+
+
+def _lock_owner(lock: Path) -> int | None:
+    try:
+        return int(lock.read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    return True
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path) -> Iterator[Path]:
+    """Hold the output `path` (a file or a run folder) for one whole step, so that a second crank
+    process writing the same output at the same time is refused in one line instead of both
+    writing it (a lock file created by an atomic hard link, holding the owner's pid). A lock whose
+    process is gone (killed) is stale and taken over. Folders made for the lock are removed again
+    if the step leaves them empty (a refused input leaves no folder behind). Yields the path.
+
+    Raises:
+      OutputError: another live process holds the output, or its directory is not writable.
+    """
+    path = Path(path)
+    lock = lock_path(path)
+    made = _missing_ancestors(path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".lockfile", dir=path.parent)
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+    except OSError as exc:
+        raise OutputError(f"cannot write to {path.parent}: {exc.strerror or exc}") from None
+    try:
+        try:
+            _take(lock, tmp, path)
+        finally:
+            os.unlink(tmp)
+    except BaseException:
+        _remove_empty(made)
+        raise
+    try:
+        yield path
+    finally:
+        if _lock_owner(lock) == os.getpid():
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(lock)
+        _remove_empty(made)
+
+
+def _take(lock: Path, tmp: str, path: Path) -> None:
+    """Link `tmp` (holding our pid) to `lock`; a lock of a dead process is taken over."""
+    for _ in range(3):
+        try:
+            os.link(tmp, lock)  # atomic: fails if the lock exists
+            return
+        except FileExistsError:
+            owner = _lock_owner(lock)
+            if owner is not None and _alive(owner):
+                raise OutputError(
+                    f"{path} is being written by another crank process (pid {owner}); wait for "
+                    f"it to finish or choose another output"
+                ) from None
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(lock)  # stale: its process was killed
+    raise OutputError(f"{path}: could not take its lock {lock}")
+
+
+def _missing_ancestors(folder: Path) -> list[Path]:
+    """`folder` and its ancestors that do not exist yet, deepest first."""
+    missing = []
+    for candidate in (folder, *folder.parents):
+        if candidate.exists():
+            break
+        missing.append(candidate)
+    return missing
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    for folder in folders:  # deepest first
+        try:
+            folder.rmdir()
+        except OSError:  # not empty (the step wrote into it), or already gone
+            return
+
+
+def check_distinct(outputs: dict[str, str | Path], inputs: dict[str, str | Path]) -> None:
+    """Refuse an output that is one of the inputs (it would be destroyed before it is read), or a
+    folder that holds one, resolved through links and relative paths.
+
+    Raises:
+      OutputError: naming both.
+    """
+    for out_name, out in outputs.items():
+        target = Path(out).resolve()
+        for in_name, source in inputs.items():
+            source_path = Path(source).resolve()
+            if source_path == target or target in source_path.parents:
+                raise OutputError(
+                    f"{out_name} {out} would overwrite the {in_name} {source}: choose another "
+                    f"output"
+                )
+
+
+def writes(output: str, *, inputs: tuple[str, ...] = ()) -> Callable[[F], F]:
+    """Decorator for a step that writes the output named by its argument `output`: the output is
+    refused if it is one of the arguments `inputs` (`check_distinct`), and held for the whole
+    step (`output_lock`)."""
+
+    def decorate(function: F) -> F:
+        signature = inspect.signature(function)
+
+        @functools.wraps(function)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            bound = signature.bind(*args, **kwargs)
+            bound.apply_defaults()
+            out = bound.arguments[output]
+            sources = {n: bound.arguments[n] for n in inputs if bound.arguments[n] is not None}
+            check_distinct({output: out}, sources)
+            with output_lock(out):
+                return function(*args, **kwargs)
+
+        return wrapper  # type: ignore[return-value]
+
+    return decorate

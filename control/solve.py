@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from common.atomic import check_writable
+from common.atomic import check_writable, writes
 from common.figures import save_figure
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP, OCPConfig
@@ -23,6 +23,7 @@ def figure_paths(out: Path) -> dict[str, Path]:
     return {name: out.with_name(f"{out.stem}.{name}.png") for name in ("nominal", "robust")}
 
 
+@writes("out", inputs=("model_path",))
 def solve_file(
     model_path: str | Path,
     out: str | Path,

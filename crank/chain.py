@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from common import streams
-from common.atomic import OutputError, check_writable
+from common.atomic import OutputError, check_writable, writes
 from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
@@ -134,6 +134,7 @@ class Hooks:
     on_run: Callable[[int], None] | None = None
 
 
+@writes("run_dir")
 def run_chain(
     config: RunConfig,
     run_dir: str | Path,

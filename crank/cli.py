@@ -367,6 +367,20 @@ def view_command(
 
 
 def main() -> None:
+    """The `crank` entry point: the app, with click's usage errors (an unknown option, a value
+    that does not parse) as one `error:` line and exit code 2 like every other input error."""
     import crank.cli_chain  # noqa: F401  (registers `run` and `study` on the app)
 
-    app()
+    try:
+        code = app(standalone_mode=False)
+    except typer.TyperException as exc:  # click's UsageError, BadParameter, NoSuchOption, ...
+        if type(exc).__name__ == "NoArgsIsHelpError":  # bare `crank`: the help, as click does
+            typer.echo(exc.ctx.get_help(), err=True)  # type: ignore[attr-defined]
+            sys.exit(2)
+        message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+        typer.echo(f"error: {' '.join(message.split())}", err=True)
+        sys.exit(getattr(exc, "exit_code", 2))
+    except typer.Abort:
+        typer.echo("error: aborted", err=True)
+        sys.exit(1)
+    sys.exit(code if isinstance(code, int) else 0)

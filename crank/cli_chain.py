@@ -10,6 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
+from common.errors import ConfigError
 from control.ocp import OCPConfig
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.console import (
@@ -76,6 +77,8 @@ def run_command(
         heldout_seed=heldout_seed,
         model_path=str(model),
     )
+    if name is not None and (name in ("", ".", "..") or Path(name).name != name or "\\" in name):
+        raise ConfigError(f"--name must be a plain folder name inside --logs, got {name!r}")
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
     run_dir = logs / name
     bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})

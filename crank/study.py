@@ -25,7 +25,7 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from common.atomic import atomic_path
+from common.atomic import atomic_path, writes
 from common.errors import ConfigError, CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
@@ -94,6 +94,7 @@ def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
     return row
 
 
+@writes("out")
 def run_study(
     base: RunConfig,
     seeds: tuple[int, ...],

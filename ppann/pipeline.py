@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from common.atomic import check_writable
+from common.atomic import check_writable, writes
 from common.figures import save_figure
 from common.jsonio import write_json
 from ppann import checkpoint, figures
@@ -41,6 +41,7 @@ def sibling(out: Path, suffix: str) -> Path:
     return out.with_name(f"{out.stem}.{suffix}")
 
 
+@writes("out", inputs=("data_path",))
 def train_and_report(
     data_path: str | Path,
     out: str | Path,

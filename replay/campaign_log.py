@@ -37,7 +37,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from common.atomic import OutputError, atomic_path, check_writable
+from common.atomic import OutputError, atomic_path, check_writable, writes
 from common.errors import CrankError
 from replay.campaign import Machines, Replay, ReplayConfig
 from twin import __version__
@@ -220,6 +220,7 @@ def _records(f: BinaryIO) -> tuple[list[Any], bool]:
     return records, True
 
 
+@writes("fixed", inputs=("broken",))
 def recover(broken: str | Path, fixed: str | Path) -> Recovery:
     """Rebuild an indexed, readable MCAP at `fixed` from what a crashed writer left in `broken`.
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from common.atomic import OutputError, check_writable
+from common.atomic import OutputError, check_writable, writes
 from common.figures import save_figure
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, ReplayConfig, draw_machines, run_campaign
@@ -44,6 +44,7 @@ def ocp_variability(ocp_path: str | Path) -> Variability:
     return Variability() if raw is None else Variability.from_dict(raw)
 
 
+@writes("out", inputs=("ocp_path", "model_path"))
 def replay_file(
     ocp_path: str | Path,
     out: str | Path,

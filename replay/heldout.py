@@ -35,7 +35,7 @@ import numpy as np
 from scipy import stats as scistats
 
 from common import streams
-from common.atomic import check_writable
+from common.atomic import check_writable, writes
 from common.jsonio import write_json
 from control.ocp import lower_tail, slider_position
 from control.ocp_file import read_ocp
@@ -170,6 +170,7 @@ def heldout_check(
     return out
 
 
+@writes("out", inputs=("ocp_path", "model", "model_path"))
 def heldout_file(
     ocp_path: str | Path,
     out: str | Path,

@@ -11,7 +11,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from common.atomic import check_writable
+from common.atomic import check_writable, writes
 from twin import __version__
 from twin.dataset import Episode, GenerationConfig, generate, summarize
 from twin.mcap_dataset import write_dataset
@@ -63,6 +63,7 @@ def provenance(model_path: str | Path) -> dict[str, str]:
     }
 
 
+@writes("out", inputs=("model_path",))
 def generate_file(
     config: GenerationConfig,
     *,

@@ -1,0 +1,153 @@
+"""Outputs that cannot be corrupted: one writer per output (a lock), no output over an input, no
+folder left behind by a refused step, click's usage errors as one line, run names that stay in
+--logs."""
+
+from __future__ import annotations
+
+import multiprocessing
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from common.atomic import OutputError, lock_path, output_lock
+from replay.campaign import ReplayConfig
+from tests.conftest import crank
+from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
+from twin.mcap_dataset import read_run
+
+
+def _one_line(result: subprocess.CompletedProcess[str], match: str) -> None:
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and match in lines[0], result.stderr
+
+
+def test_a_live_lock_refuses_and_a_stale_one_is_taken_over(tmp_path: Path) -> None:
+    out = tmp_path / "sub" / "r.mcap"
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        out.parent.mkdir()
+        lock_path(out).write_text(f"{sleeper.pid}\n")
+        held = f"another crank process \\(pid {sleeper.pid}\\)"
+        with pytest.raises(OutputError, match=held), output_lock(out):
+            pass
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    # The same lock once its process is gone: stale, taken over, and removed afterwards.
+    with output_lock(out):
+        assert lock_path(out).read_text().strip() != str(sleeper.pid)
+    assert not lock_path(out).exists()
+    # A folder made only for the lock goes again when the step leaves it empty.
+    fresh = tmp_path / "a" / "b" / "x.json"
+    with pytest.raises(RuntimeError), output_lock(fresh):
+        raise RuntimeError("the step failed")
+    assert not (tmp_path / "a").exists()
+
+
+def _replay(ocp: Path, out: Path, barrier, results) -> None:
+    from replay.files import replay_file
+
+    config = ReplayConfig(runs=3, seed=int(out.stem[-1]) if out.stem[-1].isdigit() else 0)
+    barrier.wait()
+    try:
+        replay_file(ocp, out, config=config, nthread=1)
+        results.put("ok")
+    except OutputError as exc:
+        results.put(f"refused: {exc}")
+
+
+def test_two_concurrent_replays_to_one_output(tmp_path: Path, ocp_path: Path) -> None:  # noqa: F811
+    """Two replays to the same --out released together: exactly one writes it, the file reads
+    back whole, and the other is refused naming the writer."""
+    context = multiprocessing.get_context("fork")
+    barrier, results = context.Barrier(2), context.Queue()
+    out = tmp_path / "r.mcap"
+    workers = [
+        context.Process(target=_replay, args=(ocp_path, out, barrier, results)) for _ in "ab"
+    ]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(timeout=240)
+    outcomes = sorted(results.get(timeout=5) for _ in workers)
+    assert outcomes[0] == "ok", outcomes
+    assert outcomes[1].startswith("refused: ") and "another crank process" in outcomes[1]
+    with out.open("rb") as f:  # the winner's log is whole: indexed, every run in it
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    assert read_run(out)["episodes_planned"] == 3 * 2 * len(ReplayConfig().modes)
+    assert not lock_path(out).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "r.mcap",
+        "r.png",
+        "r.rrd",
+        "r.stats.json",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("command", "existing", "match"),
+    [
+        (["solve", "--model", "m.pt", "--out", "m.pt"], "m.pt", "would overwrite the model_path"),
+        (["train", "--data", "d.mcap", "--out", "d.mcap"], "d.mcap", "would overwrite the data"),
+        (
+            ["generate", "--model", "m.mcap", "--out", "./m.mcap"],
+            "m.mcap",
+            "would overwrite the model_path",
+        ),
+        (["recover", "b.mcap", "b.mcap"], "b.mcap", "would overwrite the broken"),
+        (
+            [
+                "heldout",
+                "--ocp",
+                "o.json",
+                "--model",
+                "m.pt",
+                "--variability",
+                "paper",
+                "--out",
+                "o.json",
+            ],
+            "o.json",
+            "would overwrite the ocp_path",
+        ),
+    ],
+)
+def test_an_output_over_an_input_is_refused(
+    tmp_path: Path, command: list[str], existing: str, match: str
+) -> None:
+    """The input keeps its bytes, the command says which input it would have destroyed."""
+    (tmp_path / existing).write_bytes(b"precious input")
+    if "m.pt" in command and existing != "m.pt":
+        (tmp_path / "m.pt").write_bytes(b"model")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _one_line(crank(*command, cwd=tmp_path), match)
+    assert (tmp_path / existing).read_bytes() == b"precious input"
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize(
+    ("command", "match"),
+    [
+        (["solve", "--seed", "1.5"], "Invalid value for '--seed'"),
+        (["replay", "--runs", "many"], "Invalid value for '--runs'"),
+        (["generate", "--bogus"], "No such option: --bogus"),
+        (["nosuchcommand"], "No such command 'nosuchcommand'"),
+        (["run", "--seed"], "Option '--seed' requires an argument"),
+    ],
+)
+def test_usage_errors_are_one_line(tmp_path: Path, command: list[str], match: str) -> None:
+    _one_line(crank(*command, cwd=tmp_path), match)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("name", ["../escaped", "/tmp/absolute-run", "a/b", "..", ""])
+def test_run_names_stay_inside_logs(tmp_path: Path, name: str) -> None:
+    result = crank("run", "--logs", str(tmp_path / "logs"), "--name", name, cwd=tmp_path)
+    _one_line(result, "--name must be a plain folder name")
+    assert not any(tmp_path.iterdir())
