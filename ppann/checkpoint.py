@@ -4,6 +4,7 @@ in a file that `torch.load(weights_only=True)` reads (tensors, dicts, lists, str
 from __future__ import annotations
 
 import hashlib
+import io
 import pickle
 from pathlib import Path
 from typing import Any
@@ -53,8 +54,10 @@ def save(path: str | Path, model: torch.nn.Module, *, kind: str, extra: dict[str
         "state_dict": model.state_dict(),
         **extra,
     }
+    buffer = io.BytesIO()  # saved from memory, the zip's folder is "archive", not the temp name,
+    torch.save(payload, buffer)  # so the same weights give the same bytes (and ocp.json's hash)
     with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+        tmp.write_bytes(buffer.getvalue())
 
 
 def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:

@@ -9,6 +9,7 @@ Outputs for `--out logs/model.pt`:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -128,7 +129,9 @@ def train_and_report(
                 "history": f.history.as_dict(),
                 "train_config": config.as_dict(),
                 "data_fingerprint": fingerprint,
-                "data_path": str(data_path),
+                # Relative to the checkpoint's folder: the same training gives the same bytes
+                # wherever it runs (and the folder can move).
+                "data_path": os.path.relpath(Path(data_path).resolve(), out.resolve().parent),
                 "loss_scale": splits.scale.tolist(),
                 "variability": dataset.run["config"]["variability"],
                 "dt": float(dataset.t[1] - dataset.t[0]),

@@ -78,12 +78,17 @@ def test_same_seed_reproduces_every_artifact(two_runs) -> None:
     da, db = read_dataset(a / "dataset.mcap"), read_dataset(b / "dataset.mcap")
     for name in ("theta", "omega", "tau", "slider_position"):
         assert np.array_equal(getattr(da, name), getattr(db, name)), name
+    # Byte for byte: the dataset, and the checkpoint (saved from memory, the data path relative
+    # to it), so both ocp.json record the same model hash.
+    assert (a / "dataset.mcap").read_bytes() == (b / "dataset.mcap").read_bytes()
+    assert (a / "model.pt").read_bytes() == (b / "model.pt").read_bytes()
     wa = torch.load(a / "model.pt", weights_only=True)["state_dict"]
     wb = torch.load(b / "model.pt", weights_only=True)["state_dict"]
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
     assert float(wa["machine_sigma"].max()) > 0
     oa = json.loads((a / "ocp.json").read_text())
     ob = json.loads((b / "ocp.json").read_text())
+    assert oa["model"]["sha256"] == ob["model"]["sha256"]
     for profile in ("nominal", "robust"):
         for key in ("tau", "slider", "slider_sigma", "tightening"):
             assert oa[profile][key] == ob[profile][key], (profile, key)
