@@ -71,9 +71,9 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         raise CheckpointError(f"checkpoint not found: {path}")
     try:
         payload = torch.load(path, weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as exc:
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
         reason = " ".join(str(exc).split())[:160]
-        raise CheckpointError(f"{path}: not a checkpoint ({reason})") from None
+        raise CheckpointError(f"{path}: not a checkpoint, or a damaged one ({reason})") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a {FORMAT} file")
     if payload.get("version") != VERSION:
@@ -86,6 +86,9 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         model = build(payload["kind"], payload["config"])
     except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: config does not fit this architecture ({exc})") from None
+    for name, tensor in payload["state_dict"].items():
+        if torch.is_tensor(tensor) and tensor.is_floating_point() and not tensor.isfinite().all():
+            raise CheckpointError(f"{path}: tensor {name!r} holds NaN or inf")
     try:
         model.load_state_dict(payload["state_dict"])
     except RuntimeError as exc:

@@ -23,6 +23,7 @@ import orjson
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from zstandard import ZstdError
 
 from common.atomic import atomic_path
 from common.errors import CrankError
@@ -178,6 +179,9 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
             rows = [orjson.loads(m.data) for _, _, m in reader.iter_messages(topics=[topic])]
         except orjson.JSONDecodeError as exc:
             raise ContractError(f"{path}: a message on {topic} is not JSON ({exc})") from None
+        except (McapError, ZstdError, ValueError, EOFError) as exc:  # a damaged chunk
+            reason = " ".join(str(exc).split())[:160]
+            raise ContractError(f"{path}: corrupt MCAP data on {topic} ({reason})") from None
     if not rows:
         raise ContractError(f"{path}: channel {topic} has no messages")
     out = {}
@@ -190,6 +194,12 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
             raise ContractError(f"{path}: a message on {topic} lacks field {name!r}") from None
         except (TypeError, ValueError):
             raise ContractError(f"{path}: field {name!r} on {topic} is not numeric") from None
+        bad = np.flatnonzero(~np.isfinite(out[name]))
+        if bad.size:
+            raise ContractError(
+                f"{path}: field {name!r} on {topic} is not finite at {bad.size} message(s), "
+                f"first at index {bad[0]} ({out[name][bad[0]]})"
+            )
     if len(out["t"]) > 1 and not np.all(np.diff(out["t"]) > 0):
         raise ContractError(f"{path}: t on {topic} is not strictly increasing")
     return out
