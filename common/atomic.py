@@ -44,7 +44,10 @@ def check_writable(path: str | Path) -> Path:
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success rename it to `path`, else delete it."""
     path = check_writable(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    # The writer's pid in the name: a temporary a killed process left is told from a live one's.
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.{os.getpid()}.", suffix=".partial", dir=path.parent
+    )
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -110,6 +113,7 @@ def output_lock(path: str | Path) -> Iterator[Path]:
     except BaseException:
         _remove_empty(made)
         raise
+    remove_stale_partials(path.parent)
     try:
         yield path
     finally:
@@ -117,6 +121,23 @@ def output_lock(path: str | Path) -> Iterator[Path]:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(lock)
         _remove_empty(made)
+
+
+def remove_stale_partials(folder: Path) -> list[Path]:
+    """Delete the hidden temporaries `.<name>.<pid>.<random>.partial` (`atomic_path`) in `folder`
+    whose process is gone: what a killed step left. A live writer's are kept. Returns them."""
+    removed = []
+    for tmp in folder.glob(".*.partial"):
+        fields = tmp.name.split(".")
+        try:
+            pid = int(fields[-3])
+        except (ValueError, IndexError):
+            continue
+        if not _alive(pid):
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+                removed.append(tmp)
+    return removed
 
 
 def _take(lock: Path, tmp: str, path: Path) -> None:

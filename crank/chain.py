@@ -37,7 +37,7 @@ from replay.heldout import heldout_file
 from replay.statistics import summary_rows
 from twin import __version__
 from twin.dataset import GenerationConfig
-from twin.generation import generate_file
+from twin.generation import check_generation_memory, generate_file
 from twin.physics import MODEL_PATH
 
 
@@ -151,6 +151,7 @@ def run_chain(
     run_dir = Path(run_dir)
     if run_dir.exists():
         raise OutputError(f"run folder already exists: {run_dir}")
+    check_generation_memory(config.generation)
     stage = hooks.on_stage or (lambda _: None)
     resolved = {
         "command": "crank run",

@@ -5,6 +5,7 @@ folder left behind by a refused step, click's usage errors as one line, run name
 from __future__ import annotations
 
 import multiprocessing
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -47,6 +48,23 @@ def test_a_live_lock_refuses_and_a_stale_one_is_taken_over(tmp_path: Path) -> No
     with pytest.raises(RuntimeError), output_lock(fresh):
         raise RuntimeError("the step failed")
     assert not (tmp_path / "a").exists()
+
+
+def test_temporaries_of_a_killed_writer_are_removed_and_a_live_ones_kept(tmp_path: Path) -> None:
+    gone = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    dead = tmp_path / f".x.json.{int(gone.stdout)}.k3j_x.partial"
+    live = tmp_path / f".x.png.{os.getpid()}.a1b2.partial"
+    recover_me = tmp_path / "replay.mcap.partial"  # a crashed campaign's: kept for `recover`
+    for path in (dead, live, recover_me):
+        path.write_text("half")
+    with output_lock(tmp_path / "x.json"):
+        pass
+    assert not dead.exists() and live.exists() and recover_me.exists()
 
 
 def _replay(ocp: Path, out: Path, barrier, results) -> None:
