@@ -8,6 +8,7 @@ import multiprocessing
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -169,3 +170,30 @@ def test_run_names_stay_inside_logs(tmp_path: Path, name: str) -> None:
     result = crank("run", "--logs", str(tmp_path / "logs"), "--name", name, cwd=tmp_path)
     _one_line(result, "--name must be a plain folder name")
     assert not any(tmp_path.iterdir())
+
+
+def test_a_killed_generate_leaves_nothing_that_looks_complete(tmp_path: Path) -> None:
+    """SIGKILL mid-way: no dataset at the target, only the dead writer's lock and temporaries;
+    a rerun takes the stale lock over, removes them and writes the dataset."""
+    out = tmp_path / "d.mcap"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "crank", "generate", "--seconds", "300", "--out", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120
+    while not lock_path(out).exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(3.0)  # well into the simulation
+    process.kill()
+    process.wait()
+    assert lock_path(out).exists() and not out.exists()
+    assert not list(tmp_path.glob("*.png"))
+    result = crank("generate", "--seconds", "1", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert read_run(out)["seconds"] == 1.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "d.coverage.png",
+        "d.excitation.png",
+        "d.mcap",
+    ]
