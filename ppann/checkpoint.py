@@ -14,15 +14,13 @@ import torch
 
 from common.atomic import atomic_path
 from common.errors import CrankError
-from ppann.baselines import BlackBox, BlackBoxConfig
-from ppann.model import PPANN, PPANNConfig
+from ppann.kinds import KINDS, MODEL_KINDS
 from twin.dataset import Dataset
 
 FORMAT = "crank-ppann-checkpoint"
 VERSION = 3
 """2: the PPANN carries machine_sigma (the machine-level spread of ppann/machine.py); 3: and what
 the training machines leave open about the line (common_covariance, machine_profile)."""
-KINDS = ("ppann", "physics", "blackbox")
 
 
 class CheckpointError(CrankError, ValueError):
@@ -35,13 +33,6 @@ def fingerprint(dataset: Dataset) -> str:
     for name in ("t", "episode", "theta", "omega", "tau"):
         digest.update(np.ascontiguousarray(getattr(dataset, name)).tobytes())
     return digest.hexdigest()
-
-
-def build(kind: str, config: dict[str, Any]) -> torch.nn.Module:
-    """A fresh model of `kind` from its config dict."""
-    if kind == "blackbox":
-        return BlackBox(BlackBoxConfig(**config))
-    return PPANN(PPANNConfig(**config))
 
 
 def save(path: str | Path, model: torch.nn.Module, *, kind: str, extra: dict[str, Any]) -> None:
@@ -83,7 +74,7 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     if payload.get("kind") not in KINDS:
         raise CheckpointError(f"{path}: unknown model kind {payload.get('kind')!r}")
     try:
-        model = build(payload["kind"], payload["config"])
+        model = MODEL_KINDS[payload["kind"]].build(payload["config"])
     except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: config does not fit this architecture ({exc})") from None
     for name, tensor in payload["state_dict"].items():

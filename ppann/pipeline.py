@@ -21,6 +21,7 @@ from common.figures import save_figure
 from common.jsonio import write_json
 from ppann import checkpoint, figures
 from ppann.fit import Fitted, fit
+from ppann.kinds import KINDS
 from ppann.model import Z_NAMES
 from ppann.report import (
     bands,
@@ -34,8 +35,6 @@ from ppann.report import (
 from ppann.train import TrainConfig, make_splits
 from twin.mcap_dataset import read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
-
-KIND_ORDER = ("ppann", "physics", "blackbox")
 
 
 def sibling(out: Path, suffix: str) -> Path:
@@ -61,7 +60,7 @@ def train_and_report(
     splits = make_splits(dataset, config)
     print_stage = on_stage or (lambda _: None)
     fitted: dict[str, Fitted] = {}
-    for kind in KIND_ORDER if baselines else KIND_ORDER[:1]:
+    for kind in KINDS if baselines else KINDS[:1]:
         print_stage(f"training {kind}")
         fitted[kind] = fit(
             dataset,
