@@ -194,10 +194,18 @@ def check_distinct(outputs: dict[str, str | Path], inputs: dict[str, str | Path]
                 )
 
 
-def writes(output: str, *, inputs: tuple[str, ...] = ()) -> Callable[[F], F]:
-    """Decorator for a step that writes the output named by its argument `output`: the output is
-    refused if it is one of the arguments `inputs` (`check_distinct`), and held for the whole
-    step (`output_lock`)."""
+def check_suffix(path: str | Path, suffix: str) -> None:
+    """Refuse an output path whose suffix is not the format it will hold (OutputError)."""
+    if Path(path).suffix != suffix:
+        raise OutputError(f"the output is {suffix[1:]}: it must end in {suffix}, got {path}")
+
+
+def writes(
+    output: str, *, inputs: tuple[str, ...] = (), suffix: str | None = None
+) -> Callable[[F], F]:
+    """Decorator for a step that writes the output named by its argument `output`: the output must
+    end in `suffix` (if given, `check_suffix`), is refused if it is one of the arguments `inputs`
+    (`check_distinct`), and is held for the whole step (`output_lock`)."""
 
     def decorate(function: F) -> F:
         signature = inspect.signature(function)
@@ -207,6 +215,8 @@ def writes(output: str, *, inputs: tuple[str, ...] = ()) -> Callable[[F], F]:
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
             out = bound.arguments[output]
+            if suffix is not None:
+                check_suffix(out, suffix)
             sources = {n: bound.arguments[n] for n in inputs if bound.arguments[n] is not None}
             check_distinct({output: out}, sources)
             with output_lock(out):

@@ -23,7 +23,7 @@ def figure_paths(out: Path) -> dict[str, Path]:
     return {name: out.with_name(f"{out.stem}.{name}.png") for name in ("nominal", "robust")}
 
 
-@writes("out", inputs=("model_path",))
+@writes("out", inputs=("model_path",), suffix=".json")
 def solve_file(
     model_path: str | Path,
     out: str | Path,

@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from common.atomic import OutputError
+from common.atomic import OutputError, check_suffix
 from control.ocp import OCPConfig, OCPConfigError
 from control.solve import figure_paths, solve_file
 from crank.console import (
@@ -265,6 +265,7 @@ def replay_command(
 ) -> None:
     """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
     campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
+    check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
     config = ReplayConfig(
         runs=runs,
         seed=seed,
@@ -306,8 +307,7 @@ def heldout_command(
 ) -> None:
     """Both torques of an ocp.json, open loop, on held-out machines: violation rates with exact
     95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
-    if out.suffix != ".json":
-        raise OutputError(f"held-out results are JSON: --out must end in .json, got {out}")
+    check_suffix(out, ".json")  # before ocp.json is read for its scenario
     ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(

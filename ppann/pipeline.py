@@ -41,7 +41,7 @@ def sibling(out: Path, suffix: str) -> Path:
     return out.with_name(f"{out.stem}.{suffix}")
 
 
-@writes("out", inputs=("data_path",))
+@writes("out", inputs=("data_path",), suffix=".pt")
 def train_and_report(
     data_path: str | Path,
     out: str | Path,

@@ -33,7 +33,7 @@ import numpy as np
 import orjson
 import zstandard
 from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -220,7 +220,7 @@ def _records(f: BinaryIO) -> tuple[list[Any], bool]:
     return records, True
 
 
-@writes("fixed", inputs=("broken",))
+@writes("fixed", inputs=("broken",), suffix=".mcap")
 def recover(broken: str | Path, fixed: str | Path) -> Recovery:
     """Rebuild an indexed, readable MCAP at `fixed` from what a crashed writer left in `broken`.
 
@@ -234,14 +234,16 @@ def recover(broken: str | Path, fixed: str | Path) -> Recovery:
     broken, fixed = Path(broken), Path(fixed)
     if not broken.is_file():
         raise RecoverError(f"file not found: {broken}")
-    if broken.resolve() == fixed.resolve():
-        raise RecoverError(f"recover into another file than its input: {broken}")
     check_writable(fixed)
     with open(broken, "rb") as f:
         if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise RecoverError(f"{broken}: not an MCAP file (no MCAP magic at its start)")
         f.seek(0)
         records, complete = _records(f)
+    header = next((r for r in records if isinstance(r, Header)), None)
+    if header is None or not header.library.startswith(("crank-replay", "crank-recover")):
+        written_by = "no header" if header is None else f"written by {header.library!r}"
+        raise RecoverError(f"{broken}: not a campaign log of crank replay ({written_by})")
     schemas = [r for r in records if isinstance(r, Schema)]
     channels = [r for r in records if isinstance(r, Channel)]
     metadata = [r for r in records if isinstance(r, Metadata)]

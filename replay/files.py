@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from common.atomic import OutputError, check_writable, writes
+from common.atomic import check_writable, writes
 from common.figures import save_figure
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, ReplayConfig, draw_machines, run_campaign
@@ -44,7 +44,7 @@ def ocp_variability(ocp_path: str | Path) -> Variability:
     return Variability() if raw is None else Variability.from_dict(raw)
 
 
-@writes("out", inputs=("ocp_path", "model_path"))
+@writes("out", inputs=("ocp_path", "model_path"), suffix=".mcap")
 def replay_file(
     ocp_path: str | Path,
     out: str | Path,
@@ -66,8 +66,6 @@ def replay_file(
       The statistics written to `<stem>.stats.json`.
     """
     out = Path(out)
-    if out.suffix != ".mcap":
-        raise OutputError(f"campaign log must end in .mcap, got {out}")
     paths = output_paths(out)
     ocp = read_ocp(ocp_path)
     for path in paths.values():

@@ -170,7 +170,7 @@ def heldout_check(
     return out
 
 
-@writes("out", inputs=("ocp_path", "model", "model_path"))
+@writes("out", inputs=("ocp_path", "model", "model_path"), suffix=".json")
 def heldout_file(
     ocp_path: str | Path,
     out: str | Path,

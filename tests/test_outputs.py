@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from common.atomic import OutputError, lock_path, output_lock
 from replay.campaign import ReplayConfig
-from tests.conftest import crank
+from tests.conftest import Written, crank
 from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
 from twin.mcap_dataset import read_run
 
@@ -112,8 +112,9 @@ def test_two_concurrent_replays_to_one_output(tmp_path: Path, ocp_path: Path) ->
 @pytest.mark.parametrize(
     ("command", "existing", "match"),
     [
-        (["solve", "--model", "m.pt", "--out", "m.pt"], "m.pt", "would overwrite the model_path"),
-        (["train", "--data", "d.mcap", "--out", "d.mcap"], "d.mcap", "would overwrite the data"),
+        # The formats differ, so the suffix check is what refuses these two first.
+        (["solve", "--model", "m.pt", "--out", "m.pt"], "m.pt", "must end in .json, got m.pt"),
+        (["train", "--data", "d.mcap", "--out", "d.mcap"], "d.mcap", "must end in .pt"),
         (
             ["generate", "--model", "m.mcap", "--out", "./m.mcap"],
             "m.mcap",
@@ -197,3 +198,31 @@ def test_a_killed_generate_leaves_nothing_that_looks_complete(tmp_path: Path) ->
         "d.excitation.png",
         "d.mcap",
     ]
+
+
+@pytest.mark.parametrize(
+    ("command", "match"),
+    [
+        (["generate", "--seconds", "1", "--out", "o/d.txt"], "must end in .mcap, got o/d.txt"),
+        (["train", "--data", "d.mcap", "--out", "o/m.txt"], "must end in .pt, got o/m.txt"),
+        (["solve", "--model", "m.pt", "--out", "o/ocp.txt"], "must end in .json, got o/ocp.txt"),
+        (["replay", "--ocp", "x.json", "--out", "o/r.json"], "must end in .mcap, got o/r.json"),
+        (["heldout", "--out", "o/h.csv"], "must end in .json, got o/h.csv"),
+        (["recover", "d.mcap", "o/f.txt"], "must end in .mcap, got o/f.txt"),
+    ],
+)
+def test_an_output_of_the_wrong_format_is_refused(
+    tmp_path: Path, command: list[str], match: str
+) -> None:
+    for name in ("d.mcap", "m.pt", "x.json"):
+        (tmp_path / name).write_bytes(b"input")
+    _one_line(crank(*command, cwd=tmp_path), match)
+    assert not (tmp_path / "o").exists()
+
+
+def test_recover_refuses_a_file_that_is_not_a_campaign_log(
+    tmp_path: Path, paper_dataset: Written
+) -> None:
+    result = crank("recover", str(paper_dataset.path), str(tmp_path / "f.mcap"))
+    _one_line(result, "not a campaign log of crank replay (written by 'crank-twin")
+    assert not any(tmp_path.iterdir())

@@ -77,7 +77,7 @@ def check_generation_memory(config: GenerationConfig) -> None:
     )
 
 
-@writes("out", inputs=("model_path",))
+@writes("out", inputs=("model_path",), suffix=".mcap")
 def generate_file(
     config: GenerationConfig,
     *,
