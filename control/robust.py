@@ -80,6 +80,22 @@ class RobustError(CrankError, RuntimeError):
     """The robust iteration did not reach a margin that its own Monte-Carlo confirms."""
 
 
+class BeyondStrokeError(RobustError):
+    """The model's tightening at a constraint sample exceeds the stroke left above the height:
+    no open-loop profile exists for this model and task. Carries the figures, m."""
+
+    def __init__(
+        self, message: str, *, sample: int, tightening: float, available: float, line: float
+    ) -> None:
+        super().__init__(message)
+        self.sample, self.tightening, self.available, self.line = (
+            sample,
+            tightening,
+            available,
+            line,
+        )
+
+
 @dataclass(frozen=True)
 class Uncertainty:
     """Monte-Carlo slider position under one torque: mean and std per sample, (N,) each, m; and
@@ -322,13 +338,17 @@ def solve_robust(
                     f", of which {1e3 * unc.population[k]:.1f} mm for the line's mean as known "
                     f"from the training machines at confidence {config.confidence:g}"
                 )
-            raise RobustError(
+            raise BeyondStrokeError(
                 f"the model's tightening of the slider at sample {config.constraint_samples[k]} "
                 f"({1e3 * new_target[k]:.1f} mm{line}; Monte-Carlo σ there "
                 f"{1e3 * unc.std[config.constraint_samples[k] - 1]:.1f} mm) exceeds the stroke "
                 f"above the height even for a torque that uses {1e3 * cap[k]:.1f} mm of it: no "
                 f"robust profile (train on more machines, lower k_sigma or height, or close the "
-                f"loop: open loop cannot keep this spread)"
+                f"loop: open loop cannot keep this spread)",
+                sample=config.constraint_samples[k],
+                tightening=float(new_target[k]),
+                available=float(STROKE_TOP - config.height),
+                line=float(unc.population[k]),
             )
         residual = new_target - proposal
         margin, target, current = proposal, new_target, solution

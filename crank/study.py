@@ -29,6 +29,7 @@ from common.atomic import atomic_path, writes
 from common.errors import ConfigError, CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
+from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
 
 TARGET_HELDOUT_RATE = 0.005
@@ -124,6 +125,13 @@ def run_study(
                 )
             except CrankError as exc:
                 row = {"seed": seed, "error": str(exc)}
+                if isinstance(exc, BeyondStrokeError):  # the figures of "no open-loop profile"
+                    row |= {
+                        "refused_sample": exc.sample,
+                        "refused_tightening": exc.tightening,
+                        "refused_available": exc.available,
+                        "refused_line": exc.line,
+                    }
                 run_dir.mkdir(parents=True, exist_ok=True)
                 (run_dir / "error.txt").write_text(str(exc) + "\n")
                 rows.append(row)
@@ -224,10 +232,14 @@ def markdown(study: dict[str, Any]) -> str:
 
 
 def figure(rows: list[dict[str, Any]]) -> Figure:
-    """Violation rates (held-out, with the 95 % bound) and cost premium against seed."""
+    """Violation rates (held-out, with the 95 % bound) and cost premium against seed; where a
+    seed has no robust profile, the tightening its model asked for against the stroke left."""
     ok = [r for r in rows if r.get("error") is None and "robust_heldout_rate" in r]
-    fig = Figure(figsize=(10, 6), layout="constrained")
-    top, bottom = fig.subplots(2, 1, sharex=True)
+    refused = [r for r in rows if "refused_tightening" in r]
+    panels = 2 + bool(refused)
+    fig = Figure(figsize=(10, 3 * panels), layout="constrained")
+    axes = fig.subplots(panels, 1, sharex=True)
+    top, bottom = axes[0], axes[1]
     seeds = [r["seed"] for r in ok]
     rate = [100 * r["robust_heldout_rate"] for r in ok]
     upper = [100 * r["robust_heldout_upper_95"] for r in ok]
@@ -237,11 +249,41 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     failed = [r["seed"] for r in rows if r.get("error")]
     for s in failed:
         top.axvline(s, color="C3", alpha=0.3, lw=8)
+    top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.05)
     top.set_ylabel("open-loop violations [%]")
     top.legend(fontsize=8)
     bottom.bar(seeds, [100 * r["premium"] for r in ok], color="C1")
+    bottom.set_ylim(bottom=0)
     bottom.set_ylabel("robust cost premium [%]")
-    bottom.set_xticks([r["seed"] for r in rows])
-    bottom.set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
+    if not ok:
+        for axis in (top, bottom):
+            axis.text(
+                0.5,
+                0.5,
+                "no seed has a robust profile",
+                transform=axis.transAxes,
+                ha="center",
+                va="center",
+                color="C3",
+            )
+    if refused:
+        axis = axes[2]
+        x = [r["seed"] for r in refused]
+        asked = [1e3 * r["refused_tightening"] for r in refused]
+        line = [1e3 * r["refused_line"] for r in refused]
+        axis.bar(x, asked, color="C3", alpha=0.6, label="tightening the model asks for")
+        axis.bar(x, line, color="C4", label="of which for the line's mean")
+        axis.scatter(
+            x,
+            [1e3 * r["refused_available"] for r in refused],
+            color="k",
+            marker="_",
+            s=400,
+            label="stroke above the height",
+        )
+        axis.set_ylabel(f"no profile: sample {refused[0]['refused_sample']} [mm]")
+        axis.legend(fontsize=8)
+    axes[-1].set_xticks([r["seed"] for r in rows])
+    axes[-1].set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
     fig.suptitle("Robust torque per training seed")
     return fig

@@ -11,7 +11,16 @@ import torch
 from scipy import stats
 
 from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail, slider_position
-from control.robust import line_allowance, population_margin, slider_uncertainty, tightening
+from control.robust import (
+    STROKE_SHARE,
+    STROKE_TOP,
+    BeyondStrokeError,
+    line_allowance,
+    population_margin,
+    slider_uncertainty,
+    solve_robust,
+    tightening,
+)
 from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
 from ppann.montecarlo import rollout
 from replay.heldout import rate_upper
@@ -163,3 +172,18 @@ def test_population_margin_is_the_largest_drop_over_the_confidence_ellipsoid() -
     assert np.all(dense <= 1.01 * margin)
     assert np.all(dense >= 0.97 * margin)
     assert np.all(margin > 1e-3)
+
+
+def test_no_profile_error_carries_its_figures() -> None:
+    """A line far wider than the stroke: the robust OCP refuses with BeyondStrokeError, whose
+    fields are the figures of its one-line message (what `crank study` tabulates and plots)."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.3, 0.5, 0.5))
+    config = OCPConfig(confidence=0.0)
+    with pytest.raises(BeyondStrokeError) as caught:
+        solve_robust(model, config)
+    error = caught.value
+    assert error.sample in config.constraint_samples
+    assert error.available == pytest.approx(STROKE_TOP - config.height)
+    assert error.tightening > STROKE_SHARE * error.available
+    assert error.line == 0.0
+    assert f"({1e3 * error.tightening:.1f} mm;" in str(error)
