@@ -112,8 +112,12 @@ def test_generate_unwritable_output(tmp_path: Path) -> None:
     blocker.write_text("a file where a directory should be")
     result = crank("generate", "--seconds", "1", "--out", str(blocker / "ds.mcap"))
     _assert_one_line_error(result, "cannot write to")
-    result = crank("generate", "--seconds", "1", "--out", str(tmp_path))
+    folder = tmp_path / "folder.mcap"
+    folder.mkdir()
+    result = crank("generate", "--seconds", "1", "--out", str(folder))
     _assert_one_line_error(result, "is a directory")
+    result = crank("generate", "--seconds", "1", "--out", str(tmp_path))
+    _assert_one_line_error(result, "it must end in .mcap")
 
 
 @pytest.mark.parametrize(
@@ -195,7 +199,9 @@ def test_train_rejects_non_finite_data(tmp_path: Path) -> None:
     )
     out = tmp_path / "m" / "model.pt"
     result = crank("train", "--data", str(bad), "--out", str(out))
-    _assert_one_line_error(result, "tau is nan at sample 77")
+    # The dataset reader refuses it, before training's own check (ppann/data.py) is reached.
+    _assert_one_line_error(result, "field 'tau' on /slider_crank/measurement is not finite")
+    assert "first at index 77 (nan)" in result.stderr
     assert not out.exists()
 
 
