@@ -12,11 +12,13 @@ from scipy import stats
 
 from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail, slider_position
 from control.robust import (
+    RELAX_FLOOR,
     STROKE_SHARE,
     STROKE_TOP,
     BeyondStrokeError,
     line_allowance,
     population_margin,
+    secant_relaxation,
     slider_uncertainty,
     solve_robust,
     tightening,
@@ -187,3 +189,23 @@ def test_no_profile_error_carries_its_figures() -> None:
     assert error.tightening > STROKE_SHARE * error.available
     assert error.line == 0.0
     assert f"({1e3 * error.tightening:.1f} mm;" in str(error)
+
+
+def test_secant_relaxation_lands_on_the_fixed_point_of_a_linear_map() -> None:
+    """For T(m) = a + s m the relaxation from two evaluations is 1 / (1 - s), and one relaxed
+    step from any margin lands on the fixed point a / (1 - s) exactly; a slope in [0, 1) gives 1
+    (never over-relaxed), a slope >= 1 or an unmoved margin leaves the previous relaxation."""
+    a, s = np.array([0.02, 0.015]), np.array([-0.9, -3.0])
+    m0, m1 = np.array([0.0, 0.0]), np.array([0.019, 0.011])
+    relax = secant_relaxation(m0, a + s * m0, m1, a + s * m1, np.ones(2))
+    assert relax == pytest.approx(1 / (1 - s), rel=1e-12)
+    step = m1 + relax * (a + s * m1 - m1)
+    assert step == pytest.approx(a / (1 - s), rel=1e-12)
+    rising = secant_relaxation(m0, a, m1, a + 0.5 * (m1 - m0), np.array([0.7, 0.7]))
+    assert np.array_equal(rising, np.ones(2))
+    beyond = secant_relaxation(m0, a, m1, a + 1.5 * (m1 - m0), np.array([0.7, 0.7]))
+    assert np.array_equal(beyond, np.array([0.7, 0.7]))
+    steep = secant_relaxation(m0, a, m1, a - 100 * (m1 - m0), np.ones(2))
+    assert np.array_equal(steep, np.full(2, RELAX_FLOOR))
+    still = secant_relaxation(m0, a, m0, a + 1.0, np.array([0.3, 0.4]))
+    assert np.array_equal(still, np.array([0.3, 0.4]))
