@@ -20,7 +20,8 @@ import argparse
 import statistics
 import time
 
-from control.ocp import NominalOCP, OCPConfig
+from control.config import OCPConfig
+from control.ocp import NominalOCP
 from control.robust import solve_robust
 from ppann.checkpoint import load
 from ppann.model import constant_ppann

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from common.errors import CrankError
-from control.ocp import OCPConfig
+from control.config import OCPConfig
 from control.solve import solve_file
 from crank.console import HELDOUT_SEED
 from crank.study import parse_seeds

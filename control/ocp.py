@@ -36,24 +36,18 @@ build (0.03 s against 3.5 s for the first).
 from __future__ import annotations
 
 import math
-import statistics
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
+from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
 from ppann.model import PPANN
-from ppann.montecarlo import check_mode
 from twin.physics import CRANK_LENGTH, ROD_LENGTH
-
-
-class OCPConfigError(CrankError, ValueError):
-    """An OCP setting is out of range."""
 
 
 class OCPError(CrankError, RuntimeError):
@@ -74,13 +68,6 @@ class OCPError(CrankError, RuntimeError):
         )
 
 
-TIGHTENINGS = ("gaussian", "quantile")
-GAUSSIAN_SAMPLES = 1000
-"""Default Monte-Carlo size for gaussian tightening: k·σ to 2.2 % standard error (100 gave 7 %)."""
-QUANTILE_TAIL = 20
-"""Quantile tightening draws enough trajectories that this many fall beyond the quantile."""
-MAX_MC_SAMPLES = 200_000
-"""Most Monte-Carlo trajectories (150 steps of 200 000 samples hold ~0.5 GB)."""
 SOLVED = "Solve_Succeeded"
 FEASIBILITY_TOLERANCE = 1e-8
 """Largest constraint violation accepted in a returned solution (m, rad, rad/s)."""
@@ -96,117 +83,6 @@ DRAFT_JUMP = 3e-3
 """A draft whose heights move further than this from its warm start's (m) starts from the warm
 start's primal point only: after a jump that large, IPOPT's multiplier warm start costs more
 iterations than it saves (17 against 10 on the seed-0 model's first robust step)."""
-
-
-def lower_tail(k_sigma: float) -> float:
-    """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
-    return 0.5 * math.erfc(k_sigma / math.sqrt(2))
-
-
-def confidence_quantile(confidence: float) -> float:
-    """z of a confidence split evenly between the line's mean and its spread (Bonferroni):
-    each one-sided bound at 1 − (1 − confidence) / 2, so both hold together with probability
-    >= confidence. 0 gives 0 (no allowance); 0.95 gives 1.96."""
-    return statistics.NormalDist().inv_cdf(1 - (1 - confidence) / 2)
-
-
-@dataclass(frozen=True)
-class OCPConfig:
-    """Settings of the nominal OCP (eq. 15) and of the robust iteration (eq. 16)."""
-
-    horizon: int = 150
-    """N, samples including the first and last."""
-    theta_start: float = math.pi
-    omega_start: float = 0.0
-    theta_end: float = 3 * math.pi
-    omega_end: float = 0.0
-    height: float = 0.08
-    """Lowest slider position allowed at the constraint samples, m."""
-    constraint_samples: tuple[int, ...] = (50, 100)
-    """1-based sample indices of the slider constraint."""
-    torque_limit: float = 10.0
-    """|u| bound, N·m (the twin's actuator range)."""
-    smoothness_weight: float = 1e-4
-    """Weight of sum((du / Ts)^2) in the cost."""
-    k_sigma: float = 3.0
-    """k of the robust constraint slider - k sigma >= height (eq. 16)."""
-    mc_samples: int = 0
-    """Monte-Carlo trajectories per tightening; 0 chooses them for the tightening's precision:
-    GAUSSIAN_SAMPLES for gaussian (k·σ to ~2 % standard error), and for quantile enough that
-    QUANTILE_TAIL samples fall beyond the quantile."""
-    mc_mode: str = "mixed"
-    """Monte-Carlo mode (ppann/montecarlo.py): step (eq. 11), trajectory, machine or mixed (the
-    default: one machine per trajectory plus white noise, the machine-level model)."""
-    tightening: str = "gaussian"
-    """gaussian: k·σ (eq. 16); quantile: plan − the lower quantile at Φ(−k) (control/robust.py)."""
-    confidence: float = 0.95
-    """Confidence about the line that the robust tightening allows for, beyond the paper
-    (control/robust.py): the training machines are a few draws of the line, so its mean and
-    spread are known only to within what they show. 0 takes the fitted line as the truth (the
-    paper's eq. 16)."""
-    mc_seed: int = 0
-    """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
-    margin_tolerance: float = 1e-4
-    """The robust loop stops when k sigma moves by less than this between iterations, m."""
-    max_robust_iterations: int = 30
-    max_ipopt_iterations: int = 3000
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "constraint_samples", tuple(self.constraint_samples))
-        if self.horizon < 3:
-            raise OCPConfigError(f"horizon must be >= 3 samples, got {self.horizon}")
-        for name in ("theta_start", "omega_start", "theta_end", "omega_end", "height"):
-            check_finite(name, getattr(self, name), error=OCPConfigError)
-        for name in ("torque_limit", "margin_tolerance"):
-            check_finite(name, getattr(self, name), positive=True, error=OCPConfigError)
-        for name in ("smoothness_weight", "k_sigma"):
-            check_finite(name, getattr(self, name), nonneg=True, error=OCPConfigError)
-        samples = self.constraint_samples
-        if not samples or len(set(samples)) != len(samples):
-            raise OCPConfigError(f"constraint_samples must be distinct, got {samples}")
-        bad = [k for k in samples if not 1 < k < self.horizon]
-        if bad:
-            raise OCPConfigError(
-                f"constraint samples {bad} outside 2..{self.horizon - 1} "
-                f"(1-based, strictly inside the horizon)"
-            )
-        check_seed("mc_seed", self.mc_seed, error=OCPConfigError)
-        check_finite("confidence", self.confidence, nonneg=True, error=OCPConfigError)
-        if self.confidence >= 1:
-            raise OCPConfigError(f"confidence must be in [0, 1), got {self.confidence:g}")
-        check_mode(self.mc_mode, error=OCPConfigError)
-        if self.tightening not in TIGHTENINGS:
-            raise OCPConfigError(
-                f"tightening must be one of {', '.join(TIGHTENINGS)}, got {self.tightening!r}"
-            )
-        check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
-        tail = lower_tail(self.k_sigma)
-        needed = GAUSSIAN_SAMPLES
-        if self.tightening == "quantile":
-            needed = math.ceil(QUANTILE_TAIL / tail) if tail > 0 else MAX_MC_SAMPLES + 1
-            if needed > MAX_MC_SAMPLES:
-                raise OCPConfigError(
-                    f"quantile tightening at k_sigma {self.k_sigma:g} (tail {tail:.2e}) needs "
-                    f"{needed} Monte-Carlo samples, more than {MAX_MC_SAMPLES}"
-                )
-        if self.mc_samples == 0:
-            object.__setattr__(self, "mc_samples", needed)
-        elif self.mc_samples < 2:
-            raise OCPConfigError(f"mc_samples must be >= 2, got {self.mc_samples}")
-        elif self.tightening == "quantile" and self.mc_samples < needed:
-            raise OCPConfigError(
-                f"quantile tightening at k_sigma {self.k_sigma:g} needs >= {needed} Monte-Carlo "
-                f"samples ({QUANTILE_TAIL} beyond the {100 * tail:.3g} % quantile), "
-                f"got {self.mc_samples}"
-            )
-        for name in ("max_robust_iterations", "max_ipopt_iterations"):
-            if getattr(self, name) < 1:
-                raise OCPConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
-
-    def as_dict(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["constraint_samples"] = list(self.constraint_samples)
-        return out
 
 
 def slider_position(theta: Any) -> Any:

@@ -48,7 +48,8 @@ import torch
 
 from common.errors import CrankError
 from common.jsonio import write_json
-from control.ocp import OCPConfig, Solution
+from control.config import OCPConfig
+from control.ocp import Solution
 from control.robust import RobustResult, Uncertainty
 from twin import __version__
 

@@ -10,8 +10,9 @@ from typing import Any
 
 from common.atomic import check_writable, writes
 from common.figures import save_figure
+from control.config import OCPConfig
 from control.figures import nominal_figure, robust_figure
-from control.ocp import NominalOCP, OCPConfig
+from control.ocp import NominalOCP
 from control.ocp_file import read_ocp, write_ocp
 from control.robust import Iteration, solve_robust
 from ppann.checkpoint import CheckpointError, load

@@ -25,7 +25,7 @@ from common.atomic import OutputError, check_writable, writes
 from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
-from control.ocp import OCPConfig
+from control.config import OCPConfig
 from control.robust import Iteration
 from control.solve import solve_file
 from crank.report import solve_summary, write_markdown

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from common.atomic import OutputError, check_suffix
-from control.ocp import OCPConfig, OCPConfigError
+from control.config import OCPConfig, OCPConfigError
 from control.solve import figure_paths, solve_file
 from crank.console import (
     HELDOUT_SEED,

@@ -11,7 +11,7 @@ from typing import Annotated, Any
 import typer
 
 from common.errors import ConfigError
-from control.ocp import OCPConfig
+from control.config import OCPConfig
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.console import (
     HELDOUT_SEED,

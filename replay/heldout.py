@@ -37,7 +37,8 @@ from scipy import stats as scistats
 from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import write_json
-from control.ocp import lower_tail, slider_position
+from control.config import lower_tail
+from control.ocp import slider_position
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads

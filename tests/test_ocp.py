@@ -13,14 +13,8 @@ import pytest
 import torch
 
 from common.streams import stream
-from control.ocp import (
-    NominalOCP,
-    OCPConfig,
-    OCPConfigError,
-    OCPError,
-    lower_tail,
-    slider_position,
-)
+from control.config import OCPConfig, OCPConfigError, lower_tail
+from control.ocp import NominalOCP, OCPError, slider_position
 from control.ocp_file import OCPFileError, read_ocp
 from control.robust import slider_uncertainty, solve_robust
 from control.solve import figure_paths, solve_file

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from control.ocp import OCPConfig
+from control.config import OCPConfig
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
 from replay.campaign import ReplayConfig, ReplayConfigError, draw_machines, play, run_campaign
 from replay.campaign_log import partial_path

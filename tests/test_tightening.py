@@ -10,19 +10,18 @@ import pytest
 import torch
 from scipy import stats
 
-from control.ocp import NominalOCP, OCPConfig, OCPConfigError, lower_tail, slider_position
+from control.config import OCPConfig, OCPConfigError, lower_tail
+from control.ocp import NominalOCP, slider_position
 from control.robust import (
     RELAX_FLOOR,
     STROKE_SHARE,
     STROKE_TOP,
     BeyondStrokeError,
-    line_allowance,
-    population_margin,
     secant_relaxation,
     slider_uncertainty,
     solve_robust,
-    tightening,
 )
+from control.tightening import line_allowance, population_margin, tightening
 from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
 from ppann.montecarlo import rollout
 from replay.heldout import rate_upper
