@@ -42,7 +42,8 @@ def check_writable(path: str | Path) -> Path:
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success rename it to `path`, else delete it."""
+    """Yield a temporary path beside `path`; on success rename it to `path`, else delete it. An
+    OSError while writing (a full disk) becomes an OutputError naming `path`."""
     path = check_writable(path)
     # The writer's pid in the name: a temporary a killed process left is told from a live one's.
     fd, tmp = tempfile.mkstemp(
@@ -55,9 +56,12 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield Path(tmp)
         os.replace(tmp, path)
-    except BaseException:
+        register_output(path)
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, CrankError):  # full disk, I/O error
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
 
 
@@ -200,12 +204,25 @@ def check_suffix(path: str | Path, suffix: str) -> None:
         raise OutputError(f"the output is {suffix[1:]}: it must end in {suffix}, got {path}")
 
 
+_STEPS: list[list[Path]] = []
+"""The files each running `writes` step has put in place so far, innermost step last."""
+
+
+def register_output(path: str | Path) -> None:
+    """Record a file just put in place at its final path, so that the running step removes it if
+    it fails later (`writes`): a step's outputs appear all together or not at all."""
+    if _STEPS:
+        _STEPS[-1].append(Path(path))
+
+
 def writes(
     output: str, *, inputs: tuple[str, ...] = (), suffix: str | None = None
 ) -> Callable[[F], F]:
     """Decorator for a step that writes the output named by its argument `output`: the output must
     end in `suffix` (if given, `check_suffix`), is refused if it is one of the arguments `inputs`
-    (`check_distinct`), and is held for the whole step (`output_lock`)."""
+    (`check_distinct`), and is held for the whole step (`output_lock`). If the step fails (a full
+    disk, a solver error after the first file), every file it had put in place is removed again;
+    a nested step that finished keeps its files (a run folder keeps its finished stages)."""
 
     def decorate(function: F) -> F:
         signature = inspect.signature(function)
@@ -220,7 +237,16 @@ def writes(
             sources = {n: bound.arguments[n] for n in inputs if bound.arguments[n] is not None}
             check_distinct({output: out}, sources)
             with output_lock(out):
-                return function(*args, **kwargs)
+                _STEPS.append([])
+                try:
+                    return function(*args, **kwargs)
+                except BaseException:
+                    for path in _STEPS[-1]:
+                        with contextlib.suppress(OSError):
+                            path.unlink()
+                    raise
+                finally:
+                    _STEPS.pop()
 
         return wrapper  # type: ignore[return-value]
 

@@ -37,7 +37,7 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from common.atomic import OutputError, atomic_path, check_writable, writes
+from common.atomic import OutputError, atomic_path, check_writable, register_output, writes
 from common.errors import CrankError
 from replay.campaign import Machines, Replay, ReplayConfig
 from twin import __version__
@@ -162,6 +162,7 @@ class CampaignLog:
         self.writer.finish()
         self._file.close()
         os.replace(self.partial, self.out)
+        register_output(self.out)
         return self.out
 
     def close(self) -> None:

@@ -15,6 +15,8 @@ import pytest
 from mcap.reader import make_reader
 
 from common.atomic import OutputError, lock_path, output_lock
+from ppann.checkpoint import save
+from ppann.model import constant_ppann
 from replay.campaign import ReplayConfig
 from tests.conftest import Written, crank
 from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
@@ -226,3 +228,41 @@ def test_recover_refuses_a_file_that_is_not_a_campaign_log(
     result = crank("recover", str(paper_dataset.path), str(tmp_path / "f.mcap"))
     _one_line(result, "not a campaign log of crank replay (written by 'crank-twin")
     assert not any(tmp_path.iterdir())
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path):
+    """A 200 KB tmpfs (needs root and mount; skipped otherwise)."""
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(mount)],
+        capture_output=True,
+        check=False,
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.decode().strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_output(tmp_path: Path, full_disk: Path) -> None:
+    """generate (its MCAP does not fit) and solve (ocp.json and one figure fit, the second figure
+    does not): one line naming the file, exit 2, and nothing of the step left on the disk."""
+    result = crank("generate", "--seconds", "5", "--out", str(full_disk / "d.mcap"))
+    _one_line(result, f"cannot write {full_disk / 'd.mcap'}: No space left on device")
+    assert not any(full_disk.iterdir())
+    model = tmp_path / "m.pt"
+    save(
+        model,
+        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
+        kind="ppann",
+        extra={"history": {}},
+    )
+    result = crank("solve", "--model", str(model), "--out", str(full_disk / "ocp.json"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]  # after the robust loop's progress lines
+    assert last.startswith("error: cannot write ") and "No space left on device" in last
+    assert not any(full_disk.iterdir())
