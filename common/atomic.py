@@ -216,13 +216,18 @@ def register_output(path: str | Path) -> None:
 
 
 def writes(
-    output: str, *, inputs: tuple[str, ...] = (), suffix: str | None = None
+    output: str,
+    *,
+    inputs: tuple[str, ...] = (),
+    suffix: str | None = None,
+    all_or_nothing: bool = True,
 ) -> Callable[[F], F]:
     """Decorator for a step that writes the output named by its argument `output`: the output must
     end in `suffix` (if given, `check_suffix`), is refused if it is one of the arguments `inputs`
     (`check_distinct`), and is held for the whole step (`output_lock`). If the step fails (a full
-    disk, a solver error after the first file), every file it had put in place is removed again;
-    a nested step that finished keeps its files (a run folder keeps its finished stages)."""
+    disk, a solver error after the first file), every file it had put in place is removed again
+    (not with all_or_nothing=False: a run folder keeps its config and finished stages, and says
+    it did not finish by lacking its report); a nested step that finished keeps its files."""
 
     def decorate(function: F) -> F:
         signature = inspect.signature(function)
@@ -241,7 +246,7 @@ def writes(
                 try:
                     return function(*args, **kwargs)
                 except BaseException:
-                    for path in _STEPS[-1]:
+                    for path in _STEPS[-1] if all_or_nothing else ():
                         with contextlib.suppress(OSError):
                             path.unlink()
                     raise

@@ -134,7 +134,7 @@ class Hooks:
     on_run: Callable[[int], None] | None = None
 
 
-@writes("run_dir")
+@writes("run_dir", all_or_nothing=False)
 def run_chain(
     config: RunConfig,
     run_dir: str | Path,

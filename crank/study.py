@@ -95,7 +95,7 @@ def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
     return row
 
 
-@writes("out")
+@writes("out", all_or_nothing=False)
 def run_study(
     base: RunConfig,
     seeds: tuple[int, ...],
