@@ -10,6 +10,7 @@ Outputs for `--out logs/model.pt`:
 from __future__ import annotations
 
 import os
+import statistics
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from common.jsonio import write_json
 from ppann import checkpoint, figures
 from ppann.fit import Fitted, fit
 from ppann.kinds import KINDS
+from ppann.machine import sigma_upper
 from ppann.model import Z_NAMES
 from ppann.report import (
     bands,
@@ -35,6 +37,10 @@ from ppann.report import (
 from ppann.train import TrainConfig, make_splits
 from twin.mcap_dataset import read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
+
+LINE_Z = statistics.NormalDist().inv_cdf(0.975)
+"""The report's one-sided 97.5 % bounds (z = 1.96): what the robust OCP allows for at its
+default confidence 0.95 (control/config.py, Bonferroni over mean and spread)."""
 
 
 def sibling(out: Path, suffix: str) -> Path:
@@ -118,6 +124,13 @@ def train_and_report(
         if kind == "ppann":
             entry["machine_sigma"] = dict(zip(Z_NAMES, f.model.machine_sigma.tolist(), strict=True))
             entry["machine_offsets"] = f.history.machine_offsets
+            # What the training machines leave open about the line (ppann/machine.py).
+            upper = sigma_upper(
+                f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), LINE_Z
+            )
+            entry["machine_sigma_upper"] = dict(zip(Z_NAMES, upper.tolist(), strict=True))
+            line_se = f.model.common_covariance.diagonal().clamp(min=0).sqrt().tolist()
+            entry["line_mean_se"] = dict(zip(Z_NAMES, line_se, strict=True))
         report["models"][kind] = entry
         path = out if kind == "ppann" else sibling(out, f"{kind}.pt")
         checkpoint.save(

@@ -71,6 +71,10 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert ocp["variability"]["name"] == "paper"
     assert ocp["config"]["mc_mode"] == "mixed"
     assert len(ocp["robust"]["tightening"]) == 2
+    ppann = json.loads((a / "model.report.json").read_text())["models"]["ppann"]
+    for name, estimate in ppann["machine_sigma"].items():  # a bound is above its estimate
+        assert ppann["machine_sigma_upper"][name] > estimate
+        assert ppann["line_mean_se"][name] > 0
 
 
 def test_same_seed_reproduces_every_artifact(two_runs) -> None:
