@@ -41,9 +41,8 @@ eq. 16 (bit-identical).
 Draft, then final: the iteration runs on draft solves (control/ocp.py: one loose IPOPT pass; its
 torque is all the Monte-Carlo needs), which cost a fraction of a full solve. When a draft meets
 the tolerance, the next proposal is solved in full (turn passes, tolerance 1e-10) and its own
-Monte-Carlo must meet the tolerance too; otherwise the iteration goes on with full solves only (a
-full solve can move the 2 pi crossing where a draft cannot, so the two maps can have different
-fixed points). Only a full solve is ever returned.
+Monte-Carlo must meet the tolerance too; otherwise the drafts resume from it. Only a full solve is
+ever returned.
 """
 
 from __future__ import annotations
