@@ -60,8 +60,6 @@ class Bands:
     samples: np.ndarray
     mean: np.ndarray
     std: np.ndarray
-    log_factors: np.ndarray | None = None
-    """Each trajectory's machine eta (n_samples, 3) in the modes that draw one, else None."""
 
 
 def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
@@ -69,12 +67,12 @@ def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
         raise error(f"Monte-Carlo mode must be one of {', '.join(MODES)}, got {mode!r}")
 
 
-def machine_log_factors(
+def machine_factors(
     machine_sigma: npt.ArrayLike, n_samples: int, rng: np.random.Generator
 ) -> np.ndarray:
-    """eta ~ N(0, diag(machine_sigma^2)), (n_samples, 3): the machine factors are exp(eta)."""
+    """Log-normal factors exp(eta), eta ~ N(0, diag(machine_sigma^2)), (n_samples, 3)."""
     sigma = np.asarray(machine_sigma, dtype=float)
-    return sigma * rng.standard_normal((n_samples, 3))
+    return np.exp(sigma * rng.standard_normal((n_samples, 3)))
 
 
 def monte_carlo(
@@ -109,14 +107,13 @@ def monte_carlo(
     if draw.white is not None:
         per = steps if draw.white == "step" else 1
         eps = np.random.default_rng(white_seq).standard_normal((per, n_samples, 3))
-    eta = factors = None
+    factors = None
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma
-        eta = machine_log_factors(spread, n_samples, np.random.default_rng(machine_seq))
-        factors = np.exp(eta)
+        factors = machine_factors(spread, n_samples, np.random.default_rng(machine_seq))
     samples = rollout(heads, x0, tau, n_samples=n_samples, eps=eps, factors=factors)
     with np.errstate(over="ignore", invalid="ignore"):
-        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1), eta)
+        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
 
 
 def rollout(
