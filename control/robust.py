@@ -82,12 +82,10 @@ class BeyondStrokeError(RobustError):
         self, message: str, *, sample: int, tightening: float, available: float, line: float
     ) -> None:
         super().__init__(message)
-        self.sample, self.tightening, self.available, self.line = (
-            sample,
-            tightening,
-            available,
-            line,
-        )
+        self.sample = sample
+        self.tightening = tightening
+        self.available = available
+        self.line = line
 
 
 @dataclass(frozen=True)

@@ -57,10 +57,8 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
         "final margins": ", ".join(
             f"{1e3 * (h - payload['config']['height']):.2f} mm" for h in r["heights"]
         ),
-        "of which for the line's mean": ", ".join(
-            f"{1e3 * v:.2f} mm" for v in r.get("population", [])
-        )
-        + f" (confidence {payload['config'].get('confidence', 0):g})",
+        "of which for the line's mean": ", ".join(f"{1e3 * v:.2f} mm" for v in r["population"])
+        + f" (confidence {payload['config']['confidence']:g})",
         "nominal solve": f"{t['nominal_solve_s']:.2f} s",
         "robust loop": f"{t['robust_loop_s']:.2f} s",
     }
