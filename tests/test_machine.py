@@ -38,7 +38,8 @@ def test_mixed_with_zero_white_sigma_equals_per_trajectory_machines() -> None:
     simulated here one by one with that machine's factors."""
     model = _model((0.1, 0.2, 0.15))
     heads = FusedHeads(model)
-    heads.w_out[:, 3:] = 0.0
+    for w in heads.w_out[3:]:
+        w[:] = 0.0
     heads.b_out[3:] = -np.inf  # softplus(-inf) = 0
     heads.sigma_floor = 0.0
     mixed = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="mixed", seed=9)
