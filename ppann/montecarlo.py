@@ -143,14 +143,3 @@ def rollout(
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
     return samples
-
-
-def line_sensitivity(
-    model: PPANN | FusedHeads, x0: npt.ArrayLike, tau: npt.ArrayLike, *, step: float = 1e-3
-) -> np.ndarray:
-    """d theta_k / d delta (T + 1, 3): how the mean model's crank angle moves when the whole
-    line's inertia, damping and stiffness log-factors shift by delta (central differences)."""
-    heads = model if isinstance(model, FusedHeads) else FusedHeads(model)
-    shifts = np.concatenate([step * np.eye(3), -step * np.eye(3)])
-    theta = rollout(heads, x0, np.asarray(tau, dtype=float), n_samples=6, factors=np.exp(shifts))
-    return ((theta[:3, :, 0] - theta[3:, :, 0]) / (2 * step)).T
