@@ -8,19 +8,15 @@ skewed (near top dead centre x(theta) is concave) or its mean is not the plan; b
 stands for either. sigma depends on the torque: near top dead centre the slider hardly moves
 with theta, so a torque that reaches the constraint far from it (the nominal one) has a far
 larger sigma than one that dwells near it. The margin m (one per constraint sample) is
-therefore a fixed point, m = k sigma(u*(height + m)), found by damped iteration from m = 0 (the
-nominal solve):
-
-    proposal = m + beta r (k sigma(u) - m)
-
-with r, per constraint sample, the secant relaxation 1 / (1 - s) from the slope s of the map
-between the last two margins (clipped to [1/8, 1]; `secant_relaxation`), and beta starting
-at 1. beta halves whenever the largest residual |k sigma - m| fails to shrink from
-one iteration to the next (the iteration oscillates or diverges), and that halved value becomes its
-ceiling; it doubles back towards the ceiling when the residual shrinks; a proposal IPOPT cannot
-meet (the nominal sigma can eat the whole stroke) halves beta and retries from the last solved
-margin. Each proposal is capped at 95 % of the stroke left above the height. The loop stops when k
-sigma of the latest solution is within `margin_tolerance` of the margin it was solved with, at
+therefore a fixed point, m = k sigma(u*(height + m)), a root of the residual
+F(m) = k sigma(u*(height + m)) - m, found per constraint sample by a bracketed secant from m = 0
+(the nominal solve; control/fixed_point.py): the first step is the nominal's k sigma, as in a
+plain fixed-point iteration; once a margin with F < 0 is known, every step is regula falsi
+(Illinois) inside the bracket. A proposal IPOPT cannot meet (the nominal sigma can eat the whole
+stroke) halves a damping beta of the step and retries from the last solved margin; beta doubles
+back towards 1 after each solve. Each proposal is capped at 95 % of the stroke left above the
+height. The loop stops when k sigma of the latest solution is within `margin_tolerance` of the
+margin it was solved with, at
 every sample, so that slider - k sigma >= height - margin_tolerance holds there. Each solve is
 warm-started from the previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is
 deterministic.
@@ -56,6 +52,7 @@ import numpy as np
 from common.errors import CrankError
 from common.streams import stream
 from control.config import OCPConfig
+from control.fixed_point import Bracket
 from control.ocp import NominalOCP, OCPError, Solution, slider_position
 from control.tightening import line_allowance, population_margin, tightening
 from ppann.model import PPANN, FusedHeads
@@ -203,13 +200,14 @@ def solve_robust(
     margin = np.zeros(len(index))
     target = nominal_unc.tightening
     current = nominal
-    beta, ceiling, last_residual = 1.0, 1.0, target - margin
+    bracket = Bracket(margin, target - margin)
+    beta = 1.0
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
     draft = True
-    relax = np.ones(len(index))
     while len(iterations) < config.max_robust_iterations:
-        proposal = np.minimum(margin + beta * relax * (target - margin), cap)
+        step = bracket.propose(margin, target - margin) - margin
+        proposal = np.minimum(margin + beta * step, cap)
         try:
             solution = ocp.solve(base + proposal, warm=current, draft=draft)
         except OCPError:
@@ -260,7 +258,7 @@ def solve_robust(
                 line=float(unc.population[k]),
             )
         residual = new_target - proposal
-        relax = secant_relaxation(margin, target, proposal, new_target, relax)
+        bracket.update(proposal, residual)
         margin, target, current = proposal, new_target, solution
         settled = np.max(np.abs(residual)) < config.margin_tolerance
         if settled and draft:
@@ -276,40 +274,12 @@ def solve_robust(
                 failed_proposals=tuple(failed),
                 wall_time=time.perf_counter() - started,
             )
-        if np.max(np.abs(residual)) >= np.max(np.abs(last_residual)):
-            # Not contracting: damp, and never again use a damping this weak (going back to it
-            # made a steep map, slope ~ -2 with quantile tightening, cycle between two margins).
-            ceiling = beta = beta / 2
-        else:
-            beta = min(ceiling, 2 * beta)  # contracting: undo infeasibility damping step by step
-        last_residual = residual
+        beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
         draft = True
     raise RobustError(
         f"robust margin not settled after {config.max_robust_iterations} iterations: "
         f"last margin {_mm(margin)}, its tightening {_mm(target)} (tolerance "
         f"{config.margin_tolerance * 1e3:g} mm)"
-    )
-
-
-RELAX_FLOOR = 1 / 8
-"""Smallest per-sample relaxation of the secant step."""
-
-
-def secant_relaxation(
-    m0: np.ndarray, t0: np.ndarray, m1: np.ndarray, t1: np.ndarray, relax: np.ndarray
-) -> np.ndarray:
-    """Per constraint sample, the relaxation 1 / (1 - s) that a secant step on m - T(m) = 0 asks
-    for, s = (t1 - t0) / (m1 - m0) the slope of the tightening map between the last two margins,
-    kept in [RELAX_FLOOR, 1]; `relax` where the margin did not move or the map is not below
-    slope 1. Where s ~ -0.9 (near top dead centre a higher margin moves the crossing to where the
-    slider is less sensitive), the undamped iteration oscillated, shrinking by 10 % a step, for 30
-    iterations (samples 60/90); relaxed by ~0.53 it settles in a few."""
-    step = m1 - m0
-    moved = np.abs(step) > 1e-6
-    slope = np.where(moved, (t1 - t0) / np.where(moved, step, 1.0), np.nan)
-    usable = moved & (slope < 1)
-    return np.where(
-        usable, np.clip(1 / (1 - np.where(usable, slope, 0.0)), RELAX_FLOOR, 1.0), relax
     )
 
 
