@@ -23,8 +23,8 @@ from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
 from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
-from ppann.losses import n_step_mse, propagated_nll, propagated_terms
-from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets
+from ppann.losses import n_step_mse, propagated_terms
+from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets, white_nll
 from ppann.model import PPANN, n_step_prediction
 from twin.dataset import Dataset
 
@@ -58,6 +58,12 @@ class TrainConfig:
     """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""
     machine_lr: float = 2e-2
     """Adam learning rate of log machine_sigma in phase 2."""
+    sigma_block: int = 10
+    """Phase 2 fits the white spread to sums of the residual over blocks of this many samples
+    (ppann/machine.py, "Blocks"); 1 is the paper's eq. 9. The default is phase 1's horizon, the
+    time scale the mean is fitted on: the L-step variance ratio of the seed-0 data is lowest
+    there (0.55), and rises beyond it as the mean model's slow, excitation-bound errors, which a
+    replay under another torque sees as bias rather than spread, add power."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -67,6 +73,7 @@ class TrainConfig:
             "patience",
             "sigma_epochs",
             "lr_patience",
+            "sigma_block",
         ):
             check_count(name, getattr(self, name), error=TrainConfigError)
         for name in ("lr", "sigma_lr", "machine_lr"):
@@ -207,7 +214,9 @@ def train_sigma(
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = (1 + model.z_mean(theta, omega)) * derivative
-    terms = EpisodeTerms(residual, derivative, design, episode, int(episode.max()) + 1)
+    terms = EpisodeTerms.build(
+        residual, derivative, design, episode, block_length=config.sigma_block
+    )
     groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
     log_machine = common = None
     if config.machine_model:
@@ -220,7 +229,7 @@ def train_sigma(
     for epoch in range(config.sigma_epochs):
         sigma = model.z_sigma(theta, omega)
         if log_machine is None:
-            loss = propagated_nll(residual, derivative, sigma)
+            loss = white_nll(terms, sigma)
         else:
             loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp())
         optimizer.zero_grad(set_to_none=True)
