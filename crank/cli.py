@@ -145,10 +145,19 @@ def train_command(
     ),
     sigma_epochs: Annotated[int, typer.Option(help="Phase-2 epochs.")] = TrainConfig.sigma_epochs,
     horizon: Annotated[int, typer.Option(help="N-step-ahead horizon Ns.")] = TrainConfig.horizon,
+    sigma_block: Annotated[
+        int, typer.Option(help="Phase 2 fits the spread on residual sums over this many samples.")
+    ] = TrainConfig.sigma_block,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
-    config = TrainConfig(max_epochs=epochs, sigma_epochs=sigma_epochs, horizon=horizon, seed=seed)
+    config = TrainConfig(
+        max_epochs=epochs,
+        sigma_epochs=sigma_epochs,
+        horizon=horizon,
+        sigma_block=sigma_block,
+        seed=seed,
+    )
     report = train_models(data=data, out=out, config=config)
     print_summary(f"wrote {out} and its report", train_summary(report))
 

@@ -237,10 +237,14 @@ def _range_file(tmp_path: Path, text: str) -> str:
         (["run", "--heldout-runs", "1000000"], "heldout_runs must be an integer"),
         (["heldout", "--runs", "0"], "runs must be an integer 1..100000, got 0"),
         (["heldout", "--out", "h.txt"], "must end in .json"),
+        (["train", "--sigma-block", "0"], "sigma_block must be an integer"),
     ],
 )
 def test_robustness_commands_bad_input(tmp_path: Path, command: list[str], match: str) -> None:
-    out = {"generate": ["--out", str(tmp_path / "o" / "d.mcap")]}.get(command[0], [])
+    out = {
+        "generate": ["--out", str(tmp_path / "o" / "d.mcap")],
+        "train": ["--out", str(tmp_path / "o" / "m.pt")],
+    }.get(command[0], [])
     if command[0] in ("run",):
         out = ["--logs", str(tmp_path / "o")]
     if command[0] == "study":
