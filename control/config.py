@@ -18,6 +18,7 @@ class OCPConfigError(CrankError, ValueError):
 
 
 TIGHTENINGS = ("gaussian", "quantile")
+FEEDBACKS = ("none", "lqr")
 GAUSSIAN_SAMPLES = 1000
 """Default Monte-Carlo size for gaussian tightening: k·σ to 2.2 % standard error (100 gave 7 %)."""
 QUANTILE_TAIL = 20
@@ -74,6 +75,16 @@ class OCPConfig:
     paper's eq. 16)."""
     mc_seed: int = 0
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
+    feedback: str = "none"
+    """The loop the robust tightening is sized for (beyond the paper): "none" (open loop, the
+    paper's eq. 16) or "lqr" (the Monte-Carlo runs each machine under the time-varying LQR law
+    along the plan, saturated at the torque limit: a tube; control/lqr.py)."""
+    feedback_theta: float = 0.02
+    """LQR: acceptable crank-angle deviation, rad (Bryson: q_theta = 1 / this^2)."""
+    feedback_omega: float = 1.0
+    """LQR: acceptable speed deviation, rad/s."""
+    feedback_torque: float = 1.0
+    """LQR: acceptable torque correction, N·m."""
     margin_tolerance: float = 1e-4
     """The robust loop stops when k sigma moves by less than this between iterations, m."""
     max_robust_iterations: int = 30
@@ -85,7 +96,13 @@ class OCPConfig:
             raise OCPConfigError(f"horizon must be >= 3 samples, got {self.horizon}")
         for name in ("theta_start", "omega_start", "theta_end", "omega_end", "height"):
             check_finite(name, getattr(self, name), error=OCPConfigError)
-        for name in ("torque_limit", "margin_tolerance"):
+        for name in (
+            "torque_limit",
+            "margin_tolerance",
+            "feedback_theta",
+            "feedback_omega",
+            "feedback_torque",
+        ):
             check_finite(name, getattr(self, name), positive=True, error=OCPConfigError)
         for name in ("smoothness_weight", "k_sigma"):
             check_finite(name, getattr(self, name), nonneg=True, error=OCPConfigError)
@@ -103,6 +120,10 @@ class OCPConfig:
         if self.confidence >= 1:
             raise OCPConfigError(f"confidence must be in [0, 1), got {self.confidence:g}")
         check_mode(self.mc_mode, error=OCPConfigError)
+        if self.feedback not in FEEDBACKS:
+            raise OCPConfigError(
+                f"feedback must be one of {', '.join(FEEDBACKS)}, got {self.feedback!r}"
+            )
         if self.tightening not in TIGHTENINGS:
             raise OCPConfigError(
                 f"tightening must be one of {', '.join(TIGHTENINGS)}, got {self.tightening!r}"

@@ -2,7 +2,7 @@
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 3
+  format, version            "crank-ocp", 4
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
@@ -29,7 +29,10 @@ mean and standard deviation of the slider position), `slider_lower`, `slider_upp
 sigma); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus `heights`, the slider
 lower bounds used at the constraint samples, and `tightening`, `tightening_se` there (m), and
 `population`, the part of `tightening` that allows for the line's uncertain mean (m,
-control/robust.py; 0 at confidence 0).
+control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega` (N - 1 each), the LQR
+gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the twin's closed loop
+applies before samples 1..N-1. With config.feedback "lqr" the Monte-Carlo bands and the
+tightening are those of that closed loop.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ from control.robust import RobustResult, Uncertainty
 from twin import __version__
 
 FORMAT = "crank-ocp"
-VERSION = 3
+VERSION = 4
 """2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
 population in each profile."""
 INDEX_CONVENTION = (
@@ -72,6 +75,7 @@ SERIES = (
     "slider_lower",
     "slider_upper",
 )
+GAINS = ("gain_theta", "gain_omega")
 SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
 TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "nominal", "robust")
 
@@ -94,6 +98,10 @@ class Profile:
     slider_lower: np.ndarray
     slider_upper: np.ndarray
     heights: np.ndarray
+    gain_theta: np.ndarray
+    """(N - 1,) LQR gain on the angle error before samples 1..N-1, N·m/rad."""
+    gain_omega: np.ndarray
+    """(N - 1,) on the speed error, N·m·s/rad."""
     cost: float
     status: str
     ipopt_iterations: int
@@ -114,7 +122,12 @@ class OCPFile:
 
 
 def profile_dict(
-    solution: Solution, uncertainty: Uncertainty, *, k_sigma: float, dt: float
+    solution: Solution,
+    uncertainty: Uncertainty,
+    *,
+    gains: np.ndarray,
+    k_sigma: float,
+    dt: float,
 ) -> dict[str, Any]:
     """A profile as JSON-ready lists and scalars."""
     n = len(solution.tau)
@@ -136,6 +149,8 @@ def profile_dict(
         "tightening": [float(v) for v in uncertainty.tightening],
         "tightening_se": [float(v) for v in uncertainty.tightening_se],
         "population": [float(v) for v in uncertainty.population],
+        "gain_theta": [float(v) for v in gains[:, 0]],
+        "gain_omega": [float(v) for v in gains[:, 1]],
         "cost": solution.cost,
         "status": solution.status,
         "ipopt_iterations": solution.iterations,
@@ -166,10 +181,18 @@ def write_ocp(
         "model": model,
         "variability": variability,
         "nominal": profile_dict(
-            result.nominal, result.nominal_uncertainty, k_sigma=config.k_sigma, dt=dt
+            result.nominal,
+            result.nominal_uncertainty,
+            gains=result.nominal_gains,
+            k_sigma=config.k_sigma,
+            dt=dt,
         ),
         "robust": profile_dict(
-            result.robust, result.robust_uncertainty, k_sigma=config.k_sigma, dt=dt
+            result.robust,
+            result.robust_uncertainty,
+            gains=result.robust_gains,
+            k_sigma=config.k_sigma,
+            dt=dt,
         ),
         "robust_iterations": [
             {
@@ -251,13 +274,14 @@ def _finite(path: Path, name: str, value: Any) -> float:
 def _profile(path: Path, name: str, raw: Any, config: OCPConfig) -> Profile:
     if not isinstance(raw, dict):
         raise OCPFileError(f"{path}: {name} must be an object")
-    for key in (*SERIES, "heights", *SCALARS, "status"):
+    for key in (*SERIES, "heights", *GAINS, *SCALARS, "status"):
         if key not in raw:
             raise OCPFileError(f"{path}: missing key '{name}.{key}'")
     arrays = {}
     for key, length, what in [
         *((k, config.horizon, "horizon") for k in SERIES),
         ("heights", len(config.constraint_samples), "constraint samples"),
+        *((k, config.horizon - 1, "horizon - 1") for k in GAINS),
     ]:
         values = raw[key]
         if not isinstance(values, list) or len(values) != length:

@@ -53,10 +53,11 @@ from common.errors import CrankError
 from common.streams import stream
 from control.config import OCPConfig
 from control.fixed_point import Bracket
+from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, OCPError, Solution, slider_position
 from control.tightening import line_allowance, population_margin, tightening
 from ppann.model import PPANN, FusedHeads
-from ppann.montecarlo import monte_carlo
+from ppann.montecarlo import Feedback, monte_carlo
 from twin.physics import CRANK_LENGTH
 
 MIN_DAMPING = 1 / 256
@@ -131,14 +132,24 @@ class RobustResult:
     """Margins IPOPT could not meet, and which halved the damping."""
     wall_time: float
     """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
+    nominal_gains: np.ndarray
+    """LQR gains (N-1, 2) along the nominal plan (control/lqr.py), whatever config.feedback."""
+    robust_gains: np.ndarray
 
 
 def slider_uncertainty(
-    heads: FusedHeads, solution: Solution, config: OCPConfig, *, constraints_only: bool = False
+    heads: FusedHeads,
+    solution: Solution,
+    config: OCPConfig,
+    *,
+    constraints_only: bool = False,
+    gains: np.ndarray | None = None,
 ) -> Uncertainty:
     """Monte-Carlo (eq. 11, or the configured mode) of the slider position under the solution's
     torque u_1..u_{N-1}, and the tightening of `config.tightening` at the constraint samples.
-    The draws are the same for every call (common random numbers).
+    The draws are the same for every call (common random numbers). With `gains` (N-1, 2) each
+    machine runs under the LQR law along the solution (config.feedback "lqr": a tube), and so do
+    the shifted lines of the line allowance.
 
     constraints_only: simulate only up to the last constraint sample (mean and std then stop
     there); the tightening is the same to the last bit, since every draw is a prefix of the full
@@ -147,6 +158,9 @@ def slider_uncertainty(
     started = time.perf_counter()
     steps = max(config.constraint_samples) - 1 if constraints_only else len(solution.tau) - 1
     spread, z = line_allowance(heads, config)
+    feedback = None
+    if gains is not None:
+        feedback = Feedback(solution.states, gains, config.torque_limit)
     bands = monte_carlo(
         heads,
         solution.states[0],
@@ -155,6 +169,7 @@ def slider_uncertainty(
         mode=config.mc_mode,
         seed=stream(config.mc_seed, "monte_carlo"),
         machine_sigma=spread,
+        feedback=feedback,
     )
     with np.errstate(over="ignore", invalid="ignore"):
         slider = slider_position(bands.samples[:, :, 0])
@@ -163,7 +178,7 @@ def slider_uncertainty(
         tightening(slider[:, k - 1], plan[k - 1], k_sigma=config.k_sigma, method=config.tightening)
         for k in config.constraint_samples
     ]
-    population = population_margin(heads, solution, config, z)
+    population = population_margin(heads, solution, config, z, feedback=feedback)
     return Uncertainty(
         slider.mean(axis=0),
         slider.std(axis=0, ddof=1),
@@ -194,8 +209,16 @@ def solve_robust(
     base = np.full(len(index), config.height)
     cap = np.full(len(index), STROKE_SHARE * (STROKE_TOP - config.height))
 
+    weights = LQRWeights.from_config(config)
+
+    def gains_of(solution: Solution) -> np.ndarray:
+        return tracking_gains(ocp.dynamics.step_on_turn, solution.states, solution.tau, weights)
+
+    def tube(solution: Solution) -> np.ndarray | None:
+        return gains_of(solution) if config.feedback == "lqr" else None
+
     nominal = ocp.solve()
-    nominal_unc = slider_uncertainty(heads, nominal, config)
+    nominal_unc = slider_uncertainty(heads, nominal, config, gains=tube(nominal))
     started = time.perf_counter()
     margin = np.zeros(len(index))
     target = nominal_unc.tightening
@@ -219,7 +242,9 @@ def solve_robust(
                     f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
                 ) from None
             continue
-        unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
+        unc = slider_uncertainty(
+            heads, solution, config, constraints_only=draft, gains=tube(solution)
+        )
         new_target = unc.tightening
         iterations.append(
             Iteration(
@@ -273,6 +298,8 @@ def solve_robust(
                 iterations=tuple(iterations),
                 failed_proposals=tuple(failed),
                 wall_time=time.perf_counter() - started,
+                nominal_gains=gains_of(nominal),
+                robust_gains=gains_of(solution),
             )
         beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
         draft = True

@@ -14,7 +14,7 @@ from control.config import OCPConfig, confidence_quantile, lower_tail
 from control.ocp import Solution, slider_position
 from ppann.machine import sigma_upper
 from ppann.model import FusedHeads
-from ppann.montecarlo import MONTE_CARLO_MODES, rollout
+from ppann.montecarlo import MONTE_CARLO_MODES, Feedback, rollout
 
 
 def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | None, float]:
@@ -27,7 +27,12 @@ def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | N
 
 
 def population_margin(
-    heads: FusedHeads, solution: Solution, config: OCPConfig, z: float
+    heads: FusedHeads,
+    solution: Solution,
+    config: OCPConfig,
+    z: float,
+    *,
+    feedback: Feedback | None = None,
 ) -> np.ndarray:
     """How far the line's mean slider can sit below the model's at each constraint sample, at
     one-sided normal quantile z (module docstring), m: the largest drop of the mean model's slider
@@ -35,7 +40,7 @@ def population_margin(
     linearised (near top dead centre the slider is concave in theta: the linear bound was 30 %
     short in tests/test_tightening.py). The shifts tried: the ellipsoid's six vertices (+-z along
     each principal axis), the linear worst case of each sample, and ELLIPSOID_DIRECTIONS spread
-    evenly over the ellipsoid.
+    evenly over the ellipsoid. With `feedback`, every shifted line runs under that tracking law.
 
     The linear worst case comes from secants across the ellipsoid (vertex against opposite
     vertex), not from a derivative at delta = 0: the model's stiffness term jumps where theta
@@ -53,22 +58,29 @@ def population_margin(
     values, vectors = np.linalg.eigh(0.5 * (c + c.T))
     root = vectors * np.sqrt(np.clip(values, 0.0, None))  # root @ root.T == c
     vertices = z * np.concatenate([root.T, -root.T])
-    first = _slider_at(heads, x0, tau, np.concatenate([np.zeros((1, 3)), vertices]), index)
+    first = _slider_at(
+        heads, x0, tau, np.concatenate([np.zeros((1, 3)), vertices]), index, feedback
+    )
     # slope of the slider in whitened coordinates u (delta = root u), per sample: (count, 3)
     slope = ((first[1:4] - first[4:7]) / (2 * z)).T
     norm = np.linalg.norm(slope, axis=1, keepdims=True)
     worst = -z * np.where(norm > 0, slope / np.where(norm > 0, norm, 1.0), 0.0) @ root.T
     shifts = np.concatenate([z * _sphere(ELLIPSOID_DIRECTIONS) @ root.T, worst])
-    slider = np.concatenate([first, _slider_at(heads, x0, tau, shifts, index)])
+    slider = np.concatenate([first, _slider_at(heads, x0, tau, shifts, index, feedback)])
     drop = slider[0] - slider[1:]
     return np.clip(np.where(np.isfinite(drop), drop, np.inf).max(axis=0), 0.0, None)
 
 
 def _slider_at(
-    heads: FusedHeads, x0: np.ndarray, tau: np.ndarray, delta: np.ndarray, index: np.ndarray
+    heads: FusedHeads,
+    x0: np.ndarray,
+    tau: np.ndarray,
+    delta: np.ndarray,
+    index: np.ndarray,
+    feedback: Feedback | None,
 ) -> np.ndarray:
     """Mean-model slider position at samples `index` of lines shifted by delta (n, 3): (n, k)."""
-    paths = rollout(heads, x0, tau, n_samples=len(delta), factors=np.exp(delta))
+    paths = rollout(heads, x0, tau, n_samples=len(delta), factors=np.exp(delta), feedback=feedback)
     with np.errstate(invalid="ignore"):
         return slider_position(paths[:, index, 0])
 

@@ -84,11 +84,13 @@ def monte_carlo(
     mode: str = "step",
     seed: int | np.random.SeedSequence = 0,
     machine_sigma: npt.ArrayLike | None = None,
+    feedback: Feedback | None = None,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
     machine_sigma: the spread of the machine draws (3,) in place of the model's (e.g. its upper
     confidence bound, control/robust.py); the same standard normals are scaled either way.
+    feedback: simulate the closed loop under this tracking law (None: open loop).
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -111,9 +113,24 @@ def monte_carlo(
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma
         factors = machine_factors(spread, n_samples, np.random.default_rng(machine_seq))
-    samples = rollout(heads, x0, tau, n_samples=n_samples, eps=eps, factors=factors)
+    samples = rollout(
+        heads, x0, tau, n_samples=n_samples, eps=eps, factors=factors, feedback=feedback
+    )
     with np.errstate(over="ignore", invalid="ignore"):
         return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """A tracking law the simulated machine runs under (control/lqr.py): before step k the torque
+    is clip(tau_k - gains_k . (x_k - plan_k), +-limit), x = (theta, omega)."""
+
+    plan: np.ndarray
+    """Planned states x_1..x_T, (T, 2) or longer."""
+    gains: np.ndarray
+    """(T, 2) or longer."""
+    limit: float
+    """Torque saturation, N·m."""
 
 
 def rollout(
@@ -124,10 +141,12 @@ def rollout(
     n_samples: int,
     eps: np.ndarray | None = None,
     factors: np.ndarray | None = None,
+    feedback: Feedback | None = None,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
-    mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine)."""
+    mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine), open loop
+    or under `feedback`."""
     steps = tau.shape[0]
     per_step = eps is not None and eps.shape[0] == steps and steps > 1
     samples = np.empty((n_samples, steps + 1, 2))
@@ -139,7 +158,12 @@ def rollout(
         for k in range(steps):
             mean, sigma = heads(theta, omega)
             z = mean if eps is None else mean + sigma * eps[k if per_step else 0]
-            alpha = heads.acceleration(theta, omega, tau[k], z, factors=factors)
+            u: float | np.ndarray = tau[k]
+            if feedback is not None:
+                ref, gain = feedback.plan[k], feedback.gains[k]
+                u = tau[k] - gain[0] * (theta - ref[0]) - gain[1] * (omega - ref[1])
+                u = np.clip(u, -feedback.limit, feedback.limit)
+            alpha = heads.acceleration(theta, omega, u, z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
     return samples

@@ -9,9 +9,11 @@ so nominal against robust and open against closed loop are paired comparisons.
 
 Modes:
   open    the torque as computed (the paper's experiment).
-  closed  the torque plus a PD law on the measured (θ, ω) tracking the PPANN's predicted
-          trajectory, u_k = τ_k + K_p (θ̂_k − θ_k) + K_d (ω̂_k − ω_k), saturated at the torque
-          limit, computed at every 2 ms sample from the state at t_k only.
+  closed  the torque plus a tracking law on the measured (θ, ω) of the PPANN's predicted
+          trajectory, u_k = τ_k + K_θ,k (θ̂_k − θ_k) + K_ω,k (ω̂_k − ω_k), saturated at the
+          torque limit, computed at every 2 ms sample from the state at t_k only. K_k are the
+          profile's LQR gains from ocp.json (`feedback="lqr"`, the default; control/lqr.py),
+          or a fixed PD (`feedback="pd"`: K_p, K_d).
 
 Random streams (common/streams.py): replay_machines spawns one child per run (machine, start
 time), replay_noise one per run (disturbance); changing the number of runs leaves the first runs
@@ -36,6 +38,7 @@ from twin.variability import MachineDraw, Variability
 
 PROFILES = ("nominal", "robust")
 MODES = ("open", "closed")
+FEEDBACKS = ("lqr", "pd")
 MAX_RUNS = 100_000
 """Most runs per profile and mode (100 000 runs of 150 samples hold ~1 GB of arrays)."""
 
@@ -52,10 +55,12 @@ class ReplayConfig:
     runs: int = 100
     seed: int = 0
     modes: tuple[str, ...] = MODES
+    feedback: str = "lqr"
+    """Closed loop: "lqr" (the profile's gains) or "pd" (kp, kd)."""
     kp: float = 20.0
-    """Proportional gain on the angle error, N·m/rad."""
+    """PD: proportional gain on the angle error, N·m/rad."""
     kd: float = 0.5
-    """Derivative gain on the speed error, N·m·s/rad."""
+    """PD: derivative gain on the speed error, N·m·s/rad."""
     max_start_time: float = 60.0
     """Each machine has run U[0, max_start_time] s before its replay (warm-up drift), s."""
     variability: Variability = field(default_factory=Variability)
@@ -65,6 +70,10 @@ class ReplayConfig:
         check_seed("seed", self.seed, error=ReplayConfigError)
         for name in ("kp", "kd", "max_start_time"):
             check_finite(name, getattr(self, name), nonneg=True, error=ReplayConfigError)
+        if self.feedback not in FEEDBACKS:
+            raise ReplayConfigError(
+                f"feedback must be one of {', '.join(FEEDBACKS)}, got {self.feedback!r}"
+            )
         if not self.modes or any(m not in MODES for m in self.modes):
             raise ReplayConfigError(
                 f"modes must be a non-empty subset of {MODES}, got {self.modes}"
@@ -139,14 +148,20 @@ def draw_machines(config: ReplayConfig, n_samples: int, *, held_out: bool = Fals
     return Machines(draws=draws, start_times=np.array(starts), disturbance=np.array(forces))
 
 
-def pd_law(
-    physics: SliderCrank, profile: Profile, *, kp: float, kd: float
+def tracking_law(
+    physics: SliderCrank, profile: Profile, config: ReplayConfig
 ) -> Callable[[int, np.ndarray], np.ndarray]:
-    """Feedback on the encoder angle and speed, tracking the profile's predicted states."""
+    """Feedback on the encoder angle and speed, tracking the profile's predicted states with its
+    LQR gains (after the last gain, the last one is held) or the fixed PD of `config`."""
+    last = len(profile.gain_theta) - 1
 
     def law(k: int, states: np.ndarray) -> np.ndarray:
         theta = physics.qpos(states, "motor")
         omega = physics.qvel(states, "motor")
+        if config.feedback == "pd":
+            kp, kd = config.kp, config.kd
+        else:
+            kp, kd = profile.gain_theta[min(k, last)], profile.gain_omega[min(k, last)]
         return kp * (profile.theta[k] - theta) + kd * (profile.omega[k] - omega)
 
     return law
@@ -172,7 +187,7 @@ def play(
     state0 = physics.initial_state(ocp.config.theta_start, ocp.config.omega_start)
     feedback = None
     if mode == "closed":
-        feedback = pd_law(physics, chosen, kp=config.kp, kd=config.kd)
+        feedback = tracking_law(physics, chosen, config)
     runs = simulate(
         physics,
         config.variability,

@@ -17,11 +17,23 @@ import mujoco
 import numpy as np
 import pytest
 
+from common.streams import stream
 from control.config import OCPConfig
+from control.ocp import slider_position
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
-from replay.campaign import ReplayConfig, ReplayConfigError, draw_machines, play, run_campaign
+from ppann.model import constant_ppann
+from ppann.montecarlo import Feedback, monte_carlo
+from replay.campaign import (
+    PROFILES,
+    ReplayConfig,
+    ReplayConfigError,
+    draw_machines,
+    play,
+    run_campaign,
+)
 from replay.campaign_log import partial_path
 from replay.files import output_paths, replay_file
+from replay.heldout import heldout_check
 from replay.recording import check_recording
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import crank
@@ -71,6 +83,8 @@ def _profile(tau: np.ndarray, states: np.ndarray, sigma: float) -> dict:
         "slider_lower": (slider - 3 * sigma).tolist(),
         "slider_upper": (slider + 3 * sigma).tolist(),
         "heights": [0.08, 0.08],
+        "gain_theta": (30 + 10 * np.sin(np.arange(N - 1) / 20)).tolist(),
+        "gain_omega": (0.6 + 0.2 * np.cos(np.arange(N - 1) / 30)).tolist(),
         "cost": float(np.sum(tau**2)),
         "status": "Solve_Succeeded",
         "ipopt_iterations": 10,
@@ -108,7 +122,8 @@ def ocp(ocp_path: Path) -> OCPFile:
 
 def _reference_run(physics, config, machines, i, profile, *, feedback: bool) -> dict:
     """One run as a plain Python mj_step loop: its own model, friction at the replay's middle,
-    and (closed loop) the PD law computed from the state at t_k."""
+    and (closed loop) the tracking law (the profile's gains, or config's PD) computed from the
+    state at t_k."""
     layout = physics.layout
     model = copy.copy(physics.model)
     draw = machines.draws[i]
@@ -123,7 +138,10 @@ def _reference_run(physics, config, machines, i, profile, *, feedback: bool) -> 
         u = profile.tau[k]
         if feedback:
             state = _state(model, data)
-            u += config.kp * (profile.theta[k] - physics.qpos(state, "motor")) + config.kd * (
+            kp, kd = profile.gain_theta[min(k, N - 2)], profile.gain_omega[min(k, N - 2)]
+            if config.feedback == "pd":
+                kp, kd = config.kp, config.kd
+            u += kp * (profile.theta[k] - physics.qpos(state, "motor")) + kd * (
                 profile.omega[k] - physics.qvel(state, "motor")
             )
         tau[k] = np.clip(u, -limit, limit)
@@ -151,11 +169,13 @@ def test_zero_variability_replays_one_trajectory_equal_to_direct_simulation(
     np.testing.assert_array_equal(replay.theta[0], ocp.nominal.theta)
 
 
-@pytest.mark.parametrize("mode", ["open", "closed"])
+@pytest.mark.parametrize(
+    ("mode", "feedback"), [("open", "lqr"), ("closed", "lqr"), ("closed", "pd")]
+)
 def test_batched_replay_equals_a_per_run_mj_step_loop(
-    physics: SliderCrank, ocp: OCPFile, mode: str
+    physics: SliderCrank, ocp: OCPFile, mode: str, feedback: str
 ) -> None:
-    config = ReplayConfig(runs=4, seed=3, kp=40.0, kd=0.8)
+    config = ReplayConfig(runs=4, seed=3, feedback=feedback, kp=40.0, kd=0.8)
     machines = draw_machines(config, N)
     replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
     for i in range(config.runs):
@@ -166,7 +186,7 @@ def test_batched_replay_equals_a_per_run_mj_step_loop(
 
 
 def test_closed_loop_with_zero_gains_equals_open_loop(physics: SliderCrank, ocp: OCPFile) -> None:
-    config = ReplayConfig(runs=5, seed=1, kp=0.0, kd=0.0)
+    config = ReplayConfig(runs=5, seed=1, feedback="pd", kp=0.0, kd=0.0)
     machines = draw_machines(config, N)
     kwargs = {"profile": "nominal", "machines": machines, "config": config}
     open_loop = play(physics, ocp, mode="open", **kwargs)
@@ -183,8 +203,11 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
     kwargs = {"profile": "nominal", "machines": machines, "config": config}
     open_loop = play(physics, ocp, mode="open", **kwargs)
     closed = play(physics, ocp, mode="closed", **kwargs)
-    # u_k - tau_k is the PD law on the encoder readings of sample k (where not saturated)
-    law = config.kp * (ocp.nominal.theta - closed.theta) + config.kd * (
+    # u_k - tau_k is the profile's LQR law on the encoder readings of sample k (where not
+    # saturated; the last gain is held for sample N)
+    gain_theta = np.append(ocp.nominal.gain_theta, ocp.nominal.gain_theta[-1])
+    gain_omega = np.append(ocp.nominal.gain_omega, ocp.nominal.gain_omega[-1])
+    law = gain_theta * (ocp.nominal.theta - closed.theta) + gain_omega * (
         ocp.nominal.omega - closed.omega
     )
     unsaturated = np.abs(closed.tau) < physics.torque_limit
@@ -193,6 +216,48 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
     )
     # feedback shrinks the machine-to-machine spread of the angle at the end by > 5x
     assert closed.theta[:, -1].std() < open_loop.theta[:, -1].std() / 5
+
+
+@pytest.mark.parametrize("mode", ["open", "closed"])
+def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
+    physics: SliderCrank, ocp_path: Path, ocp: OCPFile, mode: str
+) -> None:
+    """Both profiles of the held-out check are played in the loop asked for, and predicted by a
+    Monte-Carlo of that loop: the observed spread equals a direct replay's in that mode, and the
+    prediction equals a Monte-Carlo under the profile's gains (closed) or none (open). (A loop
+    variable once shadowed the mode, and the second profile was played open loop.)"""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    variability = Variability.scenario("paper")
+    result = heldout_check(
+        physics, ocp_path, model, runs=8, seed=11, variability=variability, mc_samples=50, mode=mode
+    )
+    assert result["mode"] == mode
+    config = ReplayConfig(runs=8, seed=11, modes=(mode,), variability=variability)
+    machines = draw_machines(config, N, held_out=True)
+    for name in PROFILES:
+        profile = getattr(ocp, name)
+        replay = play(physics, ocp, profile=name, mode=mode, machines=machines, config=config)
+        feedback = None
+        if mode == "closed":
+            feedback = Feedback(
+                np.stack([profile.theta, profile.omega], axis=-1),
+                np.stack([profile.gain_theta, profile.gain_omega], axis=-1),
+                ocp.config.torque_limit,
+            )
+        bands = monte_carlo(
+            model,
+            [profile.theta[0], profile.omega[0]],
+            profile.tau[:-1],
+            n_samples=50,
+            mode="mixed",
+            seed=stream(ocp.config.mc_seed, "monte_carlo"),
+            feedback=feedback,
+        )
+        for k, entry in result["profiles"][name]["samples"].items():
+            x = replay.slider_position[:, int(k) - 1]
+            assert entry["observed_sigma"] == float(x.std(ddof=1))
+            predicted = slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
+            assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-12)
 
 
 def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) -> None:
@@ -407,6 +472,7 @@ def test_replay_rejects_a_bad_ocp_json_in_one_line(
         (["--variability", "line-99"], "unknown variability scenario 'line-99'"),
         (["--modes", "open,sideways"], "modes must be a non-empty subset of ('open', 'closed')"),
         (["--kp", "nan"], "kp must be a finite number, got nan"),
+        (["--feedback", "pid"], "feedback must be one of lqr, pd, got 'pid'"),
         (["--kd", "-1"], "kd must be >= 0"),
         (["--out", "FILE/replay.mcap"], "cannot write"),
         (["--out", "OUT/replay.txt"], "must end in .mcap"),
