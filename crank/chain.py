@@ -55,7 +55,7 @@ class RunConfig:
     ocp: OCPConfig = field(default_factory=OCPConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     heldout_runs: int = 0
-    """Machines of the held-out check (open loop, both profiles); 0 skips it."""
+    """Machines of the held-out check (both profiles, in `loop`); 0 skips it."""
     heldout_seed: int = 0
     """Root seed of the held-out machines (streams heldout_machines / heldout_noise)."""
     model_path: str = str(MODEL_PATH)
@@ -100,6 +100,12 @@ class RunConfig:
             replay=ReplayConfig(**{**(replay or {}), "seed": seed, "variability": gen.variability}),
             **options,
         )
+
+    @property
+    def loop(self) -> str:
+        """The loop the robust claim is about: closed when the tightening is sized for the LQR
+        closed loop (ocp.feedback "lqr"), else open (the paper's experiment)."""
+        return "closed" if self.ocp.feedback == "lqr" else "open"
 
     def with_seed(self, seed: int) -> RunConfig:
         """The same run under another root seed (the seed study); the replay seed follows."""
@@ -216,6 +222,7 @@ def run_chain(
                 seed=config.heldout_seed,
                 variability=config.generation.variability,
                 max_start_time=config.replay.max_start_time,
+                mode=config.loop,
                 model_path=config.model_path,
             )
     steps["total"] = time.perf_counter() - started

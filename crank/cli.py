@@ -24,6 +24,7 @@ from crank.console import (
     Drift,
     EpisodeSeconds,
     EpochBars,
+    FeedbackOption,
     ModelPath,
     Progress,
     Seconds,
@@ -194,6 +195,7 @@ def solve_command(
         str, typer.Option(help="gaussian (k·σ, eq. 16) or quantile (at Φ(−k)).")
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
+    feedback: FeedbackOption = OCPConfig.feedback,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
     theta_end: Annotated[float, typer.Option(help="θ_N, rad.")] = OCPConfig.theta_end,
@@ -209,6 +211,7 @@ def solve_command(
         mc_mode=mc_mode,
         tightening=tightening,
         confidence=confidence,
+        feedback=feedback,
         torque_limit=torque_limit,
         theta_start=theta_start,
         theta_end=theta_end,
@@ -254,10 +257,11 @@ def replay_command(
         "logs/replay.mcap"
     ),
     modes: Annotated[str, typer.Option(help="open, closed or open,closed.")] = "open,closed",
-    kp: Annotated[float, typer.Option(help="Closed loop: N·m/rad on the angle error.")] = (
-        ReplayConfig.kp
-    ),
-    kd: Annotated[float, typer.Option(help="Closed loop: N·m·s/rad on the speed error.")] = (
+    feedback: Annotated[
+        str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
+    ] = ReplayConfig.feedback,
+    kp: Annotated[float, typer.Option(help="PD: N·m/rad on the angle error.")] = (ReplayConfig.kp),
+    kd: Annotated[float, typer.Option(help="PD: N·m·s/rad on the speed error.")] = (
         ReplayConfig.kd
     ),
     max_start_time: Annotated[
@@ -279,6 +283,7 @@ def replay_command(
         runs=runs,
         seed=seed,
         modes=_modes(modes),
+        feedback=feedback,
         kp=kp,
         kd=kd,
         max_start_time=max_start_time,
@@ -312,15 +317,26 @@ def heldout_command(
         str | None,
         typer.Option(help="Scenario or range file (default: the one in ocp.json)."),
     ] = None,
+    mode: Annotated[
+        str, typer.Option(help="open, or closed (each profile's LQR gains from ocp.json).")
+    ] = "open",
     mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
 ) -> None:
-    """Both torques of an ocp.json, open loop, on held-out machines: violation rates with exact
-    95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
+    """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
+    with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
-    ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
+    # validates runs, seed and mode before any file is read
+    ReplayConfig(runs=runs, seed=seed, modes=(mode,))
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
-        ocp, out, model=model, runs=runs, seed=seed, variability=chosen, model_path=mjcf
+        ocp,
+        out,
+        model=model,
+        runs=runs,
+        seed=seed,
+        variability=chosen,
+        mode=mode,
+        model_path=mjcf,
     )
     print_heldout(result)
     typer.echo(f"wrote {out}")

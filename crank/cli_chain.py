@@ -19,6 +19,7 @@ from crank.console import (
     Drift,
     EpisodeSeconds,
     EpochBars,
+    FeedbackOption,
     ModelPath,
     Progress,
     Seconds,
@@ -51,11 +52,12 @@ def run_command(
     drift: Drift = True,
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
+    feedback: FeedbackOption = OCPConfig.feedback,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
     heldout_runs: Annotated[
-        int, typer.Option(help="Held-out machines per profile (open loop); 0 skips the check.")
+        int, typer.Option(help="Held-out machines per profile; 0 skips the check.")
     ] = 1000,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
@@ -71,7 +73,7 @@ def run_command(
             "episode_seconds": episode_seconds,
             "variability": Variability.resolve(variability, drift=drift),
         },
-        ocp={"confidence": confidence},
+        ocp={"confidence": confidence, "feedback": feedback},
         replay={"runs": runs},
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
@@ -145,6 +147,7 @@ def study_command(
         OCPConfig.tightening
     ),
     confidence: Confidence = OCPConfig.confidence,
+    feedback: FeedbackOption = OCPConfig.feedback,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
         False
@@ -160,7 +163,12 @@ def study_command(
             "episode_seconds": episode_seconds,
             "variability": Variability.resolve(variability),
         },
-        ocp={"mc_mode": mc_mode, "tightening": tightening, "confidence": confidence},
+        ocp={
+            "mc_mode": mc_mode,
+            "tightening": tightening,
+            "confidence": confidence,
+            "feedback": feedback,
+        },
         replay={"runs": runs},
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
@@ -176,7 +184,7 @@ def study_command(
             typer.echo(f"seed {row['seed']}: error: {row['error']}")
         elif "robust_heldout_rate" in row:
             typer.echo(
-                f"seed {row['seed']}: robust {row['robust_open_100']}/100, held-out "
+                f"seed {row['seed']}: robust {row['robust_100']}/100 {row['loop']} loop, held-out "
                 f"{100 * row['robust_heldout_rate']:.2f} % (95 % bound "
                 f"{100 * row['robust_heldout_upper_95']:.2f} %), "
                 f"premium {100 * row['premium']:.1f} %"

@@ -85,6 +85,13 @@ Seed = Annotated[int, typer.Option(help="Seed of every random draw.")]
 EpisodeSeconds = Annotated[float, typer.Option(help="Length of one episode (machine draw) in s.")]
 Drift = Annotated[bool, typer.Option(help="Friction drifts as each machine warms up.")]
 Amplitude = Annotated[float, typer.Option(help="Peak excitation torque level in N·m.")]
+FeedbackOption = Annotated[
+    str,
+    typer.Option(
+        help="The loop the robust tightening is sized for: none (open loop, eq. 16) or lqr (the "
+        "closed loop under each profile's LQR gains: a tube; the held-out check then plays it)."
+    ),
+]
 Confidence = Annotated[
     float,
     typer.Option(
@@ -126,7 +133,8 @@ class EpochBars:
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:
-    typer.echo(f"held-out check ({heldout['runs']} machines per profile, open loop):")
+    loop = heldout["mode"]
+    typer.echo(f"held-out check ({heldout['runs']} machines per profile, {loop} loop):")
     for profile, entry in heldout["profiles"].items():
         typer.echo(
             f"  {profile:<8} {entry['violating_runs']:>5} below the height "

@@ -64,14 +64,16 @@ def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
     heldout = report["heldout"]
     mode = ocp["config"]["mc_mode"]
     k = ocp["config"]["k_sigma"]
-    open_ = {p: stats["profiles"][p]["open"] for p in ("nominal", "robust")}
+    loop = "closed" if ocp["config"]["feedback"] == "lqr" else "open"
+    played = {p: stats["profiles"][p][loop] for p in ("nominal", "robust")}
     row: dict[str, Any] = {
         "seed": seed,
         "error": None,
-        "robust_open_100": open_["robust"]["violating_runs"],
-        "nominal_open_100": open_["nominal"]["violating_runs"],
+        "loop": loop,
+        "robust_100": played["robust"]["violating_runs"],
+        "nominal_100": played["nominal"]["violating_runs"],
         "premium": stats["ocp"]["robust_cost_premium"],
-        "robust_lowest_mm": 1e3 * min(c["lowest"] for c in open_["robust"]["constraint"].values()),
+        "robust_lowest_mm": 1e3 * min(c["lowest"] for c in played["robust"]["constraint"].values()),
         "phase1_epochs": report["ppann"]["models"]["ppann"]["epochs"],
         "phase1_converged": report["ppann"]["models"]["ppann"]["phase1_converged"],
         "machine_sigma": report["ppann"]["models"]["ppann"]["machine_sigma"],
@@ -191,17 +193,18 @@ def markdown(study: dict[str, Any]) -> str:
         f"{study['config']['heldout_seed']}."
     )
     lines.append("")
+    loop = "closed" if study["config"]["ocp"]["feedback"] == "lqr" else "open"
     if ok and "robust_heldout_rate" in ok[0]:
         worst = max(r["robust_heldout_rate"] for r in ok)
         holds = all(r["robust_heldout_rate"] <= study["target_heldout_rate"] for r in ok)
-        campaign = all(r["robust_open_100"] == 0 for r in ok)
+        campaign = all(r["robust_100"] == 0 for r in ok)
         lines.append(
-            f"- robust open loop on held-out machines: worst seed {100 * worst:.2f} % "
+            f"- robust {loop} loop on held-out machines: worst seed {100 * worst:.2f} % "
             f"(target <= {100 * study['target_heldout_rate']:.1f} %): "
             f"**{'met' if holds and len(ok) == len(rows) else 'NOT met'}**"
         )
         lines.append(
-            f"- robust open loop 0/100 campaign runs on every seed: "
+            f"- robust {loop} loop 0/100 campaign runs on every seed: "
             f"**{'yes' if campaign and len(ok) == len(rows) else 'no'}**"
         )
     failed = [r for r in rows if r.get("error")]
@@ -210,8 +213,8 @@ def markdown(study: dict[str, Any]) -> str:
     lines += ["", "![violation rate and premium against seed](study.png)", ""]
     columns = [
         ("seed", "seed", ""),
-        ("robust_open_100", "robust /100", ""),
-        ("nominal_open_100", "nominal /100", ""),
+        ("robust_100", "robust /100", ""),
+        ("nominal_100", "nominal /100", ""),
         ("robust_heldout_rate", "robust held-out", ".2%"),
         ("robust_heldout_upper_95", "95 % bound", ".2%"),
         ("nominal_heldout_rate", "nominal held-out", ".1%"),
@@ -250,7 +253,8 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     for s in failed:
         top.axvline(s, color="C3", alpha=0.3, lw=8)
     top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.05)
-    top.set_ylabel("open-loop violations [%]")
+    loops = {r.get("loop", "open") for r in ok} or {"open"}
+    top.set_ylabel(f"{'/'.join(sorted(loops))}-loop violations [%]")
     top.legend(fontsize=8)
     bottom.bar(seeds, [100 * r["premium"] for r in ok], color="C1")
     bottom.set_ylim(bottom=0)

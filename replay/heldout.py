@@ -1,5 +1,7 @@
-"""The held-out check: both torques of an ocp.json, open loop, on many machines drawn from streams
-no other stage uses (heldout_machines, heldout_noise), and the PPANN's calibration there.
+"""The held-out check: both torques of an ocp.json, open or closed loop, on many machines drawn
+from streams no other stage uses (heldout_machines, heldout_noise), and the PPANN's calibration
+there. Closed loop, each machine runs under the profile's LQR gains (replay/campaign.py), and the
+PPANN's prediction is its closed-loop Monte-Carlo under the same law and saturation.
 
 100 campaign replays cannot tell 0.1 % from 2 % (P(0 of 100 | 2 %) = 13 %); this check plays each
 profile on `runs` (default 1000) machines and reports the violation rate with its exact
@@ -11,6 +13,7 @@ in every Monte-Carlo mode (same torque, same start state), and the same for θ a
 
   format, version        "crank-heldout", 1
   runs, seed, streams    machines per profile, root seed, and the stream tree
+  mode                   open or closed (loop the profiles were played in)
   variability, max_start_time
   mc_samples             trajectories of each predicted σ
   target_rate            0.005: the robust profile's allowed violation rate
@@ -42,7 +45,7 @@ from control.ocp import slider_position
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
-from ppann.montecarlo import MODES, monte_carlo
+from ppann.montecarlo import MODES, Feedback, monte_carlo
 from replay.campaign import PROFILES, ReplayConfig, draw_machines, play
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
@@ -74,13 +77,14 @@ def heldout_check(
     variability: Variability,
     max_start_time: float = 60.0,
     mc_samples: int = 1000,
+    mode: str = "open",
 ) -> dict[str, Any]:
-    """Play both profiles open loop on `runs` held-out machines; return heldout.json's content."""
+    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content."""
     ocp = read_ocp(ocp_path)
     config = ReplayConfig(
         runs=runs,
         seed=seed,
-        modes=("open",),
+        modes=(mode,),
         variability=variability,
         max_start_time=max_start_time,
     )
@@ -94,6 +98,7 @@ def heldout_check(
         "ocp": str(ocp_path),
         "runs": runs,
         "seed": seed,
+        "mode": mode,
         "streams": streams.describe(seed, ("heldout_machines", "heldout_noise")),
         "variability": variability.as_dict(),
         "max_start_time": max_start_time,
@@ -104,20 +109,28 @@ def heldout_check(
     simulate_s = mc_s = 0.0
     for profile in PROFILES:
         t0 = time.perf_counter()
-        replay = play(physics, ocp, profile=profile, mode="open", machines=machines, config=config)
+        replay = play(physics, ocp, profile=profile, mode=mode, machines=machines, config=config)
         simulate_s += time.perf_counter() - t0
         planned = getattr(ocp, profile)
+        feedback = None
+        if mode == "closed":
+            feedback = Feedback(
+                np.stack([planned.theta, planned.omega], axis=-1),
+                np.stack([planned.gain_theta, planned.gain_omega], axis=-1),
+                c.torque_limit,
+            )
         t0 = time.perf_counter()
         predicted = {
-            mode: monte_carlo(
+            mc_mode: monte_carlo(
                 heads,
                 [planned.theta[0], planned.omega[0]],
                 planned.tau[:-1],
                 n_samples=mc_samples,
-                mode=mode,
+                mode=mc_mode,
                 seed=streams.stream(c.mc_seed, "monte_carlo"),
+                feedback=feedback,
             )
-            for mode in MODES
+            for mc_mode in MODES
         }
         mc_s += time.perf_counter() - t0
         below = np.zeros(runs, dtype=bool)
@@ -138,11 +151,11 @@ def heldout_check(
                 "skew": float(scistats.skew(x)),
                 "predicted": {},
             }
-            for mode, bands in predicted.items():
+            for mc_mode, bands in predicted.items():
                 with np.errstate(over="ignore", invalid="ignore"):
                     slider = slider_position(bands.samples[:, k - 1, 0])
                     sigma = float(np.std(slider, ddof=1))
-                entry["predicted"][mode] = {
+                entry["predicted"][mc_mode] = {
                     "sigma": sigma,
                     "mean": float(np.mean(slider)),
                     "ratio": _ratio(sigma, observed),
@@ -158,11 +171,11 @@ def heldout_check(
             "theta_final": {
                 "observed_sigma": theta_observed,
                 "predicted": {
-                    mode: {
+                    mc_mode: {
                         "sigma": float(b.std[-1, 0]),
                         "ratio": _ratio(float(b.std[-1, 0]), theta_observed),
                     }
-                    for mode, b in predicted.items()
+                    for mc_mode, b in predicted.items()
                 },
             },
         }
@@ -181,6 +194,7 @@ def heldout_file(
     seed: int,
     variability: Variability,
     max_start_time: float = 60.0,
+    mode: str = "open",
     model_path: str | Path = MODEL_PATH,
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
@@ -199,6 +213,7 @@ def heldout_file(
         seed=seed,
         variability=variability,
         max_start_time=max_start_time,
+        mode=mode,
     )
     write_json(out, result)
     return result
