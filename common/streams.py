@@ -35,6 +35,7 @@ STREAMS: dict[str, str] = {
     "replay_noise": "slider disturbance of the campaign replays",
     "heldout_machines": "held-out machines and their start times",
     "heldout_noise": "slider disturbance of the held-out replays",
+    "transmission": "the crank's angle to the motor in the Monte-Carlo's slider positions",
 }
 """Every stream the project draws from, with what it is for."""
 

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import CrankError
-from common.streams import stream
+from common.streams import rng, stream
 from control.config import OCPConfig
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
@@ -58,6 +58,7 @@ from control.ocp import NominalOCP, OCPError, Solution, slider_position
 from control.tightening import line_allowance, population_margin, tightening
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
+from ppann.transmission import draw
 from twin.physics import CRANK_LENGTH
 
 MIN_DAMPING = 1 / 256
@@ -171,8 +172,10 @@ def slider_uncertainty(
         machine_sigma=spread,
         feedback=feedback,
     )
+    # The crank's angle to the motor (ppann/transmission.py): zero if the model has none.
+    delta = draw(heads.transmission, bands.samples.shape[:2], rng(config.mc_seed, "transmission"))
     with np.errstate(over="ignore", invalid="ignore"):
-        slider = slider_position(bands.samples[:, :, 0])
+        slider = slider_position(bands.samples[:, :, 0] + delta)
     plan = solution.slider
     margins = [
         tightening(slider[:, k - 1], plan[k - 1], k_sigma=config.k_sigma, method=config.tightening)

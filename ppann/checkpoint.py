@@ -18,7 +18,7 @@ from ppann.kinds import KINDS, MODEL_KINDS
 from twin.dataset import Dataset
 
 FORMAT = "crank-ppann-checkpoint"
-VERSION = 3
+VERSION = 4
 """2: the PPANN carries machine_sigma (the machine-level spread of ppann/machine.py); 3: and what
 the training machines leave open about the line (common_covariance, machine_profile)."""
 

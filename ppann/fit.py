@@ -13,6 +13,7 @@ from common.streams import torch_seed
 from ppann.kinds import model_kind
 from ppann.model import PPANNConfig
 from ppann.train import History, Splits, TrainConfig, make_splits, train_mean, train_sigma
+from ppann.transmission import fit_quantiles
 from twin.dataset import Dataset
 
 
@@ -48,6 +49,13 @@ def fit(
         on_epoch=None if on_epoch is None else (lambda e, t, v: on_epoch("mean", e, v)),
     )
     if spec.sigma_phase:
+        stop = splits.split
+        with torch.no_grad():
+            model.transmission.copy_(
+                torch.from_numpy(
+                    fit_quantiles(dataset.theta[:stop], dataset.slider_position[:stop])
+                )
+            )
         train_sigma(
             model,
             dataset,

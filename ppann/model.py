@@ -25,6 +25,7 @@ from torch import nn
 
 from common.checks import check_finite
 from common.errors import CrankError
+from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 
 Z_NAMES = ("J", "B", "K")
 PROFILE_GRID = np.geomspace(1e-4, 1.0, 97)
@@ -116,6 +117,10 @@ class PPANN(nn.Module):
         self.register_buffer("common_covariance", torch.zeros((3, 3), dtype=torch.float64))
         self.register_buffer(
             "machine_profile", torch.zeros((3, len(PROFILE_GRID)), dtype=torch.float64)
+        )
+        # Quantiles of the crank's angle to the motor (ppann/transmission.py); zeros: none.
+        self.register_buffer(
+            "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)
         )
         self.double()
 
@@ -228,6 +233,7 @@ class FusedHeads:
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         self.common_covariance = model.common_covariance.detach().numpy().copy()
         self.machine_profile = model.machine_profile.detach().numpy().copy()
+        self.transmission = model.transmission.detach().numpy().copy()
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         hidden = sum(net[0].out_features for net in nets)
         self.w_in = np.zeros((4, hidden), dtype=np.float32)  # row 3: the biases

@@ -131,6 +131,9 @@ def train_and_report(
             entry["machine_sigma_upper"] = dict(zip(Z_NAMES, upper.tolist(), strict=True))
             line_se = f.model.common_covariance.diagonal().clamp(min=0).sqrt().tolist()
             entry["line_mean_se"] = dict(zip(Z_NAMES, line_se, strict=True))
+            # The crank's angle to the motor, from the measured slider (ppann/transmission.py).
+            q = f.model.transmission.tolist()
+            entry["transmission_rad"] = {"q01": q[1], "median": q[50], "q99": q[99]}
         report["models"][kind] = entry
         path = out if kind == "ppann" else sibling(out, f"{kind}.pt")
         checkpoint.save(

@@ -46,6 +46,7 @@ from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import MODES, Feedback, monte_carlo
+from ppann.transmission import draw
 from replay.campaign import PROFILES, ReplayConfig, draw_machines, play
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
@@ -152,8 +153,13 @@ def heldout_check(
                 "predicted": {},
             }
             for mc_mode, bands in predicted.items():
+                delta = draw(
+                    heads.transmission,
+                    (bands.samples.shape[0],),
+                    streams.rng(c.mc_seed, "transmission"),
+                )
                 with np.errstate(over="ignore", invalid="ignore"):
-                    slider = slider_position(bands.samples[:, k - 1, 0])
+                    slider = slider_position(bands.samples[:, k - 1, 0] + delta)
                     sigma = float(np.std(slider, ddof=1))
                 entry["predicted"][mc_mode] = {
                     "sigma": sigma,

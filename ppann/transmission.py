@@ -1,0 +1,61 @@
+"""Transmission error (beyond the paper): the PPANN's state is the motor encoder's angle, the
+slider is driven by the crank, and between the two a backlash (or any compliance) lets the crank
+sit at theta + delta. Open loop the slider's spread is millimetres and delta hardly shows; in
+closed loop, where feedback holds the motor angle to a few mrad, it dominates: on line-15 under
+the LQR tube the slider's spread at sample 50 computed from the motor angle was 0.28 mm (what
+the closed-loop Monte-Carlo predicted), the measured slider's 0.53 mm, the difference the crank
+rattling in the backlash gap (its angle to the motor 7.9 mrad rms).
+
+delta is not measured, but the slider position is (the dataset contract's measurement channel):
+delta_k solves x(theta_k + delta_k) = x_measured_k, by Newton steps from 0, on samples away from
+the dead centres (|dx/dtheta| at least half its largest value), where the slider tells the
+crank angle well. The checkpoint keeps the empirical quantiles of delta at LEVELS; the
+Monte-Carlo draws delta independently for each trajectory and sample by inverse CDF and puts
+the slider at x(theta + delta) (control/robust.py, replay/heldout.py). Zero quantiles (nothing
+fitted) draw delta = 0, which leaves every slider as it was, bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from twin.physics import CRANK_LENGTH, slider_position_formula
+
+LEVELS = np.linspace(0.0, 1.0, 101)
+"""Probability levels of the stored quantiles of delta."""
+NEWTON_STEPS = 4
+SLOPE_SHARE = 0.5
+"""Samples used: |dx/dtheta| >= this share of its largest value (~CRANK_LENGTH)."""
+
+
+def _slope(theta: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    return (slider_position_formula(theta + h) - slider_position_formula(theta - h)) / (2 * h)
+
+
+def transmission_angles(theta: npt.ArrayLike, slider: npt.ArrayLike) -> np.ndarray:
+    """delta (rad) of the samples away from the dead centres, from motor angle and measured
+    slider position (module docstring)."""
+    theta, slider = np.asarray(theta, dtype=float), np.asarray(slider, dtype=float)
+    usable = np.abs(_slope(theta)) >= SLOPE_SHARE * CRANK_LENGTH
+    theta, slider = theta[usable], slider[usable]
+    delta = np.zeros_like(theta)
+    for _ in range(NEWTON_STEPS):
+        crank = theta + delta
+        delta = delta + (slider - slider_position_formula(crank)) / _slope(crank)
+    return delta
+
+
+def fit_quantiles(theta: npt.ArrayLike, slider: npt.ArrayLike) -> np.ndarray:
+    """Quantiles of delta at LEVELS, (len(LEVELS),); zeros if no sample is usable."""
+    delta = transmission_angles(theta, slider)
+    if delta.size == 0:
+        return np.zeros(len(LEVELS))
+    return np.quantile(delta, LEVELS)
+
+
+def draw(quantiles: np.ndarray, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
+    """delta of the given shape by inverse CDF (linear between the stored quantiles)."""
+    if not np.any(quantiles):
+        return np.zeros(shape)
+    return np.interp(rng.uniform(size=shape), LEVELS, quantiles)
