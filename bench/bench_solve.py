@@ -1,8 +1,8 @@
 """Benchmark: nominal OCP solve against the whole robust loop (every re-solve and Monte-Carlo),
 measured in the same run (target: robust loop <= 3 × the nominal solve), with today's default
 Monte-Carlo (1000 mixed trajectories, gaussian tightening, the line allowance at confidence 0.95),
-the same at confidence 0, and, for reference in the same run, the paper's (100 step trajectories,
-confidence 0).
+the same at confidence 0, the same sized for the LQR closed loop (a tube), and, for reference in
+the same run, the paper's (100 step trajectories, confidence 0).
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
 
@@ -41,6 +41,7 @@ def main() -> None:
     configs = {
         "default (1000 mixed, gaussian, confidence 0.95)": OCPConfig(),
         "default at confidence 0": OCPConfig(confidence=0.0),
+        "default with the LQR tube (--feedback lqr)": OCPConfig(feedback="lqr"),
         "paper (100 step, gaussian, confidence 0)": OCPConfig(
             mc_samples=100, mc_mode="step", confidence=0.0
         ),
