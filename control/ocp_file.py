@@ -25,14 +25,16 @@ Top-level keys (stable; `version` changes if any meaning does):
 A profile holds arrays of length N, index k - 1 for sample k: `time` (s), `tau` (N·m, u_k acts
 from t_k to t_{k+1}; the last is the torque after the horizon), `theta`, `omega` (mean-model
 states), `slider` (mean-model slider position, m), `slider_mc_mean`, `slider_sigma` (Monte-Carlo
-mean and standard deviation of the slider position), `slider_lower`, `slider_upper` (slider ∓ k
-sigma); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus `heights`, the slider
-lower bounds used at the constraint samples, and `tightening`, `tightening_se` there (m), and
-`population`, the part of `tightening` that allows for the line's uncertain mean (m,
-control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega` (N - 1 each), the LQR
-gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the twin's closed loop
-applies before samples 1..N-1. With config.feedback "lqr" the Monte-Carlo bands and the
-tightening are those of that closed loop.
+mean and standard deviation of the slider position, in the loop the tightening was sized for),
+`slider_lower`, `slider_upper` (slider ∓ k sigma), `slider_sigma_open`, `slider_sigma_closed`
+(the Monte-Carlo std of the plan open loop and closed under its gains, which the replay's rows
+compare against); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus
+`heights`, the slider lower bounds used at the constraint samples, and `tightening`,
+`tightening_se` there (m), and `population`, the part of `tightening` that allows for the
+line's uncertain mean (m, control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
+(N - 1 each), the LQR gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the
+twin's closed loop applies before samples 1..N-1. With config.feedback "lqr" the Monte-Carlo
+bands and the tightening are those of that closed loop.
 """
 
 from __future__ import annotations
@@ -74,6 +76,8 @@ SERIES = (
     "slider_sigma",
     "slider_lower",
     "slider_upper",
+    "slider_sigma_open",
+    "slider_sigma_closed",
 )
 GAINS = ("gain_theta", "gain_omega")
 SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
@@ -97,6 +101,10 @@ class Profile:
     slider_sigma: np.ndarray
     slider_lower: np.ndarray
     slider_upper: np.ndarray
+    slider_sigma_open: np.ndarray
+    """Monte-Carlo slider std of the plan played open loop, m."""
+    slider_sigma_closed: np.ndarray
+    """... and closed loop under the profile's LQR gains, m."""
     heights: np.ndarray
     gain_theta: np.ndarray
     """(N - 1,) LQR gain on the angle error before samples 1..N-1, N·m/rad."""
@@ -121,11 +129,18 @@ class OCPFile:
         return self.config.horizon
 
 
+def predicted_band(profile: Profile, mode: str, k_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each."""
+    sigma = profile.slider_sigma_closed if mode == "closed" else profile.slider_sigma_open
+    return profile.slider - k_sigma * sigma, profile.slider + k_sigma * sigma
+
+
 def profile_dict(
     solution: Solution,
     uncertainty: Uncertainty,
     *,
     gains: np.ndarray,
+    loops: dict[str, np.ndarray],
     k_sigma: float,
     dt: float,
 ) -> dict[str, Any]:
@@ -142,6 +157,8 @@ def profile_dict(
         "slider_sigma": uncertainty.std,
         "slider_lower": solution.slider - band,
         "slider_upper": solution.slider + band,
+        "slider_sigma_open": loops["open"],
+        "slider_sigma_closed": loops["closed"],
     }
     return {
         **{k: [float(v) for v in values] for k, values in series.items()},
@@ -184,6 +201,7 @@ def write_ocp(
             result.nominal,
             result.nominal_uncertainty,
             gains=result.nominal_gains,
+            loops=result.nominal_loops,
             k_sigma=config.k_sigma,
             dt=dt,
         ),
@@ -191,6 +209,7 @@ def write_ocp(
             result.robust,
             result.robust_uncertainty,
             gains=result.robust_gains,
+            loops=result.robust_loops,
             k_sigma=config.k_sigma,
             dt=dt,
         ),

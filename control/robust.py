@@ -136,6 +136,10 @@ class RobustResult:
     nominal_gains: np.ndarray
     """LQR gains (N-1, 2) along the nominal plan (control/lqr.py), whatever config.feedback."""
     robust_gains: np.ndarray
+    nominal_loops: dict[str, np.ndarray]
+    """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
+    whatever the tightening was sized for (the replay's rows compare against these)."""
+    robust_loops: dict[str, np.ndarray]
 
 
 def slider_uncertainty(
@@ -293,6 +297,9 @@ def solve_robust(
             draft = False  # confirm with a full solve
             continue
         if settled:
+            wall_time = time.perf_counter() - started
+            gains = {"nominal": gains_of(nominal), "robust": gains_of(solution)}
+
             return RobustResult(
                 nominal=nominal,
                 nominal_uncertainty=nominal_unc,
@@ -300,9 +307,11 @@ def solve_robust(
                 robust_uncertainty=unc,
                 iterations=tuple(iterations),
                 failed_proposals=tuple(failed),
-                wall_time=time.perf_counter() - started,
-                nominal_gains=gains_of(nominal),
-                robust_gains=gains_of(solution),
+                wall_time=wall_time,
+                nominal_gains=gains["nominal"],
+                robust_gains=gains["robust"],
+                nominal_loops=_loops(heads, nominal, config, gains["nominal"]),
+                robust_loops=_loops(heads, solution, config, gains["robust"]),
             )
         beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
         draft = True
@@ -311,6 +320,16 @@ def solve_robust(
         f"last margin {_mm(margin)}, its tightening {_mm(target)} (tolerance "
         f"{config.margin_tolerance * 1e3:g} mm)"
     )
+
+
+def _loops(
+    heads: FusedHeads, planned: Solution, config: OCPConfig, gains: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Monte-Carlo slider std (N,) of a plan open loop and closed under `gains`."""
+    return {
+        "open": slider_uncertainty(heads, planned, config).std,
+        "closed": slider_uncertainty(heads, planned, config, gains=gains).std,
+    }
 
 
 def _mm(values: np.ndarray) -> str:

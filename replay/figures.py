@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from control.figures import constraint_boxes
-from control.ocp_file import OCPFile
+from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import PROFILES, Campaign
 
 COLORS = {"nominal": "C0", "robust": "C3"}
@@ -30,13 +30,9 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             replay = campaign.replays[profile, mode]
             s = stats["profiles"][profile][mode]
             ax.plot(t, replay.slider_position.T, color=color, lw=0.4, alpha=0.35)
+            lower, upper = predicted_band(planned, mode, k)
             ax.fill_between(
-                t,
-                planned.slider_lower,
-                planned.slider_upper,
-                color="k",
-                alpha=0.12,
-                label=f"PPANN ±{k:g}σ",
+                t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({mode} loop)"
             )
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
             ax.plot(t, s["slider"]["lower"], "k--", lw=0.8, label=f"twin ±{k:g}σ")

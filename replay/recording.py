@@ -25,7 +25,7 @@ import rerun.blueprint as rrb
 
 from common.atomic import atomic_path
 from common.errors import CrankError
-from control.ocp_file import OCPFile
+from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import PROFILES, Campaign
 from twin.physics import CRANK_LENGTH, ROD_LENGTH
 
@@ -103,6 +103,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
                 columns=rr.Scalars.columns(scalars=values.T.ravel()).partition([runs] * n),
             )
         planned = getattr(ocp, profile)
+        band = dict(zip(("lower", "upper"), predicted_band(planned, mode, c.k_sigma), strict=True))
         for side in ("lower", "upper"):
             path = f"/slider/{profile}/{mode}/predicted_{side}"
             rec.log(
@@ -113,7 +114,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
             rec.send_columns(
                 path,
                 indexes=_timelines(n, dt),
-                columns=rr.Scalars.columns(scalars=getattr(planned, f"slider_{side}")),
+                columns=rr.Scalars.columns(scalars=band[side]),
             )
         path = f"/slider/{profile}/{mode}/constraint"
         rec.log(

@@ -82,6 +82,8 @@ def _profile(tau: np.ndarray, states: np.ndarray, sigma: float) -> dict:
         "slider_sigma": [sigma] * N,
         "slider_lower": (slider - 3 * sigma).tolist(),
         "slider_upper": (slider + 3 * sigma).tolist(),
+        "slider_sigma_open": [sigma] * N,
+        "slider_sigma_closed": [sigma / 10] * N,
         "heights": [0.08, 0.08],
         "gain_theta": (30 + 10 * np.sin(np.arange(N - 1) / 20)).tolist(),
         "gain_omega": (0.6 + 0.2 * np.cos(np.arange(N - 1) / 30)).tolist(),
@@ -216,6 +218,15 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
     )
     # feedback shrinks the machine-to-machine spread of the angle at the end by > 5x
     assert closed.theta[:, -1].std() < open_loop.theta[:, -1].std() / 5
+    # each row is compared with the PPANN's prediction of its own loop, never the other's
+    for replay, sigma in (
+        (open_loop, ocp.nominal.slider_sigma_open),
+        (closed, ocp.nominal.slider_sigma_closed),
+    ):
+        row = replay_statistics(replay, ocp)
+        for sample, entry in row["constraint"].items():
+            assert entry["predicted_k_sigma"] == 3 * sigma[int(sample) - 1]
+    assert not np.array_equal(ocp.nominal.slider_sigma_open, ocp.nominal.slider_sigma_closed)
 
 
 @pytest.mark.parametrize("mode", ["open", "closed"])
