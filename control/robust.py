@@ -16,8 +16,8 @@ plain fixed-point iteration; once a margin with F < 0 is known, every step is re
 stroke) halves a damping beta of the step and retries from the last solved margin; beta doubles
 back towards 1 after each solve. Each proposal is capped at 95 % of the stroke left above the
 height. The loop stops when k sigma of the latest solution is within `margin_tolerance` of the
-margin it was solved with, at
-every sample, so that slider - k sigma >= height - margin_tolerance holds there. Each solve is
+margin it was solved with (or, where the map jumps, at most the margin: control/fixed_point.py),
+at every sample, so that slider - k sigma >= height - margin_tolerance holds there. Each solve is
 warm-started from the previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is
 deterministic.
 
@@ -231,12 +231,13 @@ def solve_robust(
     target = nominal_unc.tightening
     current = nominal
     bracket = Bracket(margin, target - margin)
+    tolerance = config.margin_tolerance
     beta = 1.0
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
     draft = True
     while len(iterations) < config.max_robust_iterations:
-        step = bracket.propose(margin, target - margin) - margin
+        step = bracket.propose(margin, target - margin, tolerance=tolerance) - margin
         proposal = np.minimum(margin + beta * step, cap)
         try:
             solution = ocp.solve(base + proposal, warm=current, draft=draft)
@@ -292,7 +293,9 @@ def solve_robust(
         residual = new_target - proposal
         bracket.update(proposal, residual)
         margin, target, current = proposal, new_target, solution
-        settled = np.max(np.abs(residual)) < config.margin_tolerance
+        # within the tolerance, or on the safe side of a jump (control/fixed_point.py)
+        jump = bracket.jumps(tolerance) & (residual <= 0)
+        settled = bool(np.all((np.abs(residual) < tolerance) | jump))
         if settled and draft:
             draft = False  # confirm with a full solve
             continue

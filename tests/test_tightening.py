@@ -240,3 +240,29 @@ def test_bracket_drops_an_end_the_new_point_contradicts() -> None:
     bracket.update(np.array([0.012]), np.array([0.001]))  # F > 0 above hi = 0.01
     assert np.isnan(bracket.hi_m).all()
     assert bracket.propose(np.array([0.012]), np.array([0.001])) == pytest.approx([0.013])
+
+
+def test_bracket_takes_the_safe_side_of_a_jump() -> None:
+    """T(m) = 0.02 - 0.5 m, 2 mm lower from m = 12.5 mm on: the residual jumps from +1.25 mm to
+    -0.75 mm with no root. Once the bracket is narrower than the tolerance the high end is
+    proposed, and there T <= m (the constraint holds, with slack under 0.8 mm)."""
+    tolerance = 1e-4
+
+    def tightening_map(m: np.ndarray) -> np.ndarray:
+        return 0.02 - 0.5 * m - 0.002 * (m >= 0.0125)
+
+    margin = np.zeros(1)
+    target = tightening_map(margin)
+    bracket = Bracket(margin, target - margin)
+    steps = 0
+    while steps < 40:
+        steps += 1
+        margin = bracket.propose(margin, target - margin, tolerance=tolerance)
+        target = tightening_map(margin)
+        bracket.update(margin, target - margin)
+        residual = target - margin
+        if bracket.jumps(tolerance).all() and (residual <= 0).all():
+            break
+    assert steps < 20
+    assert margin[0] >= 0.0125 and margin[0] - 0.0125 < tolerance
+    assert 0 < -residual[0] < 0.0008
