@@ -197,22 +197,17 @@ def write_ocp(
         "config": config.as_dict(),
         "model": model,
         "variability": variability,
-        "nominal": profile_dict(
-            result.nominal,
-            result.nominal_uncertainty,
-            gains=result.nominal_gains,
-            loops=result.nominal_loops,
-            k_sigma=config.k_sigma,
-            dt=dt,
-        ),
-        "robust": profile_dict(
-            result.robust,
-            result.robust_uncertainty,
-            gains=result.robust_gains,
-            loops=result.robust_loops,
-            k_sigma=config.k_sigma,
-            dt=dt,
-        ),
+        **{
+            name: profile_dict(
+                getattr(result, name),
+                getattr(result, f"{name}_uncertainty"),
+                gains=getattr(result, f"{name}_gains"),
+                loops=getattr(result, f"{name}_loops"),
+                k_sigma=config.k_sigma,
+                dt=dt,
+            )
+            for name in ("nominal", "robust")
+        },
         "robust_iterations": [
             {
                 "margin": it.margin.tolist(),
