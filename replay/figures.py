@@ -38,7 +38,10 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             ax.plot(t, s["slider"]["lower"], "k--", lw=0.8, label=f"twin ±{k:g}σ")
             ax.plot(t, s["slider"]["upper"], "k--", lw=0.8)
             constraint_boxes(ax, ocp)
-            ax.set_ylim(-0.005, 0.105)
+            if mode == "closed":  # feedback keeps every run near the plan: show the constraint
+                ax.set_ylim(ocp.config.height - 0.005, 0.102)
+            else:
+                ax.set_ylim(-0.005, 0.105)
             shown = ", ".join(f"{v} at k={n}" for n, v in s["violations"].items())
             ax.set_title(f"{profile}, {mode} loop: {shown} of {s['runs']} below", fontsize=10)
             ax.set_ylabel("slider position [m]")
