@@ -1,7 +1,9 @@
 """The held-out check: both torques of an ocp.json, open or closed loop, on many machines drawn
 from streams no other stage uses (heldout_machines, heldout_noise), and the PPANN's calibration
 there. Closed loop, each machine runs under the profile's LQR gains (replay/campaign.py), and the
-PPANN's prediction is its closed-loop Monte-Carlo under the same law and saturation.
+PPANN's prediction is its closed-loop Monte-Carlo under the same law and saturation. Predicted
+slider positions include the model's transmission error (ppann/transmission.py), as the
+tightening does.
 
 100 campaign replays cannot tell 0.1 % from 2 % (P(0 of 100 | 2 %) = 13 %); this check plays each
 profile on `runs` (default 1000) machines and reports the violation rate with its exact
