@@ -203,7 +203,8 @@ def solve_robust(
     ocp: NominalOCP | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
 ) -> RobustResult:
-    """Nominal solve, its uncertainty, then the damped margin iteration of the module docstring.
+    """Nominal solve, its uncertainty, then the bracketed margin iteration of the module
+    docstring; the result carries both plans' LQR gains and their open- and closed-loop spread.
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -302,7 +303,6 @@ def solve_robust(
         if settled:
             wall_time = time.perf_counter() - started
             gains = {"nominal": gains_of(nominal), "robust": gains_of(solution)}
-
             return RobustResult(
                 nominal=nominal,
                 nominal_uncertainty=nominal_unc,
