@@ -40,7 +40,7 @@ from crank.console import (
 from crank.report import solve_summary, train_summary
 from ppann.pipeline import train_and_report
 from ppann.train import TrainConfig
-from replay.campaign import PROFILES, ReplayConfig
+from replay.campaign import PROFILES, ReplayConfig, ReplayConfigError
 from replay.campaign_log import recover
 from replay.files import ocp_variability, replay_file
 from replay.heldout import heldout_file
@@ -325,8 +325,9 @@ def heldout_command(
     """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
     with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
-    # validates runs, seed and mode before any file is read
-    ReplayConfig(runs=runs, seed=seed, modes=(mode,))
+    if mode not in ("open", "closed"):
+        raise ReplayConfigError(f"mode must be open or closed, got {mode!r}")
+    ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
         ocp,

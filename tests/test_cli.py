@@ -238,6 +238,7 @@ def _range_file(tmp_path: Path, text: str) -> str:
         (["heldout", "--runs", "0"], "runs must be an integer 1..100000, got 0"),
         (["heldout", "--out", "h.txt"], "must end in .json"),
         (["train", "--sigma-block", "0"], "sigma_block must be an integer"),
+        (["heldout", "--mode", "open,closed"], "mode must be open or closed, got 'open,closed'"),
     ],
 )
 def test_robustness_commands_bad_input(tmp_path: Path, command: list[str], match: str) -> None:
