@@ -115,6 +115,10 @@ class Profile:
     ipopt_iterations: int
     wall_time_s: float
 
+    def sigma_in(self, mode: str) -> np.ndarray:
+        """Monte-Carlo slider std of the plan played in `mode` (open or closed loop), (N,), m."""
+        return self.slider_sigma_closed if mode == "closed" else self.slider_sigma_open
+
 
 @dataclass(frozen=True)
 class OCPFile:
@@ -131,7 +135,7 @@ class OCPFile:
 
 def predicted_band(profile: Profile, mode: str, k_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each."""
-    sigma = profile.slider_sigma_closed if mode == "closed" else profile.slider_sigma_open
+    sigma = profile.sigma_in(mode)
     return profile.slider - k_sigma * sigma, profile.slider + k_sigma * sigma
 
 

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from common.jsonio import write_json
-from control.ocp_file import OCPFile, Profile
+from control.ocp_file import OCPFile
 from replay.campaign import PROFILES, Campaign, Replay
 
 FORMAT = "crank-replay-stats"
@@ -70,7 +70,7 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "lowest": float(at.min()),
             "mean": float(at.mean()),
             "observed_k_sigma": float(k * sigma[sample - 1]),
-            "predicted_k_sigma": float(k * _loop_sigma(planned, replay.mode)[sample - 1]),
+            "predicted_k_sigma": float(k * planned.sigma_in(replay.mode)[sample - 1]),
             "clearance": float(at.min() - c.height),
         }
     effort = np.sum(replay.tau**2, axis=1)
@@ -176,8 +176,3 @@ def format_table(rows: list[dict[str, str]], *, markdown: bool = False) -> str:
     lines = ["  ".join(k.ljust(widths[k]) for k in keys)]
     lines += ["  ".join(r[k].ljust(widths[k]) for k in keys) for r in rows]
     return "\n".join(lines)
-
-
-def _loop_sigma(planned: Profile, mode: str) -> np.ndarray:
-    """The PPANN's slider σ of the plan in the loop it was played in."""
-    return planned.slider_sigma_closed if mode == "closed" else planned.slider_sigma_open
