@@ -27,6 +27,12 @@ MAX_MC_SAMPLES = 200_000
 """Most Monte-Carlo trajectories (150 steps of 200 000 samples hold ~0.5 GB)."""
 
 
+def loop_of(feedback: str) -> str:
+    """The loop a robust claim is about for a `feedback` setting: "closed" when the tightening is
+    sized for the LQR closed loop, else "open" (the paper's experiment)."""
+    return "closed" if feedback == "lqr" else "open"
+
+
 def lower_tail(k_sigma: float) -> float:
     """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
     return 0.5 * math.erfc(k_sigma / math.sqrt(2))

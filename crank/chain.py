@@ -25,7 +25,7 @@ from common.atomic import OutputError, check_writable, writes
 from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
-from control.config import OCPConfig
+from control.config import OCPConfig, loop_of
 from control.robust import Iteration
 from control.solve import solve_file
 from crank.report import solve_summary, write_markdown
@@ -103,9 +103,8 @@ class RunConfig:
 
     @property
     def loop(self) -> str:
-        """The loop the robust claim is about: closed when the tightening is sized for the LQR
-        closed loop (ocp.feedback "lqr"), else open (the paper's experiment)."""
-        return "closed" if self.ocp.feedback == "lqr" else "open"
+        """The loop the robust claim is about (control.config.loop_of)."""
+        return loop_of(self.ocp.feedback)
 
     def with_seed(self, seed: int) -> RunConfig:
         """The same run under another root seed (the seed study); the replay seed follows."""

@@ -29,6 +29,7 @@ from common.atomic import atomic_path, writes
 from common.errors import ConfigError, CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
+from control.config import loop_of
 from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
 
@@ -64,7 +65,7 @@ def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
     heldout = report["heldout"]
     mode = ocp["config"]["mc_mode"]
     k = ocp["config"]["k_sigma"]
-    loop = "closed" if ocp["config"]["feedback"] == "lqr" else "open"
+    loop = loop_of(ocp["config"]["feedback"])
     played = {p: stats["profiles"][p][loop] for p in ("nominal", "robust")}
     row: dict[str, Any] = {
         "seed": seed,
@@ -193,7 +194,7 @@ def markdown(study: dict[str, Any]) -> str:
         f"{study['config']['heldout_seed']}."
     )
     lines.append("")
-    loop = "closed" if study["config"]["ocp"]["feedback"] == "lqr" else "open"
+    loop = loop_of(study["config"]["ocp"]["feedback"])
     if ok and "robust_heldout_rate" in ok[0]:
         worst = max(r["robust_heldout_rate"] for r in ok)
         holds = all(r["robust_heldout_rate"] <= study["target_heldout_rate"] for r in ok)
