@@ -51,7 +51,7 @@ import numpy as np
 
 from common.errors import CrankError
 from common.streams import rng, stream
-from control.config import OCPConfig
+from control.config import OCPConfig, loop_of
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, OCPError, Solution, slider_position
@@ -226,7 +226,8 @@ def solve_robust(
         return gains_of(solution) if config.feedback == "lqr" else None
 
     nominal = ocp.solve()
-    nominal_unc = slider_uncertainty(heads, nominal, config, gains=tube(nominal))
+    nominal_gains = tube(nominal)
+    nominal_unc = slider_uncertainty(heads, nominal, config, gains=nominal_gains)
     started = time.perf_counter()
     margin = np.zeros(len(index))
     target = nominal_unc.tightening
@@ -251,9 +252,8 @@ def solve_robust(
                     f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
                 ) from None
             continue
-        unc = slider_uncertainty(
-            heads, solution, config, constraints_only=draft, gains=tube(solution)
-        )
+        gains = tube(solution)
+        unc = slider_uncertainty(heads, solution, config, constraints_only=draft, gains=gains)
         new_target = unc.tightening
         iterations.append(
             Iteration(
@@ -302,7 +302,9 @@ def solve_robust(
             continue
         if settled:
             wall_time = time.perf_counter() - started
-            gains = {"nominal": gains_of(nominal), "robust": gains_of(solution)}
+            # the tube's gains and the sized-for loop's spread are known; only the rest is new
+            nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+            robust_gains = gains_of(solution) if gains is None else gains
             return RobustResult(
                 nominal=nominal,
                 nominal_uncertainty=nominal_unc,
@@ -311,10 +313,10 @@ def solve_robust(
                 iterations=tuple(iterations),
                 failed_proposals=tuple(failed),
                 wall_time=wall_time,
-                nominal_gains=gains["nominal"],
-                robust_gains=gains["robust"],
-                nominal_loops=_loops(heads, nominal, config, gains["nominal"]),
-                robust_loops=_loops(heads, solution, config, gains["robust"]),
+                nominal_gains=nominal_gains,
+                robust_gains=robust_gains,
+                nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
+                robust_loops=_loops(heads, solution, config, robust_gains, unc),
             )
         beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
         draft = True
@@ -326,13 +328,19 @@ def solve_robust(
 
 
 def _loops(
-    heads: FusedHeads, planned: Solution, config: OCPConfig, gains: np.ndarray
+    heads: FusedHeads,
+    planned: Solution,
+    config: OCPConfig,
+    gains: np.ndarray,
+    known: Uncertainty,
 ) -> dict[str, np.ndarray]:
-    """Monte-Carlo slider std (N,) of a plan open loop and closed under `gains`."""
-    return {
-        "open": slider_uncertainty(heads, planned, config).std,
-        "closed": slider_uncertainty(heads, planned, config, gains=gains).std,
-    }
+    """Monte-Carlo slider std (N,) of a plan open loop and closed under `gains`; `known` is the
+    plan's full-horizon uncertainty in the loop config.feedback sized the tightening for (the
+    Monte-Carlo uses the same draws, so it is that loop's std bit for bit)."""
+    sized = loop_of(config.feedback)
+    other = "open" if sized == "closed" else "closed"
+    unc = slider_uncertainty(heads, planned, config, gains=gains if other == "closed" else None)
+    return {sized: known.std, other: unc.std}
 
 
 def _mm(values: np.ndarray) -> str:
