@@ -136,6 +136,9 @@ def heldout_check(
             for mc_mode in MODES
         }
         mc_s += time.perf_counter() - t0
+        # the crank's angle to the motor (ppann/transmission.py): one draw per trajectory, the
+        # same for every mode and constraint sample
+        delta = draw(heads.transmission, (mc_samples,), streams.rng(c.mc_seed, "transmission"))
         below = np.zeros(runs, dtype=bool)
         samples: dict[str, Any] = {}
         for k in c.constraint_samples:
@@ -155,11 +158,6 @@ def heldout_check(
                 "predicted": {},
             }
             for mc_mode, bands in predicted.items():
-                delta = draw(
-                    heads.transmission,
-                    (bands.samples.shape[0],),
-                    streams.rng(c.mc_seed, "transmission"),
-                )
                 with np.errstate(over="ignore", invalid="ignore"):
                     slider = slider_position(bands.samples[:, k - 1, 0] + delta)
                     sigma = float(np.std(slider, ddof=1))
