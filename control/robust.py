@@ -176,8 +176,10 @@ def slider_uncertainty(
         machine_sigma=spread,
         feedback=feedback,
     )
-    # The crank's angle to the motor (ppann/transmission.py): zero if the model has none.
-    delta = draw(heads.transmission, bands.samples.shape[:2], rng(config.mc_seed, "transmission"))
+    # The crank's angle to the motor (ppann/transmission.py): zero if the model has none. Drawn
+    # time-major so that a shorter run's draws are a prefix of a longer one's (the drafts).
+    n, length = bands.samples.shape[:2]
+    delta = draw(heads.transmission, (length, n), rng(config.mc_seed, "transmission")).T
     with np.errstate(over="ignore", invalid="ignore"):
         slider = slider_position(bands.samples[:, :, 0] + delta)
     plan = solution.slider
