@@ -1,15 +1,24 @@
 """The campaign as a Rerun recording (`.rrd`), with a default blueprint.
 
-Timelines: `sample` (the OCP's 1-based k) and `time` (t_k = (k − 1) Ts). Entities:
+Timelines: `sample` (the OCP's 1-based k) and `time` (t_k = (k − 1) Ts). Entities, with
+<loop> = <profile>/<mode> for every profile and mode the campaign played:
 
-  /mechanism/<profile>           crank and rod (line strip), slider (box) of run 0 in the first
-                                 mode, animated; `/mechanism/constraint` marks the height
-  /slider/<profile>/<mode>/runs  measured slider position of every run (one series per run), m
-  /slider/<profile>/<mode>/predicted_lower, predicted_upper   the PPANN's mean ∓ kσ
-  /slider/<profile>/<mode>/constraint   the height at the constraint samples
-  /torque/<profile>/<mode>/runs  torque applied in every run, N·m; /torque/<profile>/planned
-  /fig12/<profile>_<mode>        paper Fig. 12 as a 2D plot: all runs and the constraint boxes
-                                 (x: t in ms, y: −slider in mm, since 2D views point y down)
+  /mechanism/<loop>              crank and rod (line strip) and slider (box) of run 0, animated
+  /mechanism/constraint          the height, across all mechanisms
+  /slider/<loop>/runs            measured slider position of every run (one series per run), m
+  /slider/<loop>/band            the PPANN's mean ∓ kσ in that loop, shaded (BAND_LINES series
+                                 spread evenly between the bounds: Rerun 0.41 plots no filled
+                                 area), clipped to the stroke [0, 2 l1]
+  /slider/<loop>/planned         the plan's slider position
+  /slider/<loop>/constraint      the height at the constraint samples (markers)
+  /torque/<loop>/runs            torque applied in every run, N·m; /torque/<profile>/planned
+
+Reference items (band, plan, height) are light on the viewer's dark theme; runs take their
+profile's colour. The blueprint has two tabs: "replay" (the mechanisms from the front, one slider
+plot per profile and loop, the torques) and "Fig. 12" (the paper's zoom on each constraint
+sample, one plot per profile, loop and sample, with axes). Legends are hidden: with one series
+per run they would cover the data; the view titles say what is drawn. Playback starts on open,
+at PLAYBACK_SPEED, looping.
 
 Bulk data goes through `send_columns`; the file is written beside its target and renamed.
 """
@@ -26,13 +35,25 @@ import rerun.blueprint as rrb
 from common.atomic import atomic_path
 from common.errors import CrankError
 from control.ocp_file import OCPFile, predicted_band
-from replay.campaign import PROFILES, Campaign
+from replay.campaign import Campaign
 from twin.physics import CRANK_LENGTH, ROD_LENGTH
 
 APPLICATION_ID = "crank_replay"
 COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40)}
-OFFSET = {"nominal": -0.12, "robust": 0.12}
-"""x position of each profile's mechanism in the 3D view, m."""
+REFERENCE = (235, 235, 235)
+"""The plan and the band: light grey on the dark theme."""
+HEIGHT = (255, 200, 0)
+"""The constraint: amber."""
+BAND_LINES = 21
+SPACING = 0.12
+"""x distance between two mechanisms in the 3D view, m."""
+PLAYBACK_SPEED = 0.1
+"""A 0.3 s manoeuvre then takes 3 s to watch."""
+ZOOM_SAMPLES = 12
+"""Fig. 12 tab: samples shown either side of a constraint sample."""
+ZOOM_BELOW = 5e-3
+"""Fig. 12 tab: the y-axis starts this far below the height, m."""
+STROKE_TOP = 2 * CRANK_LENGTH
 
 
 def _timelines(n: int, dt: float, *, at: np.ndarray | None = None) -> list[rr.TimeColumn]:
@@ -40,46 +61,90 @@ def _timelines(n: int, dt: float, *, at: np.ndarray | None = None) -> list[rr.Ti
     return [rr.TimeColumn("sample", sequence=k + 1), rr.TimeColumn("time", duration=k * dt)]
 
 
+def _loop(profile: str, mode: str) -> str:
+    return f"{profile}/{mode}"
+
+
+def _label(profile: str, mode: str) -> str:
+    return f"{profile}, {mode} loop"
+
+
 def _mechanism(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
-    mode = campaign.config.modes[0]
     n, dt = ocp.horizon, ocp.dt
-    for profile in PROFILES:
+    loops = list(campaign.replays)
+    for i, (profile, mode) in enumerate(loops):
         replay = campaign.replays[profile, mode]
-        x0 = OFFSET[profile]
+        x0 = SPACING * (i - (len(loops) - 1) / 2)
         angle = replay.crank_angle[0]
         pin = np.stack([x0 + CRANK_LENGTH * np.sin(angle), 0 * angle, CRANK_LENGTH * np.cos(angle)])
         slider_z = replay.slider_position[0] + ROD_LENGTH - CRANK_LENGTH
         tip = np.stack([np.full(n, x0), 0 * angle, slider_z])
         axis = np.tile([[x0], [0.0], [0.0]], (1, n))
         strips = np.stack([axis.T, pin.T, tip.T], axis=1)  # (n, 3 points, xyz)
+        path = f"/mechanism/{_loop(profile, mode)}"
+        rec.log(f"{path}/linkage", rr.LineStrips3D.from_fields(colors=[REFERENCE]), static=True)
         rec.send_columns(
-            f"/mechanism/{profile}/linkage",
+            f"{path}/linkage",
             indexes=_timelines(n, dt),
             columns=rr.LineStrips3D.columns(strips=list(strips)).partition([1] * n),
         )
+        rec.log(
+            f"{path}/slider",
+            rr.Boxes3D.from_fields(colors=[COLORS[profile]], fill_mode="solid"),
+            static=True,
+        )
         rec.send_columns(
-            f"/mechanism/{profile}/slider",
+            f"{path}/slider",
             indexes=_timelines(n, dt),
             columns=rr.Boxes3D.columns(
                 centers=tip.T, half_sizes=np.tile([0.025, 0.02, 0.012], (n, 1))
             ),
         )
         rec.log(
-            f"/mechanism/{profile}",
+            f"{path}/guide",
             rr.Boxes3D(
                 centers=[[x0, 0, ROD_LENGTH - CRANK_LENGTH + 0.05]],
                 half_sizes=[[0.03, 0.001, 0.075]],
-                colors=[(*COLORS[profile], 40)],
-                labels=[f"{profile}, run 0, {mode} loop"],
+                colors=[(*COLORS[profile], 60)],
             ),
             static=True,
         )
     z = ocp.config.height + ROD_LENGTH - CRANK_LENGTH
+    half = SPACING * len(loops) / 2
     rec.log(
         "/mechanism/constraint",
-        rr.LineStrips3D([[[-0.2, 0, z], [0.2, 0, z]]], colors=[(0, 0, 0)], labels=["height"]),
+        rr.LineStrips3D(
+            [[[-half, 0, z], [half, 0, z]]], colors=[HEIGHT], radii=[0.001], labels=["height"]
+        ),
         static=True,
     )
+
+
+def _lines(
+    rec: rr.RecordingStream,
+    path: str,
+    values: np.ndarray,
+    *,
+    n: int,
+    dt: float,
+    colors: list[tuple[int, ...]],
+    widths: list[float],
+    names: list[str],
+) -> None:
+    """Series (one per row of `values`, (series, n)) under one entity."""
+    rec.log(path, rr.SeriesLines(colors=colors, widths=widths, names=names), static=True)
+    rec.send_columns(
+        path,
+        indexes=_timelines(n, dt),
+        columns=rr.Scalars.columns(scalars=values.T.ravel()).partition([len(values)] * n),
+    )
+
+
+def band_lines(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """The band between two bounds (N,) as BAND_LINES series (BAND_LINES, N) spread evenly from
+    the lower to the upper one, both clipped to the stroke [0, 2 l1]."""
+    lower, upper = np.clip(lower, 0.0, STROKE_TOP), np.clip(upper, 0.0, STROKE_TOP)
+    return lower + np.linspace(0.0, 1.0, BAND_LINES)[:, None] * (upper - lower)
 
 
 def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
@@ -87,41 +152,39 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
     c = ocp.config
     at = np.array(c.constraint_samples) - 1
     for (profile, mode), replay in campaign.replays.items():
-        runs = replay.runs
-        color = COLORS[profile]
-        names = [f"run {i:03d}" for i in range(runs)]
-        for quantity, values in (("slider", replay.slider_position), ("torque", replay.tau)):
-            path = f"/{quantity}/{profile}/{mode}/runs"
-            rec.log(
-                path,
-                rr.SeriesLines(colors=[(*color, 90)] * runs, widths=[1.0] * runs, names=names),
-                static=True,
-            )
-            rec.send_columns(
-                path,
-                indexes=_timelines(n, dt),
-                columns=rr.Scalars.columns(scalars=values.T.ravel()).partition([runs] * n),
-            )
+        runs, loop = replay.runs, _loop(profile, mode)
+        run_style = {
+            "colors": [(*COLORS[profile], 110)] * runs,
+            "widths": [1.0] * runs,
+            "names": [f"run {i:03d}" for i in range(runs)],
+        }
+        _lines(rec, f"/slider/{loop}/runs", replay.slider_position, n=n, dt=dt, **run_style)
+        _lines(rec, f"/torque/{loop}/runs", replay.tau, n=n, dt=dt, **run_style)
         planned = getattr(ocp, profile)
-        band = dict(zip(("lower", "upper"), predicted_band(planned, mode, c.k_sigma), strict=True))
-        for side in ("lower", "upper"):
-            path = f"/slider/{profile}/{mode}/predicted_{side}"
-            rec.log(
-                path,
-                rr.SeriesLines(colors=[(0, 0, 0)], widths=[2.0], names=[f"PPANN {side}"]),
-                static=True,
-            )
-            rec.send_columns(
-                path,
-                indexes=_timelines(n, dt),
-                columns=rr.Scalars.columns(scalars=band[side]),
-            )
-        path = f"/slider/{profile}/{mode}/constraint"
+        _lines(
+            rec,
+            f"/slider/{loop}/band",
+            band_lines(*predicted_band(planned, mode, c.k_sigma)),
+            n=n,
+            dt=dt,
+            colors=[(*REFERENCE, 45)] * BAND_LINES,
+            widths=[3.0] * BAND_LINES,
+            names=[f"PPANN ∓{c.k_sigma:g}σ"] * BAND_LINES,
+        )
+        _lines(
+            rec,
+            f"/slider/{loop}/planned",
+            planned.slider[None],
+            n=n,
+            dt=dt,
+            colors=[REFERENCE],
+            widths=[2.0],
+            names=["plan"],
+        )
+        path = f"/slider/{loop}/constraint"
         rec.log(
             path,
-            rr.SeriesPoints(
-                colors=[(0, 0, 0)], markers=["down"], marker_sizes=[8], names=["height"]
-            ),
+            rr.SeriesPoints(colors=[HEIGHT], markers=["down"], marker_sizes=[8], names=["height"]),
             static=True,
         )
         rec.send_columns(
@@ -129,66 +192,83 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
             indexes=_timelines(n, dt, at=at),
             columns=rr.Scalars.columns(scalars=np.full(len(at), c.height)),
         )
-    for profile in PROFILES:
-        path = f"/torque/{profile}/planned"
-        rec.log(
-            path, rr.SeriesLines(colors=[(0, 0, 0)], widths=[2.0], names=["planned"]), static=True
-        )
-        rec.send_columns(
-            path,
-            indexes=_timelines(n, dt),
-            columns=rr.Scalars.columns(scalars=getattr(ocp, profile).tau),
+    for profile in dict.fromkeys(p for p, _ in campaign.replays):
+        tau = getattr(ocp, profile).tau[None]
+        _lines(
+            rec,
+            f"/torque/{profile}/planned",
+            tau,
+            n=n,
+            dt=dt,
+            colors=[REFERENCE],
+            widths=[2.0],
+            names=["planned"],
         )
 
 
-def _figure12(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
+def blueprint(campaign: Campaign, ocp: OCPFile) -> rrb.Blueprint:
+    """The "replay" and "Fig. 12" tabs of the module docstring."""
     c = ocp.config
-    t_ms = 1e3 * np.arange(ocp.horizon) * ocp.dt
-    for (profile, mode), replay in campaign.replays.items():
-        strips = [np.stack([t_ms, -1e3 * s], axis=1) for s in replay.slider_position]
-        rec.log(
-            f"/fig12/{profile}_{mode}/runs",
-            rr.LineStrips2D(strips, colors=[(*COLORS[profile], 120)], radii=[0.15]),
-            static=True,
-        )
-        mins = [[1e3 * (k - 1) * ocp.dt - 1.0, -1e3 * c.height] for k in c.constraint_samples]
-        sizes = [[2.0, 1e3 * c.height + 5.0]] * len(mins)
-        rec.log(
-            f"/fig12/{profile}_{mode}/constraint",
-            rr.Boxes2D(
-                mins=mins, sizes=sizes, colors=[(0, 0, 0)], labels=["slider < height"] * len(mins)
-            ),
-            static=True,
-        )
-
-
-def blueprint(campaign: Campaign) -> rrb.Blueprint:
-    """Mechanism beside slider and torque plots; a tab with Fig. 12."""
+    loops = list(campaign.replays)
+    profiles = list(dict.fromkeys(p for p, _ in loops))
+    hidden = rrb.PlotLegend(visible=False)
     slider_views = [
         rrb.TimeSeriesView(
-            origin=f"/slider/{profile}",
-            name=f"slider position, {profile} [m]",
-            axis_y=rrb.ScalarAxis(range=(0.0, 0.105)),
+            origin=f"/slider/{_loop(p, m)}",
+            name=f"slider [m], {_label(p, m)}: runs, plan ∓{c.k_sigma:g}σ, height",
+            axis_y=rrb.ScalarAxis(range=(0.0, STROKE_TOP + 0.005)),
+            plot_legend=hidden,
         )
-        for profile in PROFILES
+        for p, m in loops
     ]
+    torque_views = [
+        rrb.TimeSeriesView(
+            origin="/torque",
+            contents=f"/torque/{p}/**",
+            name=f"torque [N·m], {p}: plan, applied per run",
+            plot_legend=hidden,
+        )
+        for p in profiles
+    ]
+    zoom = []
+    for p, m in loops:
+        for k in c.constraint_samples:
+            # the time timeline (the one the time panel shows), in seconds
+            first, last = max(1, k - ZOOM_SAMPLES), min(ocp.horizon, k + ZOOM_SAMPLES)
+            window = rr.encodings.TimeRange(
+                start=rrb.TimeRangeBoundary.absolute(seconds=(first - 1) * ocp.dt),
+                end=rrb.TimeRangeBoundary.absolute(seconds=(last - 1) * ocp.dt),
+            )
+            zoom.append(
+                rrb.TimeSeriesView(
+                    origin=f"/slider/{_loop(p, m)}",
+                    name=f"{_label(p, m)}, sample {k} [m]",
+                    axis_x=rrb.TimeAxis(view_range=window),
+                    axis_y=rrb.ScalarAxis(range=(c.height - ZOOM_BELOW, STROKE_TOP + 0.002)),
+                    plot_legend=hidden,
+                )
+            )
+    middle = ROD_LENGTH - CRANK_LENGTH / 2
     return rrb.Blueprint(
         rrb.Tabs(
             rrb.Horizontal(
-                rrb.Spatial3DView(origin="/mechanism", name="mechanism (run 0)"),
-                rrb.Vertical(
-                    *slider_views,
-                    rrb.TimeSeriesView(origin="/torque", name="torque [N·m]"),
+                rrb.Spatial3DView(
+                    origin="/mechanism",
+                    name="run 0, left to right: " + ", ".join(f"{p} {m}" for p, m in loops),
+                    eye_controls=rrb.EyeControls3D(
+                        position=(0.0, -1.4, middle),
+                        look_target=(0.0, 0.0, middle),
+                        eye_up=(0.0, 0.0, 1.0),
+                    ),
                 ),
+                rrb.Grid(*slider_views, *torque_views, grid_columns=2),
+                column_shares=[2, 3],
                 name="replay",
             ),
-            rrb.Grid(
-                *(
-                    rrb.Spatial2DView(origin=f"/fig12/{p}_{m}", name=f"Fig. 12: {p}, {m} loop")
-                    for p, m in campaign.replays
-                ),
-                name="Fig. 12",
-            ),
+            rrb.Grid(*zoom, grid_columns=len(c.constraint_samples), name="Fig. 12"),
+        ),
+        rrb.TimePanel(
+            timeline="time", playback_speed=PLAYBACK_SPEED, loop_mode="all", play_state="playing"
         ),
         collapse_panels=False,
     )
@@ -200,10 +280,9 @@ def write_recording(
     """Write the campaign's `.rrd` atomically."""
     with atomic_path(path) as tmp:
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
-        rec.save(tmp, default_blueprint=blueprint(campaign))
+        rec.save(tmp, default_blueprint=blueprint(campaign, ocp))
         _mechanism(rec, campaign, ocp)
         _series(rec, campaign, ocp)
-        _figure12(rec, campaign, ocp)
         rec.flush()
         rec.disconnect()
 

@@ -34,7 +34,7 @@ from replay.campaign import (
 from replay.campaign_log import partial_path
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_check
-from replay.recording import check_recording
+from replay.recording import BAND_LINES, STROKE_TOP, band_lines, check_recording
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import crank
 from twin.mcap_dataset import ContractError, read_dataset, read_run, read_truth
@@ -346,19 +346,33 @@ def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> N
     summary = reader.store().summary()
     lines = {line.split()[0]: line for line in summary.splitlines()}
     for entity in (
-        "/mechanism/nominal/linkage",
-        "/mechanism/robust/slider",
+        "/mechanism/nominal/open/linkage",
+        "/mechanism/robust/closed/slider",
         "/slider/nominal/open/runs",
-        "/slider/robust/closed/predicted_upper",
+        "/slider/robust/closed/band",
+        "/slider/robust/open/planned",
         "/torque/robust/closed/runs",
+        "/torque/nominal/planned",
     ):
         assert f"rows={N}" in lines[entity], lines.get(entity)
         assert "timelines=['sample', 'time']" in lines[entity] or "'sample'" in lines[entity]
-    assert "/fig12/robust_open/constraint" in lines
     assert (
         "/slider/nominal/open/constraint" in lines
         and "rows=2" in lines["/slider/nominal/open/constraint"]
     )
+
+
+def test_rerun_band_is_shaded_between_the_bounds_and_inside_the_stroke() -> None:
+    """The band series run from the lower to the upper bound, evenly spaced, and a bound past
+    the stroke (a predicted 3σ above top dead centre) is drawn at the stroke's end."""
+    lower = np.array([0.01, -0.004, 0.09])
+    upper = np.array([0.03, 0.002, 0.112])
+    lines = band_lines(lower, upper)
+    assert lines.shape == (BAND_LINES, 3)
+    assert np.array_equal(lines[0], [0.01, 0.0, 0.09])
+    assert np.allclose(lines[-1], [0.03, 0.002, STROKE_TOP], rtol=0, atol=1e-15)
+    assert np.allclose(np.diff(lines, axis=0), (lines[-1] - lines[0]) / (BAND_LINES - 1))
+    assert lines.min() >= 0.0 and lines.max() <= STROKE_TOP
 
 
 KILLER = textwrap.dedent(
