@@ -90,7 +90,7 @@ def _config(
     )
 
 
-@app.command("generate")
+@app.command("generate", short_help="Simulate the twin; write a 500 Hz dataset MCAP.")
 @one_line_errors
 def generate_command(
     seconds: Seconds = 90.0,
@@ -116,7 +116,7 @@ def generate_command(
     print_summary(f"wrote {out}", summary)
 
 
-@app.command("inspect")
+@app.command("inspect", short_help="Check a dataset MCAP against the contract; print its summary.")
 @one_line_errors
 def inspect_command(
     path: Annotated[Path, typer.Argument(help="A dataset MCAP.")],
@@ -131,12 +131,16 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
     """`train_and_report` with progress bars."""
     bars = EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
     try:
-        return train_and_report(data, out, config=config, on_epoch=bars)
+        return train_and_report(
+            data, out, config=config, on_epoch=bars, on_stage=lambda _: bars.close()
+        )
     finally:
         bars.close()
 
 
-@app.command("train")
+@app.command(
+    "train", short_help="Train the PPANN and both baselines; write checkpoints and report."
+)
 @one_line_errors
 def train_command(
     data: Annotated[Path, typer.Option(help="Dataset MCAP.")] = Path("logs/dataset.mcap"),
@@ -172,7 +176,7 @@ def _samples(text: str) -> tuple[int, ...]:
         ) from None
 
 
-@app.command("solve")
+@app.command("solve", short_help="Nominal (eqs. 10, 15) and robust (eq. 16) OCP; write ocp.json.")
 @one_line_errors
 def solve_command(
     model: Annotated[Path, typer.Option(help="PPANN checkpoint.")] = Path("logs/model.pt"),
@@ -245,7 +249,7 @@ def replay_campaign(
         )
 
 
-@app.command("replay")
+@app.command("replay", short_help="Play both torques on fresh twins; write MCAP, stats, Rerun.")
 @one_line_errors
 def replay_command(
     ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
@@ -303,7 +307,7 @@ def replay_command(
     print_replay(stats, out)
 
 
-@app.command("heldout")
+@app.command("heldout", short_help="Check both torques of an ocp.json on held-out machines.")
 @one_line_errors
 def heldout_command(
     ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
@@ -343,7 +347,7 @@ def heldout_command(
     typer.echo(f"wrote {out}")
 
 
-@app.command("recover")
+@app.command("recover", short_help="Rebuild a readable MCAP from a crashed campaign's file.")
 @one_line_errors
 def recover_command(
     broken: Annotated[Path, typer.Argument(help="MCAP left by a crashed campaign (.partial).")],
@@ -364,7 +368,7 @@ def _has_display() -> bool:
     )
 
 
-@app.command("view")
+@app.command("view", short_help="Open a recording in the Rerun viewer.")
 @one_line_errors
 def view_command(
     path: Annotated[Path, typer.Argument(help="A campaign's .rrd (or an .mcap log).")],

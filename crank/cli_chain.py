@@ -31,6 +31,7 @@ from crank.console import (
     print_replay,
     print_summary,
     show_iteration,
+    transcript,
 )
 from crank.report import train_summary
 from crank.study import parse_seeds, run_study
@@ -39,7 +40,7 @@ from twin.physics import MODEL_PATH
 from twin.variability import Variability
 
 
-@app.command("run")
+@app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
 @one_line_errors
 def run_command(
     seconds: Seconds = 90.0,
@@ -83,47 +84,54 @@ def run_command(
         raise ConfigError(f"--name must be a plain folder name inside --logs, got {name!r}")
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
     run_dir = logs / name
-    bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})
-    with (
-        Progress(config.generation.n_samples, "simulating") as sim,
-        Progress(config.generation.n_samples, "writing MCAP") as io,
-        Progress(config.replay.runs * 2 * len(config.replay.modes), "replaying", unit="run") as rp,
-    ):
-        done = 0
+    with transcript(run_dir / "run.log"):
+        bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})
+        with (
+            Progress(config.generation.n_samples, "simulating") as sim,
+            Progress(config.generation.n_samples, "writing MCAP") as io,
+            Progress(
+                config.replay.runs * 2 * len(config.replay.modes), "replaying", unit="run"
+            ) as rp,
+        ):
+            done = 0
 
-        def on_run(n: int) -> None:
-            nonlocal done
-            rp.update(n - done)
-            done = n
+            def on_run(n: int) -> None:
+                nonlocal done
+                rp.update(n - done)
+                done = n
 
-        hooks = Hooks(
-            on_stage=lambda text: typer.echo(f"{text} ...", err=True),
-            on_simulated=sim.update,
-            on_written=io.update,
-            on_epoch=bars,
-            on_iteration=show_iteration,
-            on_run=on_run,
+            def on_stage(text: str) -> None:
+                bars.close()  # the previous model's training, if any, has ended
+                typer.echo(f"{text} ...", err=True)
+
+            hooks = Hooks(
+                on_stage=on_stage,
+                on_simulated=sim.update,
+                on_written=io.update,
+                on_epoch=bars,
+                on_iteration=show_iteration,
+                on_run=on_run,
+            )
+            try:
+                report = run_chain(config, run_dir, hooks=hooks)
+            finally:
+                bars.close()
+        print_summary(f"run {run_dir}: dataset", report["dataset"])
+        print_summary("PPANN", train_summary(report["ppann"]))
+        print_summary("OCP", report["ocp"])
+        typer.echo("replay on the twin")
+        stats = json.loads((run_dir / report["replay"]["stats"]).read_text())
+        print_replay(stats, run_dir / "replay.mcap")
+        if report["heldout"] is not None:
+            print_heldout(report["heldout"])
+        typer.echo(
+            "wall time: "
+            + ", ".join(f"{k} {v:.0f} s" for k, v in report["wall_seconds"].items())
+            + f"; report: {run_dir / 'report.md'}"
         )
-        try:
-            report = run_chain(config, run_dir, hooks=hooks)
-        finally:
-            bars.close()
-    print_summary(f"run {run_dir}: dataset", report["dataset"])
-    print_summary("PPANN", train_summary(report["ppann"]))
-    print_summary("OCP", report["ocp"])
-    typer.echo("replay on the twin")
-    stats = json.loads((run_dir / report["replay"]["stats"]).read_text())
-    print_replay(stats, run_dir / "replay.mcap")
-    if report["heldout"] is not None:
-        print_heldout(report["heldout"])
-    typer.echo(
-        "wall time: "
-        + ", ".join(f"{k} {v:.0f} s" for k, v in report["wall_seconds"].items())
-        + f"; report: {run_dir / 'report.md'}"
-    )
 
 
-@app.command("study")
+@app.command("study", short_help="The chain once per seed, each checked on held-out machines.")
 @one_line_errors
 def study_command(
     seeds: Annotated[str, typer.Option(help="Seeds: a range like 0-9 or a list like 0,3,7.")] = (

@@ -4,8 +4,11 @@ and crank/cli_chain.py (`run`, `study`)."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Callable
+import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -26,6 +29,32 @@ app = typer.Typer(
 )
 
 
+VERSIONED = ("mujoco", "torch", "casadi", "numpy", "mcap", "rerun-sdk")
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        from twin import __version__
+
+        others = ", ".join(f"{name} {version(name)}" for name in VERSIONED)
+        typer.echo(f"crank {__version__} ({others})")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_show_version, is_eager=True, help="Print versions and exit."
+        ),
+    ] = False,
+) -> None:
+    """MuJoCo slider-crank twin and PPANN robust-control testbed."""
+
+
 def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn the project's input errors into `error: ...` on stderr and exit code 2."""
 
@@ -43,6 +72,97 @@ def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+class _Tee:
+    """A text stream that writes through to `stream` and keeps the text for a log, except
+    terminal-only frames (carriage returns, escape sequences: tqdm's bars)."""
+
+    def __init__(self, stream: Any, kept: list[str]) -> None:
+        self.stream, self.kept = stream, kept
+        self.encoding = getattr(stream, "encoding", "utf-8")
+        self.errors = getattr(stream, "errors", "strict")
+
+    def write(self, text: str) -> int:
+        self.stream.write(text)
+        if "\r" not in text and "\x1b" not in text:
+            self.kept.append(text)
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return self.stream.isatty()
+
+    def fileno(self) -> int:
+        return self.stream.fileno()
+
+
+@contextlib.contextmanager
+def transcript(path: Path) -> Iterator[None]:
+    """Everything the command prints on stdout and stderr (but progress frames), and its error
+    line if it fails, also goes to `path` once the command ends, if the command created path's
+    folder (a run folder, created by the chain; an existing folder is never written into)."""
+    created = not path.parent.exists()
+    kept: list[str] = []
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _Tee(out, kept), _Tee(err, kept)
+    try:
+        yield
+    except (CrankError, OSError) as exc:
+        kept.append(f"error: {exc}\n")
+        raise
+    except KeyboardInterrupt:
+        kept.append("error: interrupted\n")
+        raise
+    finally:
+        sys.stdout, sys.stderr = out, err
+        if created and path.parent.is_dir():
+            with contextlib.suppress(OSError):  # the log is a convenience, never the failure
+                path.write_text("".join(kept), encoding="utf-8")
+
+
+class LineBar:
+    """tqdm's update/set_postfix/close for a stderr that is not a terminal (a pipe, a log file):
+    a plain line at most every `interval` seconds and one when done, never carriage-return
+    frames; nothing at all for work done within `delay` seconds (as tqdm's delay)."""
+
+    def __init__(
+        self, *, total: int, desc: str, unit: str, delay: float = 0.0, interval: float = 10.0
+    ) -> None:
+        self.total, self.desc, self.unit, self.interval = total, desc, unit, interval
+        self.delay = delay
+        self.n, self.postfix, self.closed = 0, "", False
+        self.started = self.shown = time.monotonic()
+
+    def update(self, n: int) -> None:
+        self.n += n
+        now = time.monotonic()
+        if now - self.shown >= self.interval and self.n < self.total:
+            self.shown = now
+            self._line(f"{self.n}/{self.total} {self.unit}s")
+
+    def set_postfix(self, **values: str) -> None:
+        self.postfix = ", ".join(f"{k}={v}" for k, v in values.items())
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            if time.monotonic() - self.started < self.delay:
+                return
+            self._line(f"done, {self.n} {self.unit}s in {time.monotonic() - self.started:.1f} s")
+
+    def _line(self, text: str) -> None:
+        extra = f" ({self.postfix})" if self.postfix else ""
+        print(f"{self.desc}: {text}{extra}", file=sys.stderr, flush=True)
+
+
+def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any:
+    """A tqdm bar on a terminal, a LineBar otherwise."""
+    if not sys.stderr.isatty():
+        return LineBar(total=total, desc=desc, unit=unit, delay=delay)
+    return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, delay=delay, leave=False)
+
+
 class Progress:
     """A progress bar on stderr, created at its first update and shown only if the step takes
     more than 2 s, so short runs print nothing but their result."""
@@ -52,14 +172,7 @@ class Progress:
 
     def update(self, n: int) -> None:
         if self.bar is None:
-            self.bar = tqdm(
-                total=self.total,
-                desc=self.desc,
-                unit=self.unit,
-                unit_scale=True,
-                delay=2.0,
-                leave=False,
-            )
+            self.bar = progress_bar(total=self.total, desc=self.desc, unit=self.unit, delay=2.0)
         self.bar.update(n)
         if self.bar.n >= self.total:
             self.bar.close()  # done: give the line back to the next stage's bar
@@ -121,15 +234,15 @@ class EpochBars:
         if (kind, phase) != self.key:
             self.close()
             self.key = (kind, phase)
-            self.bar = tqdm(
-                total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch", leave=False
-            )
+            self.bar = progress_bar(total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch")
+        self.bar.set_postfix(loss=f"{loss:.4g}")  # first: a LineBar prints on update
         self.bar.update(1)
-        self.bar.set_postfix(loss=f"{loss:.4g}")
 
     def close(self) -> None:
+        """Close the current bar (a stage ends: training of one model, or all)."""
         if self.bar is not None:
             self.bar.close()
+        self.bar = self.key = None
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 from mcap.writer import Writer
 
+from crank.console import LineBar
 from tests.conftest import crank
 from twin.mcap_dataset import (
     MEASUREMENT_TOPIC,
@@ -53,8 +55,12 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     assert config["generation"]["variability"]["name"] == "paper"
     assert (run_dir / "dataset.mcap").is_file() and (run_dir / "model.pt").is_file()
     assert not (run_dir / "ocp.json").exists() and not (run_dir / "report.json").exists()
+    log = (run_dir / "run.log").read_text()  # what the terminal showed, without bar frames
+    assert log.splitlines()[0] == "generating the dataset ..." and "\r" not in log
+    assert log.splitlines()[-1] == result.stderr.strip().splitlines()[-1]
     again = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
     assert again.returncode == 2 and "already exists" in again.stderr
+    assert (run_dir / "run.log").read_text() == log  # another run's folder is never written
 
 
 def _mcap_with(path: Path, topics: list[str], message: dict) -> Path:
@@ -271,3 +277,37 @@ def test_bad_range_file_on_the_command_line(tmp_path: Path, text: str, match: st
     result = crank("generate", "--variability", _range_file(tmp_path, text), "--out", str(out))
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and match in result.stderr
     assert not out.parent.exists()
+
+
+def test_version_and_command_list() -> None:
+    version = crank("--version")
+    assert version.returncode == 0, version.stderr
+    assert re.fullmatch(r"crank \d+\.\d+\.\d+ \(mujoco .*, torch 2\.13\.0.*\)\n", version.stdout)
+    listed = crank("--help").stdout.split("Commands:")[1].strip().splitlines()
+    assert len(listed) >= 10
+    for line in listed:  # one short line each, never cut mid-sentence ("Nominal OCP (eqs.")
+        assert line.endswith(".") and not line.endswith("..."), line
+        assert len(line) <= 80
+
+
+def test_progress_off_a_terminal_prints_lines_not_frames(capsys: pytest.CaptureFixture) -> None:
+    bar = LineBar(total=3, desc="PPANN phase1", unit="epoch", interval=0.0)
+    for _ in range(3):
+        bar.set_postfix(loss="0.5")
+        bar.update(1)
+    bar.close()
+    bar.close()
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    assert err.splitlines() == [
+        "PPANN phase1: 1/3 epochs (loss=0.5)",
+        "PPANN phase1: 2/3 epochs (loss=0.5)",
+        err.splitlines()[-1],
+    ]
+    assert re.fullmatch(
+        r"PPANN phase1: done, 3 epochs in \d+\.\d s \(loss=0\.5\)", err.splitlines()[-1]
+    )
+    quick = LineBar(total=2, desc="replay", unit="run", delay=60.0)
+    quick.update(2)
+    quick.close()
+    assert capsys.readouterr().err == ""
