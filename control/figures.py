@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from control.ocp_file import OCPFile, Profile
+from twin.physics import STROKE_TOP
 
 
 def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None) -> None:
@@ -21,21 +23,32 @@ def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None)
 def _slider(ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str) -> None:
     k = ocp.config.k_sigma
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
-    ax.fill_between(
+    ax.fill_between(  # a slider cannot leave the stroke, however wide the predicted band
         profile.time,
-        profile.slider_lower,
-        profile.slider_upper,
+        np.clip(profile.slider_lower, 0.0, STROKE_TOP),
+        np.clip(profile.slider_upper, 0.0, STROKE_TOP),
         color=color,
         alpha=0.2,
-        label=f"{label}: ±{k:g}σ (Monte-Carlo, {ocp.config.mc_samples} runs)",
+        label=f"{label}: ±{k:g}σ (Monte-Carlo, {ocp.config.mc_samples} runs; within the stroke)",
     )
+
+
+def torque_limits(ax: Axes, ocp: OCPFile) -> None:
+    """The OCP's torque bounds ±limit as dashed lines."""
+    limit = ocp.config.torque_limit
+    for sign in (1, -1):
+        ax.axhline(
+            sign * limit, color="0.4", ls="--", lw=1, label="torque limit" if sign > 0 else None
+        )
 
 
 def nominal_figure(ocp: OCPFile) -> Figure:
     """Fig. 10: the nominal torque and its slider position with the ±kσ band."""
     fig = Figure(figsize=(9, 6), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
-    top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0")
+    top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0", label="nominal")
+    torque_limits(top, ocp)
+    top.legend(fontsize=8)
     top.set_ylabel("τ [N·m]")
     top.set_title(f"Nominal OCP on the mean PPANN (cost {ocp.nominal.cost:.4g})")
     _slider(bottom, ocp, ocp.nominal, "C0", "nominal")
@@ -53,6 +66,7 @@ def robust_figure(ocp: OCPFile) -> Figure:
     top, middle, bottom = fig.subplots(3, 1, height_ratios=(1, 1.3, 0.8))
     top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0", label="nominal")
     top.plot(ocp.robust.time, ocp.robust.tau, color="C3", label="robust")
+    torque_limits(top, ocp)
     top.set_ylabel("τ [N·m]")
     premium = ocp.robust.cost / ocp.nominal.cost - 1
     top.set_title(f"Robust OCP (eq. 16): cost {ocp.robust.cost:.4g}, {premium:+.1%} over nominal")

@@ -57,6 +57,7 @@ from control.config import OCPConfig
 from control.ocp import Solution
 from control.robust import RobustResult, Uncertainty
 from twin import __version__
+from twin.physics import STROKE_TOP
 
 FORMAT = "crank-ocp"
 VERSION = 4
@@ -134,9 +135,12 @@ class OCPFile:
 
 
 def predicted_band(profile: Profile, mode: str, k_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each."""
+    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
+    within the stroke [0, STROKE_TOP] (a slider cannot leave it, however wide the spread); for
+    drawing, not for statistics."""
     sigma = profile.sigma_in(mode)
-    return profile.slider - k_sigma * sigma, profile.slider + k_sigma * sigma
+    lower, upper = profile.slider - k_sigma * sigma, profile.slider + k_sigma * sigma
+    return np.clip(lower, 0.0, STROKE_TOP), np.clip(upper, 0.0, STROKE_TOP)
 
 
 def profile_dict(

@@ -59,11 +59,9 @@ from control.tightening import line_allowance, population_margin, tightening
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
-from twin.physics import CRANK_LENGTH
+from twin.physics import STROKE_TOP
 
 MIN_DAMPING = 1 / 256
-STROKE_TOP = 2 * CRANK_LENGTH
-"""Highest slider position (top dead centre), m."""
 STROKE_SHARE = 0.95
 """A margin asks for at most this share of the stroke left above the height: beyond the top
 dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so."""

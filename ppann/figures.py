@@ -23,7 +23,7 @@ def network_maps(model: PPANN) -> Figure:
         t, w = torch.from_numpy(tg.ravel()), torch.from_numpy(wg.ravel())
         mean = model.z_mean(t, w).numpy().reshape(*tg.shape, 3)
         sigma = model.z_sigma(t, w).numpy().reshape(*tg.shape, 3)
-    for row, (values, label) in enumerate(((mean, "z^μ"), (sigma, "z^σ"))):
+    for row, (values, label) in enumerate(((mean, r"\mu"), (sigma, r"\sigma"))):
         for col, name in enumerate(Z_NAMES):
             ax = axes[row, col]
             i = Z_NAMES.index(name)
@@ -35,8 +35,9 @@ def network_maps(model: PPANN) -> Figure:
                 ax.set_ylabel("ω [rad/s]")
             else:
                 ax.plot(theta, values[0, :, i])
-                ax.set_ylabel(f"{label}{name}")
-            ax.set_title(f"{label}{name}")
+                ax.set_ylabel(f"$z^{{{label} {name}}}$")
+            kind = "mean network" if row == 0 else "sigma network"
+            ax.set_title(f"$z^{{{label} {name}}}$ ({kind}, eq. {14 if row == 0 else 9})")
             ax.set_xlabel("θ mod 2π [rad]")
     return fig
 

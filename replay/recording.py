@@ -8,7 +8,7 @@ Timelines: `sample` (the OCP's 1-based k) and `time` (t_k = (k − 1) Ts). Entit
   /slider/<loop>/runs            measured slider position of every run (one series per run), m
   /slider/<loop>/band            the PPANN's mean ∓ kσ in that loop, shaded (BAND_LINES series
                                  spread evenly between the bounds: Rerun 0.41 plots no filled
-                                 area), clipped to the stroke [0, 2 l1]
+                                 area), within the stroke (control.ocp_file.predicted_band)
   /slider/<loop>/planned         the plan's slider position
   /slider/<loop>/constraint      the height at the constraint samples (markers)
   /torque/<loop>/runs            torque applied in every run, N·m; /torque/<profile>/planned
@@ -36,7 +36,7 @@ from common.atomic import atomic_path
 from common.errors import CrankError
 from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import Campaign
-from twin.physics import CRANK_LENGTH, ROD_LENGTH
+from twin.physics import CRANK_LENGTH, ROD_LENGTH, STROKE_TOP
 
 APPLICATION_ID = "crank_replay"
 COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40)}
@@ -53,7 +53,6 @@ ZOOM_SAMPLES = 12
 """Fig. 12 tab: samples shown either side of a constraint sample."""
 ZOOM_BELOW = 5e-3
 """Fig. 12 tab: the y-axis starts this far below the height, m."""
-STROKE_TOP = 2 * CRANK_LENGTH
 
 
 def _timelines(n: int, dt: float, *, at: np.ndarray | None = None) -> list[rr.TimeColumn]:
@@ -142,8 +141,7 @@ def _lines(
 
 def band_lines(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """The band between two bounds (N,) as BAND_LINES series (BAND_LINES, N) spread evenly from
-    the lower to the upper one, both clipped to the stroke [0, 2 l1]."""
-    lower, upper = np.clip(lower, 0.0, STROKE_TOP), np.clip(upper, 0.0, STROKE_TOP)
+    the lower to the upper one."""
     return lower + np.linspace(0.0, 1.0, BAND_LINES)[:, None] * (upper - lower)
 
 

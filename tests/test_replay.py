@@ -12,6 +12,7 @@ import sys
 import textwrap
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import mujoco
 import numpy as np
@@ -20,7 +21,7 @@ import pytest
 from common.streams import stream
 from control.config import OCPConfig
 from control.ocp import slider_position
-from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
+from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, predicted_band, read_ocp
 from ppann.model import constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import (
@@ -34,11 +35,11 @@ from replay.campaign import (
 from replay.campaign_log import partial_path
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_check
-from replay.recording import BAND_LINES, STROKE_TOP, band_lines, check_recording
+from replay.recording import BAND_LINES, band_lines, check_recording
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import crank
 from twin.mcap_dataset import ContractError, read_dataset, read_run, read_truth
-from twin.physics import STATE_SPEC, SliderCrank, slider_position_formula
+from twin.physics import STATE_SPEC, STROKE_TOP, SliderCrank, slider_position_formula
 from twin.stepping import chunk_time
 from twin.variability import Variability, apply
 
@@ -363,16 +364,18 @@ def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> N
 
 
 def test_rerun_band_is_shaded_between_the_bounds_and_inside_the_stroke() -> None:
-    """The band series run from the lower to the upper bound, evenly spaced, and a bound past
-    the stroke (a predicted 3σ above top dead centre) is drawn at the stroke's end."""
-    lower = np.array([0.01, -0.004, 0.09])
-    upper = np.array([0.03, 0.002, 0.112])
+    """The drawn band stays within the stroke (a predicted 3σ above top dead centre is drawn at
+    the stroke's end) and its Rerun series run evenly from the lower to the upper bound."""
+    profile = SimpleNamespace(
+        slider=np.array([0.02, 0.0, 0.1]), sigma_in=lambda mode: np.array([0.003, 0.002, 0.004])
+    )
+    lower, upper = predicted_band(profile, "open", 3.0)
+    assert np.allclose(lower, [0.011, 0.0, 0.088], rtol=0, atol=1e-15)
+    assert np.allclose(upper, [0.029, 0.006, STROKE_TOP], rtol=0, atol=1e-15)
     lines = band_lines(lower, upper)
     assert lines.shape == (BAND_LINES, 3)
-    assert np.array_equal(lines[0], [0.01, 0.0, 0.09])
-    assert np.allclose(lines[-1], [0.03, 0.002, STROKE_TOP], rtol=0, atol=1e-15)
-    assert np.allclose(np.diff(lines, axis=0), (lines[-1] - lines[0]) / (BAND_LINES - 1))
-    assert lines.min() >= 0.0 and lines.max() <= STROKE_TOP
+    assert np.array_equal(lines[0], lower) and np.allclose(lines[-1], upper, rtol=0, atol=1e-15)
+    assert np.allclose(np.diff(lines, axis=0), (upper - lower) / (BAND_LINES - 1))
 
 
 KILLER = textwrap.dedent(

@@ -23,6 +23,8 @@ CRANK_LENGTH = 0.05
 """l1, crank length in m (paper section 3.1)."""
 ROD_LENGTH = 0.3
 """l2, connecting-rod length in m (paper section 3.1)."""
+STROKE_TOP = 2 * CRANK_LENGTH
+"""Highest slider position (top dead centre), m; the lowest is 0 (bottom dead centre)."""
 SAMPLE_RATE = 500.0
 """Measurement rate in Hz; one sample every 2 ms (paper section 3.2)."""
 
