@@ -10,6 +10,7 @@ from typing import Any
 
 from common.atomic import check_writable, writes
 from common.figures import save_figure
+from common.jsonio import recorded_path
 from control.config import OCPConfig
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP
@@ -62,7 +63,7 @@ def solve_file(
         config=config,
         dt=ocp.dt,
         model={
-            "path": str(model_path),
+            "path": recorded_path(model_path, artifact=out),
             "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
             "kind": payload["kind"],
         },

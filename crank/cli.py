@@ -37,7 +37,7 @@ from crank.console import (
     print_summary,
     show_iteration,
 )
-from crank.report import solve_summary, train_summary
+from crank.report import solve_summary, solve_timing, train_summary
 from ppann.pipeline import train_and_report
 from ppann.train import TrainConfig
 from replay.campaign import PROFILES, ReplayConfig, ReplayConfigError
@@ -223,7 +223,7 @@ def solve_command(
     )
     payload = solve_file(model, out, config=config, on_iteration=show_iteration)
     figures = ", ".join(str(p) for p in figure_paths(out).values())
-    print_summary(f"wrote {out} and {figures}", solve_summary(payload))
+    print_summary(f"wrote {out} and {figures}", solve_summary(payload) | solve_timing(payload))
 
 
 def _modes(text: str) -> tuple[str, ...]:

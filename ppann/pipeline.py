@@ -19,7 +19,7 @@ import numpy as np
 
 from common.atomic import check_writable, writes
 from common.figures import save_figure
-from common.jsonio import write_json
+from common.jsonio import recorded_path, write_json
 from ppann import checkpoint, figures
 from ppann.fit import Fitted, fit
 from ppann.kinds import KINDS
@@ -90,7 +90,7 @@ def train_and_report(
     fingerprint = checkpoint.fingerprint(dataset)
     report: dict[str, Any] = {
         "dataset": {
-            "path": str(data_path),
+            "path": recorded_path(data_path, artifact=out),
             "fingerprint": fingerprint,
             "n_samples": len(dataset),
             "validation_start": segment.start,

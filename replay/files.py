@@ -15,6 +15,7 @@ from typing import Any
 
 from common.atomic import check_writable, writes
 from common.figures import save_figure
+from common.jsonio import recorded_path
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, ReplayConfig, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
@@ -109,7 +110,9 @@ def replay_file(
         logging += time.perf_counter() - t0
 
     timing = {"simulate_s": campaign.wall_time, "log_s": logging}
-    stats = campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing=timing)
+    stats = campaign_statistics(
+        campaign, ocp, ocp_path=recorded_path(ocp_path, artifact=paths["stats"]), timing=timing
+    )
     save_figure(replay_figure(campaign, ocp, stats), paths["figure"])
     t0 = time.perf_counter()
     write_recording(

@@ -41,7 +41,7 @@ from scipy import stats as scistats
 
 from common import streams
 from common.atomic import check_writable, writes
-from common.jsonio import write_json
+from common.jsonio import recorded_path, write_json
 from control.config import lower_tail
 from control.ocp import slider_position
 from control.ocp_file import read_ocp
@@ -81,8 +81,10 @@ def heldout_check(
     max_start_time: float = 60.0,
     mc_samples: int = 1000,
     mode: str = "open",
+    recorded_as: str | None = None,
 ) -> dict[str, Any]:
-    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content."""
+    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content
+    (which records the ocp.json as `recorded_as`, default `ocp_path`)."""
     ocp = read_ocp(ocp_path)
     config = ReplayConfig(
         runs=runs,
@@ -98,7 +100,7 @@ def heldout_check(
     out: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
-        "ocp": str(ocp_path),
+        "ocp": str(ocp_path) if recorded_as is None else recorded_as,
         "runs": runs,
         "seed": seed,
         "mode": mode,
@@ -215,6 +217,7 @@ def heldout_file(
         physics,
         ocp_path,
         ppann,
+        recorded_as=recorded_path(ocp_path, artifact=out),
         runs=runs,
         seed=seed,
         variability=variability,

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from mcap.reader import make_reader
 
 from common.atomic import OutputError
+from common.jsonio import without_wall_clock
 from crank.chain import RunConfig, run_chain
 from twin.mcap_dataset import read_dataset
 
@@ -102,6 +104,44 @@ def test_same_seed_reproduces_every_artifact(two_runs) -> None:
     ha = json.loads((a / "heldout.json").read_text())
     hb = json.loads((b / "heldout.json").read_text())
     assert ha["profiles"] == hb["profiles"]
+
+
+def test_same_seed_gives_the_same_bytes_but_the_documented_wall_clock(two_runs) -> None:
+    """The reproducibility rule of common/jsonio.py, file by file of the two run folders."""
+    a, b, _ = two_runs
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir())
+    checked = []
+    for name in names:
+        if name.endswith((".rrd", ".md", ".log")):
+            continue  # outside the rule (Rerun's ids and clock; wall times for people)
+        if name.endswith(".json"):
+            x, y = (json.loads((d / name).read_text()) for d in (a, b))
+            assert without_wall_clock(x) == without_wall_clock(y), name
+        elif name == "replay.mcap":
+            x, y = (_campaign_records(d / name) for d in (a, b))
+            assert x == y, name
+        else:
+            assert (a / name).read_bytes() == (b / name).read_bytes(), name
+        checked.append(name)
+    assert {"dataset.mcap", "model.pt", "ocp.json", "replay.stats.json", "ocp.robust.png"} <= set(
+        checked
+    )
+    ocp = json.loads((a / "ocp.json").read_text())
+    assert ocp["model"]["path"] == "model.pt"  # relative to the run folder
+
+
+def _campaign_records(path: Path) -> tuple[list, list, list]:
+    """Messages, metadata and attachments of a campaign log; ocp.json without wall clock."""
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        messages = [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages()]
+        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+        attached = [
+            (x.name, without_wall_clock(json.loads(x.data)) if x.name == "ocp.json" else x.data)
+            for x in reader.iter_attachments()
+        ]
+    return messages, metadata, attached
 
 
 def test_run_refuses_an_existing_folder(two_runs) -> None:

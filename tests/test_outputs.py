@@ -15,6 +15,7 @@ import pytest
 from mcap.reader import make_reader
 
 from common.atomic import OutputError, lock_path, output_lock
+from common.jsonio import recorded_path, without_wall_clock
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
 from replay.campaign import ReplayConfig
@@ -266,3 +267,14 @@ def test_a_full_disk_is_one_line_and_leaves_no_output(tmp_path: Path, full_disk:
     last = result.stderr.strip().splitlines()[-1]  # after the robust loop's progress lines
     assert last.startswith("error: cannot write ") and "No space left on device" in last
     assert not any(full_disk.iterdir())
+
+
+def test_recorded_paths_are_relative_inside_the_artifacts_folder(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    assert recorded_path(run / "model.pt", artifact=run / "ocp.json") == "model.pt"
+    assert recorded_path(run / "sub" / "d.mcap", artifact=run / "x.json") == "sub/d.mcap"
+    outside = tmp_path / "elsewhere" / "model.pt"
+    assert recorded_path(outside, artifact=run / "ocp.json") == str(outside)
+    assert without_wall_clock(
+        {"created": "now", "a": [{"wall_time_s": 1.0, "cost": 2.0}], "timing": {"x_s": 3}}
+    ) == {"a": [{"cost": 2.0}]}
