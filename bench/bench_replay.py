@@ -27,8 +27,9 @@ import numpy as np
 from mujoco import rollout
 
 from control.ocp_file import read_ocp
-from replay.campaign import PROFILES, ReplayConfig, draw_machines, play
+from replay.campaign import draw_machines, play
 from replay.campaign_log import CampaignLog
+from replay.config import PROFILES, ReplayConfig
 from twin.physics import SliderCrank, load_model
 
 

@@ -25,8 +25,10 @@ import torch
 from ppann.fit import fit
 from ppann.losses import n_step_mse
 from ppann.model import PPANN, FusedHeads, n_step_prediction
-from ppann.montecarlo import MODES, monte_carlo
-from ppann.train import TrainConfig, make_splits
+from ppann.modes import MODES
+from ppann.montecarlo import monte_carlo
+from ppann.train import make_splits
+from ppann.train_config import TrainConfig
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
 from twin.mcap_dataset import read_dataset

@@ -10,7 +10,7 @@ from typing import Any
 
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
-from ppann.montecarlo import check_mode
+from ppann.modes import check_mode
 
 
 class OCPConfigError(CrankError, ValueError):

@@ -14,7 +14,8 @@ from control.config import OCPConfig, confidence_quantile, lower_tail
 from control.ocp import Solution, slider_position
 from ppann.machine import sigma_upper
 from ppann.model import FusedHeads
-from ppann.montecarlo import MONTE_CARLO_MODES, Feedback, rollout
+from ppann.modes import MONTE_CARLO_MODES
+from ppann.montecarlo import Feedback, rollout
 
 
 def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | None, float]:

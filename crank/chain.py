@@ -30,15 +30,14 @@ from control.robust import Iteration
 from control.solve import solve_file
 from crank.report import solve_summary, write_markdown
 from ppann.pipeline import train_and_report
-from ppann.train import TrainConfig
-from replay.campaign import ReplayConfig
+from ppann.train_config import TrainConfig
+from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_file
 from replay.statistics import summary_rows
-from twin import __version__
+from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.generation import check_generation_memory, generate_file
-from twin.physics import MODEL_PATH
 
 
 @dataclass(frozen=True)

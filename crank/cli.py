@@ -10,13 +10,12 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from common.atomic import OutputError, check_suffix
 from control.config import OCPConfig, OCPConfigError
-from control.solve import figure_paths, solve_file
 from crank.console import (
     HELDOUT_SEED,
     Amplitude,
@@ -37,27 +36,22 @@ from crank.console import (
     print_summary,
     show_iteration,
 )
-from crank.report import solve_summary, solve_timing, train_summary
-from ppann.pipeline import train_and_report
-from ppann.train import TrainConfig
-from replay.campaign import PROFILES, ReplayConfig, ReplayConfigError
-from replay.campaign_log import recover
-from replay.files import ocp_variability, replay_file
-from replay.heldout import heldout_file
-from replay.recording import check_recording, rerun_version
-from twin import __version__
-from twin.dataset import GenerationConfig, summarize
+from ppann.train_config import TrainConfig
+from replay.config import PROFILES, ReplayConfig, ReplayConfigError
+from twin import MODEL_PATH, __version__
 from twin.excitation import Excitation
-from twin.generation import generate_file
-from twin.mcap_dataset import read_dataset, read_truth
-from twin.physics import MODEL_PATH
 from twin.variability import Variability
+
+if TYPE_CHECKING:
+    from twin.dataset import GenerationConfig
 
 
 def generate_dataset(
     *, config: GenerationConfig, out: Path, model_path: Path, figures: bool = True
 ) -> dict[str, Any]:
     """`generate_file` with progress bars."""
+    from twin.generation import generate_file
+
     with (
         Progress(config.n_samples, "simulating") as sim,
         Progress(config.n_samples, "writing MCAP") as io,
@@ -81,6 +75,8 @@ def _config(
     amplitude: float,
     variability: str,
 ) -> GenerationConfig:
+    from twin.dataset import GenerationConfig
+
     return GenerationConfig(
         seconds=seconds,
         seed=seed,
@@ -122,6 +118,9 @@ def inspect_command(
     path: Annotated[Path, typer.Argument(help="A dataset MCAP.")],
 ) -> None:
     """Check a dataset MCAP against the contract and print its summary."""
+    from twin.dataset import summarize
+    from twin.mcap_dataset import read_dataset, read_truth
+
     dataset = read_dataset(path)
     truth = read_truth(path)
     print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
@@ -129,6 +128,8 @@ def inspect_command(
 
 def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any]:
     """`train_and_report` with progress bars."""
+    from ppann.pipeline import train_and_report
+
     bars = EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
     try:
         return train_and_report(
@@ -156,6 +157,8 @@ def train_command(
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
+    from crank.report import train_summary
+
     config = TrainConfig(
         max_epochs=epochs,
         sigma_epochs=sigma_epochs,
@@ -206,6 +209,9 @@ def solve_command(
     seed: Annotated[int, typer.Option(help="Seed of the Monte-Carlo draws.")] = 0,
 ) -> None:
     """Nominal OCP (eqs. 10, 15) and robust OCP (eq. 16) on a PPANN; write ocp.json + figures."""
+    from control.solve import figure_paths, solve_file
+    from crank.report import solve_summary, solve_timing
+
     config = OCPConfig(
         horizon=horizon,
         height=height,
@@ -235,6 +241,8 @@ def replay_campaign(
     *, ocp: Path, out: Path, config: ReplayConfig, model: Path, resolved: dict[str, Any]
 ) -> dict[str, Any]:
     """`replay_file` with a progress bar over the runs."""
+    from replay.files import replay_file
+
     total = config.runs * len(PROFILES) * len(config.modes)
     with Progress(total, "replaying", unit="run") as bar:
         done = 0
@@ -282,6 +290,8 @@ def replay_command(
 ) -> None:
     """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
     campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
+    from replay.files import ocp_variability
+
     check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
     config = ReplayConfig(
         runs=runs,
@@ -328,6 +338,9 @@ def heldout_command(
 ) -> None:
     """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
     with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
+    from replay.files import ocp_variability
+    from replay.heldout import heldout_file
+
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
     if mode not in ("open", "closed"):
         raise ReplayConfigError(f"mode must be open or closed, got {mode!r}")
@@ -354,6 +367,8 @@ def recover_command(
     fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
 ) -> None:
     """Rebuild a readable, indexed MCAP from what a crashed campaign writer left."""
+    from replay.campaign_log import recover
+
     result = recover(broken, fixed)
     state = "was complete" if result.complete else "was cut short"
     typer.echo(
@@ -374,6 +389,8 @@ def view_command(
     path: Annotated[Path, typer.Argument(help="A campaign's .rrd (or an .mcap log).")],
 ) -> None:
     """Open a recording in the Rerun viewer, or say how to open it where there is no display."""
+    from replay.recording import check_recording, rerun_version
+
     if not path.is_file():
         raise OutputError(f"file not found: {path}")
     if path.suffix == ".mcap":

@@ -12,7 +12,6 @@ import typer
 
 from common.errors import ConfigError
 from control.config import OCPConfig
-from crank.chain import Hooks, RunConfig, run_chain
 from crank.console import (
     HELDOUT_SEED,
     Confidence,
@@ -33,10 +32,8 @@ from crank.console import (
     show_iteration,
     transcript,
 )
-from crank.report import train_summary
-from crank.study import parse_seeds, run_study
-from replay.campaign import ReplayConfig
-from twin.physics import MODEL_PATH
+from replay.config import ReplayConfig
+from twin import MODEL_PATH
 from twin.variability import Variability
 
 
@@ -67,6 +64,9 @@ def run_command(
 ) -> None:
     """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
     them on the twin open and closed loop, report (report.json, report.md, figures)."""
+    from crank.chain import Hooks, RunConfig, run_chain
+    from crank.report import train_summary
+
     config = RunConfig.for_seed(
         seed,
         generation={
@@ -163,6 +163,9 @@ def study_command(
 ) -> None:
     """The chain once per seed, each robust torque checked on held-out machines: study.md,
     study.csv, study.json and study.png (violation rate and premium against seed)."""
+    from crank.chain import Hooks, RunConfig
+    from crank.study import parse_seeds, run_study
+
     chosen = parse_seeds(seeds)
     base = RunConfig.for_seed(
         chosen[0],

@@ -10,15 +10,15 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from tqdm import tqdm
 
 from common.errors import CrankError
-from control.robust import Iteration
-from replay.files import output_paths
-from replay.statistics import format_table, summary_rows
+
+if TYPE_CHECKING:
+    from control.robust import Iteration
 
 app = typer.Typer(
     add_completion=False,
@@ -273,6 +273,9 @@ def show_iteration(it: Iteration) -> None:
 
 
 def print_replay(stats: dict[str, Any], out: Path) -> None:
+    from replay.files import output_paths
+    from replay.statistics import format_table, summary_rows
+
     typer.echo(format_table(summary_rows(stats)))
     claim = stats["claim"]
     if claim["holds"] is not None:

@@ -7,7 +7,7 @@ from typing import Any
 
 from common.atomic import atomic_path
 from common.jsonio import finite_or_none
-from ppann.montecarlo import MODES
+from ppann.modes import MODES
 from replay.statistics import format_table, summary_rows
 
 FIGURES = (

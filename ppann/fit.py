@@ -12,7 +12,8 @@ import torch
 from common.streams import torch_seed
 from ppann.kinds import model_kind
 from ppann.model import PPANNConfig
-from ppann.train import History, Splits, TrainConfig, make_splits, train_mean, train_sigma
+from ppann.train import History, Splits, make_splits, train_mean, train_sigma
+from ppann.train_config import TrainConfig
 from ppann.transmission import fit_quantiles
 from twin.dataset import Dataset
 

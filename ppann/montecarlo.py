@@ -31,26 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ppann.model import PPANN, FusedHeads
-
-
-@dataclass(frozen=True)
-class DrawMode:
-    """How one Monte-Carlo mode draws: its white z and its machine."""
-
-    white: str | None
-    """"step": a fresh eps every step; "held": one eps per trajectory; None: z = z_mu."""
-    machine: bool
-    """One log-normal machine exp(eta) per trajectory."""
-    description: str
-
-
-MONTE_CARLO_MODES: dict[str, DrawMode] = {
-    "step": DrawMode("step", False, "fresh z every step (paper eq. 11)"),
-    "trajectory": DrawMode("held", False, "one z per trajectory (may diverge)"),
-    "machine": DrawMode(None, True, "one machine per trajectory (log-normal), no white noise"),
-    "mixed": DrawMode("step", True, "one machine per trajectory plus white z every step"),
-}
-MODES: tuple[str, ...] = tuple(MONTE_CARLO_MODES)
+from ppann.modes import MONTE_CARLO_MODES, check_mode
 
 
 @dataclass(frozen=True)
@@ -60,11 +41,6 @@ class Bands:
     samples: np.ndarray
     mean: np.ndarray
     std: np.ndarray
-
-
-def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
-    if mode not in MONTE_CARLO_MODES:
-        raise error(f"Monte-Carlo mode must be one of {', '.join(MODES)}, got {mode!r}")
 
 
 def machine_factors(

@@ -34,7 +34,8 @@ from ppann.report import (
     twin_replay,
     validation_segment,
 )
-from ppann.train import TrainConfig, make_splits
+from ppann.train import make_splits
+from ppann.train_config import TrainConfig
 from twin.mcap_dataset import read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
 

@@ -23,7 +23,8 @@ import torch
 from common import streams
 from ppann.data import split_index, windows
 from ppann.model import n_step_prediction, rollout
-from ppann.montecarlo import MODES, Bands, monte_carlo
+from ppann.modes import MODES
+from ppann.montecarlo import Bands, monte_carlo
 from twin.dataset import Dataset
 from twin.physics import SliderCrank, slider_position_formula
 from twin.stepping import simulate

@@ -19,75 +19,16 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from common.checks import check_count, check_finite, check_seed
-from common.errors import CrankError
 from common.streams import torch_seed
 from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
 from ppann.losses import n_step_mse, propagated_terms
 from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets, white_nll
 from ppann.model import PPANN, n_step_prediction
+from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
 
 MACHINE_SIGMA_START = 0.05
 """Initial machine-level spread of the log-factors in phase 2."""
-
-
-class TrainConfigError(CrankError, ValueError):
-    """A training option is out of range."""
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Training options; defaults follow paper section 3.3.2 where it gives them."""
-
-    horizon: int = 10
-    lr: float = 5e-3
-    batch_size: int = 4096
-    max_epochs: int = 200
-    """A cap only: early stopping (patience) ends phase 1 well before it (65 epochs on seed 0)."""
-    patience: int = 8
-    lr_decay: float = 0.5
-    """Phase 1: multiply the learning rate by this when the validation loss has not improved for
-    lr_patience epochs (1 = constant rate)."""
-    lr_patience: int = 3
-    sigma_lr: float = 5e-3
-    sigma_epochs: int = 400
-    validation_fraction: float = 3 / 90
-    seed: int = 0
-    machine_model: bool = True
-    """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""
-    machine_lr: float = 2e-2
-    """Adam learning rate of log machine_sigma in phase 2."""
-    sigma_block: int = 10
-    """Phase 2 fits the white spread to sums of the residual over blocks of this many samples
-    (ppann/machine.py, "Blocks"); 1 is the paper's eq. 9. The default is phase 1's horizon, the
-    time scale the mean is fitted on: the L-step variance ratio of the seed-0 data is lowest
-    there (0.55), and rises beyond it as the mean model's slow, excitation-bound errors, which a
-    replay under another torque sees as bias rather than spread, add power."""
-
-    def __post_init__(self) -> None:
-        for name in (
-            "horizon",
-            "batch_size",
-            "max_epochs",
-            "patience",
-            "sigma_epochs",
-            "lr_patience",
-            "sigma_block",
-        ):
-            check_count(name, getattr(self, name), error=TrainConfigError)
-        for name in ("lr", "sigma_lr", "machine_lr"):
-            check_finite(name, getattr(self, name), positive=True, error=TrainConfigError)
-        check_seed("seed", self.seed, error=TrainConfigError)
-        if not 0 < self.lr_decay <= 1:
-            raise TrainConfigError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
-        if not 0 < self.validation_fraction < 1:
-            raise TrainConfigError(
-                f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"
-            )
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass

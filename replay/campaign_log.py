@@ -39,7 +39,8 @@ from mcap.writer import CompressionType, Writer
 
 from common.atomic import OutputError, atomic_path, check_writable, register_output, writes
 from common.errors import CrankError
-from replay.campaign import Machines, Replay, ReplayConfig
+from replay.campaign import Machines, Replay
+from replay.config import ReplayConfig
 from twin import __version__
 from twin.generation import provenance
 from twin.mcap_dataset import (

@@ -10,7 +10,8 @@ from matplotlib.figure import Figure
 
 from control.figures import constraint_boxes
 from control.ocp_file import OCPFile, predicted_band
-from replay.campaign import PROFILES, Campaign
+from replay.campaign import Campaign
+from replay.config import PROFILES
 
 COLORS = {"nominal": "C0", "robust": "C3"}
 

@@ -17,8 +17,9 @@ from common.atomic import check_writable, writes
 from common.figures import save_figure
 from common.jsonio import recorded_path
 from control.ocp_file import OCPFileError, read_ocp
-from replay.campaign import Replay, ReplayConfig, draw_machines, run_campaign
+from replay.campaign import Replay, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
+from replay.config import ReplayConfig
 from replay.figures import replay_figure
 from replay.recording import write_recording
 from replay.statistics import campaign_statistics, write_statistics

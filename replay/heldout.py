@@ -47,9 +47,11 @@ from control.ocp import slider_position
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
-from ppann.montecarlo import MODES, Feedback, monte_carlo
+from ppann.modes import MODES
+from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import PROFILES, ReplayConfig, draw_machines, play
+from replay.campaign import draw_machines, play
+from replay.config import PROFILES, ReplayConfig
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 

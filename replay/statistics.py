@@ -35,7 +35,8 @@ import numpy as np
 
 from common.jsonio import write_json
 from control.ocp_file import OCPFile
-from replay.campaign import PROFILES, Campaign, Replay
+from replay.campaign import Campaign, Replay
+from replay.config import PROFILES
 
 FORMAT = "crank-replay-stats"
 VERSION = 1

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -311,3 +313,15 @@ def test_progress_off_a_terminal_prints_lines_not_frames(capsys: pytest.CaptureF
     quick.update(2)
     quick.close()
     assert capsys.readouterr().err == ""
+
+
+def test_the_command_line_loads_without_the_heavy_engines() -> None:
+    """`crank --help` and `--version` need only the option defaults: importing the CLI pulls in
+    neither torch, CasADi, SciPy, Rerun nor matplotlib (it took 3.5 s idle, 12-15 s under load,
+    when it did)."""
+    heavy = ("torch", "casadi", "scipy", "rerun", "matplotlib")
+    probe = f"import sys, crank.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    loaded = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=True
+    ).stdout
+    assert loaded.strip() == "[]"

@@ -18,7 +18,7 @@ from common.atomic import OutputError, lock_path, output_lock
 from common.jsonio import recorded_path, without_wall_clock
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
-from replay.campaign import ReplayConfig
+from replay.config import ReplayConfig
 from tests.conftest import Written, crank
 from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
 from twin.mcap_dataset import read_run

@@ -24,15 +24,9 @@ from control.ocp import slider_position
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, predicted_band, read_ocp
 from ppann.model import constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
-from replay.campaign import (
-    PROFILES,
-    ReplayConfig,
-    ReplayConfigError,
-    draw_machines,
-    play,
-    run_campaign,
-)
+from replay.campaign import draw_machines, play, run_campaign
 from replay.campaign_log import partial_path
+from replay.config import PROFILES, ReplayConfig, ReplayConfigError
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_check
 from replay.recording import BAND_LINES, band_lines, check_recording
@@ -382,7 +376,7 @@ KILLER = textwrap.dedent(
     """
     import os, signal, sys
     from mcap.writer import Writer
-    from replay.campaign import ReplayConfig
+    from replay.config import ReplayConfig
     from replay.files import replay_file
 
     # SIGKILL in the middle of writing run 7: after half of its 2 x 150 messages

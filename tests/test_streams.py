@@ -13,7 +13,8 @@ import pytest
 from common import streams
 from common.errors import ConfigError, CrankError
 from crank.chain import RunConfig
-from replay.campaign import ReplayConfig, draw_machines
+from replay.campaign import draw_machines
+from replay.config import ReplayConfig
 from twin.dataset import GenerationConfig, generate
 from twin.variability import SCENARIOS, Variability
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 
 from common.checks import check_finite
 from common.errors import ConfigError
@@ -55,5 +54,7 @@ class Excitation:
         holds = np.maximum(1, np.round(rng.uniform(self.min_hold, self.max_hold, n_levels) * rate))
         levels = rng.uniform(-self.amplitude, self.amplitude, n_levels)
         raw = np.repeat(levels, holds.astype(int))[:n_samples]
+        from scipy import signal  # here: the command line shows Excitation's defaults
+
         b, a = signal.butter(2, self.cutoff_hz, fs=rate)
         return np.clip(signal.lfilter(b, a, raw), -limit, limit)

@@ -16,8 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import CrankError
-
-MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "slider_crank.xml"
+from twin import MODEL_PATH
 
 CRANK_LENGTH = 0.05
 """l1, crank length in m (paper section 3.1)."""

@@ -22,12 +22,15 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
 
 from common.checks import check_finite
 from common.errors import ConfigError
+
+if TYPE_CHECKING:
+    import mujoco
 from twin.physics import Layout
 
 
