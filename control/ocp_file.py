@@ -51,15 +51,18 @@ import casadi as ca
 import numpy as np
 import torch
 
+from common.atomic import writes
 from common.errors import CrankError
 from common.jsonio import write_json
 from control.config import OCPConfig
 from control.ocp import Solution
-from control.robust import RobustResult, Uncertainty
+from control.robust import Partial, RobustResult, Uncertainty
 from twin import __version__
 from twin.physics import STROKE_TOP
 
 FORMAT = "crank-ocp"
+FAILED_FORMAT = "crank-ocp-failed"
+"""The format of what a failed robust solve leaves beside the ocp.json it could not write."""
 VERSION = 4
 """2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
 population in each profile."""
@@ -183,19 +186,10 @@ def profile_dict(
     }
 
 
-def write_ocp(
-    path: str | Path,
-    result: RobustResult,
-    *,
-    config: OCPConfig,
-    dt: float,
-    model: dict[str, Any],
-    build_s: float,
-    variability: dict[str, Any] | None = None,
+def _header(
+    config: OCPConfig, *, dt: float, model: dict[str, Any], variability: dict[str, Any] | None
 ) -> dict[str, Any]:
-    """Write ocp.json atomically and return what was written. `variability` is the training
-    dataset's scenario (from the checkpoint), which replays draw their machines from."""
-    payload = {
+    return {
         "format": FORMAT,
         "version": VERSION,
         "index_convention": INDEX_CONVENTION,
@@ -205,17 +199,12 @@ def write_ocp(
         "config": config.as_dict(),
         "model": model,
         "variability": variability,
-        **{
-            name: profile_dict(
-                getattr(result, name),
-                getattr(result, f"{name}_uncertainty"),
-                gains=getattr(result, f"{name}_gains"),
-                loops=getattr(result, f"{name}_loops"),
-                k_sigma=config.k_sigma,
-                dt=dt,
-            )
-            for name in ("nominal", "robust")
-        },
+    }
+
+
+def _history(result: RobustResult | Partial) -> dict[str, Any]:
+    """Every robust iteration and every margin IPOPT could not meet."""
+    return {
         "robust_iterations": [
             {
                 "margin": it.margin.tolist(),
@@ -231,22 +220,93 @@ def write_ocp(
             for it in result.iterations
         ],
         "failed_margins": [m.tolist() for m in result.failed_proposals],
+    }
+
+
+def _versions() -> dict[str, str]:
+    return {
+        "project": __version__,
+        "casadi": ca.__version__,
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def write_ocp(
+    path: str | Path,
+    result: RobustResult,
+    *,
+    config: OCPConfig,
+    dt: float,
+    model: dict[str, Any],
+    build_s: float,
+    variability: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write ocp.json atomically and return what was written. `variability` is the training
+    dataset's scenario (from the checkpoint), which replays draw their machines from."""
+    payload = {
+        **_header(config, dt=dt, model=model, variability=variability),
+        **{
+            name: profile_dict(
+                getattr(result, name),
+                getattr(result, f"{name}_uncertainty"),
+                gains=getattr(result, f"{name}_gains"),
+                loops=getattr(result, f"{name}_loops"),
+                k_sigma=config.k_sigma,
+                dt=dt,
+            )
+            for name in ("nominal", "robust")
+        },
+        **_history(result),
         "timing": {
             "build_s": build_s,
             "nominal_solve_s": result.nominal.wall_time,
             "robust_loop_s": result.wall_time,
         },
-        "versions": {
-            "project": __version__,
-            "casadi": ca.__version__,
-            "torch": torch.__version__,
-            "numpy": np.__version__,
-            "python": platform.python_version(),
-        },
+        "versions": _versions(),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     write_json(path, payload)
     return payload
+
+
+@writes("path", suffix=".json")
+def write_failed(
+    path: str | Path,
+    partial: Partial,
+    *,
+    error: str,
+    config: OCPConfig,
+    dt: float,
+    model: dict[str, Any],
+    variability: dict[str, Any] | None = None,
+) -> None:
+    """Write what a failed robust solve leaves (`<stem>.failed.json`): the nominal profile in
+    ocp.json's form, the margin history and the error, marked `"status": "failed"`. It is not an
+    ocp.json (no robust profile), and read_ocp refuses it by its format name."""
+    payload = {
+        **_header(config, dt=dt, model=model, variability=variability),
+        "format": FAILED_FORMAT,
+        "status": "failed",
+        "error": error,
+        "nominal": profile_dict(
+            partial.nominal,
+            partial.nominal_uncertainty,
+            gains=partial.nominal_gains,
+            loops=partial.nominal_loops,
+            k_sigma=config.k_sigma,
+            dt=dt,
+        ),
+        **_history(partial),
+        "timing": {
+            "nominal_solve_s": partial.nominal.wall_time,
+            "robust_loop_s": partial.wall_time,
+        },
+        "versions": _versions(),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    write_json(path, payload)
 
 
 def read_ocp(path: str | Path) -> OCPFile:

@@ -68,7 +68,10 @@ dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so.""
 
 
 class RobustError(CrankError, RuntimeError):
-    """The robust iteration did not reach a margin that its own Monte-Carlo confirms."""
+    """The robust iteration did not reach a margin that its own Monte-Carlo confirms. Raised by
+    solve_robust with `partial` set: what was solved before it failed."""
+
+    partial: Partial | None = None
 
 
 class BeyondStrokeError(RobustError):
@@ -117,6 +120,20 @@ class Iteration:
     damping: float
     draft: bool
     """A draft solve (one loose pass) rather than a full one."""
+
+
+@dataclass(frozen=True)
+class Partial:
+    """A robust solve that failed: the nominal plan (with its gains and spreads, as a result has
+    them) and every robust iteration tried."""
+
+    nominal: Solution
+    nominal_uncertainty: Uncertainty
+    nominal_gains: np.ndarray
+    nominal_loops: dict[str, np.ndarray]
+    iterations: tuple[Iteration, ...]
+    failed_proposals: tuple[np.ndarray, ...]
+    wall_time: float
 
 
 @dataclass(frozen=True)
@@ -238,92 +255,112 @@ def solve_robust(
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
     draft = True
-    while len(iterations) < config.max_robust_iterations:
-        step = bracket.propose(margin, target - margin, tolerance=tolerance) - margin
-        proposal = np.minimum(margin + beta * step, cap)
-        try:
-            solution = ocp.solve(base + proposal, warm=current, draft=draft)
-        except OCPError:
-            failed.append(proposal)
-            beta /= 2
-            if beta < MIN_DAMPING:
-                raise RobustError(
-                    f"robust OCP infeasible for every margin tried; smallest failed margin "
-                    f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
-                ) from None
-            continue
-        gains = tube(solution)
-        unc = slider_uncertainty(heads, solution, config, constraints_only=draft, gains=gains)
-        new_target = unc.tightening
-        iterations.append(
-            Iteration(
-                margin=proposal,
-                tightening=new_target,
-                tightening_se=unc.tightening_se,
-                cost=solution.cost,
-                ipopt_iterations=solution.iterations,
-                solve_time=solution.wall_time,
-                monte_carlo_time=unc.wall_time,
-                damping=beta,
-                draft=draft,
-            )
-        )
-        if on_iteration is not None:
-            on_iteration(iterations[-1])
-        beyond = (proposal >= cap) & (new_target > cap)
-        if beyond.any():
-            k = int(np.flatnonzero(beyond)[0])
-            line = ""
-            if unc.population[k] > 0:
-                line = (
-                    f", of which {1e3 * unc.population[k]:.1f} mm for the line's mean as known "
-                    f"from the training machines at confidence {config.confidence:g}"
+    try:
+        while len(iterations) < config.max_robust_iterations:
+            step = bracket.propose(margin, target - margin, tolerance=tolerance) - margin
+            proposal = np.minimum(margin + beta * step, cap)
+            try:
+                solution = ocp.solve(base + proposal, warm=current, draft=draft)
+            except OCPError:
+                failed.append(proposal)
+                beta /= 2
+                if beta < MIN_DAMPING:
+                    raise RobustError(
+                        f"robust OCP infeasible for every margin tried; smallest failed margin "
+                        f"{_mm(proposal)} (tightening of the last solution {_mm(target)})"
+                    ) from None
+                continue
+            gains = tube(solution)
+            unc = slider_uncertainty(heads, solution, config, constraints_only=draft, gains=gains)
+            new_target = unc.tightening
+            iterations.append(
+                Iteration(
+                    margin=proposal,
+                    tightening=new_target,
+                    tightening_se=unc.tightening_se,
+                    cost=solution.cost,
+                    ipopt_iterations=solution.iterations,
+                    solve_time=solution.wall_time,
+                    monte_carlo_time=unc.wall_time,
+                    damping=beta,
+                    draft=draft,
                 )
-            raise BeyondStrokeError(
-                f"the model's tightening of the slider at sample {config.constraint_samples[k]} "
-                f"({1e3 * new_target[k]:.1f} mm{line}; Monte-Carlo σ there "
-                f"{1e3 * unc.std[config.constraint_samples[k] - 1]:.1f} mm) exceeds the stroke "
-                f"above the height even for a torque that uses {1e3 * cap[k]:.1f} mm of it: no "
-                f"robust profile (train on more machines, lower k_sigma or height, or close the "
-                f"loop: open loop cannot keep this spread)",
-                sample=config.constraint_samples[k],
-                tightening=float(new_target[k]),
-                available=float(STROKE_TOP - config.height),
-                line=float(unc.population[k]),
             )
-        residual = new_target - proposal
-        bracket.update(proposal, residual)
-        margin, target, current = proposal, new_target, solution
-        # within the tolerance, or on the safe side of a jump (control/fixed_point.py)
-        jump = bracket.jumps(tolerance) & (residual <= 0)
-        settled = bool(np.all((np.abs(residual) < tolerance) | jump))
-        if settled and draft:
-            draft = False  # confirm with a full solve
-            continue
-        if settled:
-            wall_time = time.perf_counter() - started
-            # the tube's gains and the sized-for loop's spread are known; only the rest is new
-            nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
-            robust_gains = gains_of(solution) if gains is None else gains
-            return RobustResult(
-                nominal=nominal,
-                nominal_uncertainty=nominal_unc,
-                robust=solution,
-                robust_uncertainty=unc,
-                iterations=tuple(iterations),
-                failed_proposals=tuple(failed),
-                wall_time=wall_time,
-                nominal_gains=nominal_gains,
-                robust_gains=robust_gains,
-                nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
-                robust_loops=_loops(heads, solution, config, robust_gains, unc),
-            )
-        beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
-        draft = True
-    raise RobustError(
-        f"robust margin not settled after {config.max_robust_iterations} iterations: "
-        f"last margin {_mm(margin)}, its tightening {_mm(target)} (tolerance "
-        f"{config.margin_tolerance * 1e3:g} mm)"
+            if on_iteration is not None:
+                on_iteration(iterations[-1])
+            beyond = (proposal >= cap) & (new_target > cap)
+            if beyond.any():
+                raise _beyond_stroke(config, int(np.flatnonzero(beyond)[0]), unc, cap)
+            residual = new_target - proposal
+            bracket.update(proposal, residual)
+            margin, target, current = proposal, new_target, solution
+            # within the tolerance, or on the safe side of a jump (control/fixed_point.py)
+            jump = bracket.jumps(tolerance) & (residual <= 0)
+            settled = bool(np.all((np.abs(residual) < tolerance) | jump))
+            if settled and draft:
+                draft = False  # confirm with a full solve
+                continue
+            if settled:
+                wall_time = time.perf_counter() - started
+                # the tube's gains and the sized-for loop's spread are known; only the rest is new
+                nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+                robust_gains = gains_of(solution) if gains is None else gains
+                return RobustResult(
+                    nominal=nominal,
+                    nominal_uncertainty=nominal_unc,
+                    robust=solution,
+                    robust_uncertainty=unc,
+                    iterations=tuple(iterations),
+                    failed_proposals=tuple(failed),
+                    wall_time=wall_time,
+                    nominal_gains=nominal_gains,
+                    robust_gains=robust_gains,
+                    nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
+                    robust_loops=_loops(heads, solution, config, robust_gains, unc),
+                )
+            beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
+            draft = True
+        raise RobustError(
+            f"robust margin not settled after {config.max_robust_iterations} iterations: "
+            f"last margin {_mm(margin)}, its tightening {_mm(target)} (tolerance "
+            f"{config.margin_tolerance * 1e3:g} mm)"
+        )
+    except RobustError as exc:
+        nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+        exc.partial = Partial(
+            nominal=nominal,
+            nominal_uncertainty=nominal_unc,
+            nominal_gains=nominal_gains,
+            nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
+            iterations=tuple(iterations),
+            failed_proposals=tuple(failed),
+            wall_time=time.perf_counter() - started,
+        )
+        raise
+
+
+def _beyond_stroke(
+    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray
+) -> BeyondStrokeError:
+    """The error for constraint `k` (0-based) whose tightening `unc` asks for exceeds the cap."""
+    sample = config.constraint_samples[k]
+    line = ""
+    if unc.population[k] > 0:
+        line = (
+            f", of which {1e3 * unc.population[k]:.1f} mm for the line's mean as known "
+            f"from the training machines at confidence {config.confidence:g}"
+        )
+    return BeyondStrokeError(
+        f"the model's tightening of the slider at sample {sample} "
+        f"({1e3 * unc.tightening[k]:.1f} mm{line}; Monte-Carlo σ there "
+        f"{1e3 * unc.std[sample - 1]:.1f} mm) exceeds the stroke "
+        f"above the height even for a torque that uses {1e3 * cap[k]:.1f} mm of it: no "
+        f"robust profile (train on more machines, lower k_sigma or height, or close the "
+        f"loop: open loop cannot keep this spread)",
+        sample=sample,
+        tightening=float(unc.tightening[k]),
+        available=float(STROKE_TOP - config.height),
+        line=float(unc.population[k]),
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import time
 from collections.abc import Callable
@@ -14,10 +15,23 @@ from common.jsonio import recorded_path
 from control.config import OCPConfig
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP
-from control.ocp_file import read_ocp, write_ocp
-from control.robust import Iteration, solve_robust
+from control.ocp_file import read_ocp, write_failed, write_ocp
+from control.robust import Iteration, RobustError, solve_robust
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN
+
+
+def failed_path(out: Path) -> Path:
+    """Where a failed robust solve leaves what it solved: <stem>.failed.json."""
+    return out.with_name(f"{out.stem}.failed.json")
+
+
+def _model_record(model_path: Path, out: Path, payload: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "path": recorded_path(model_path, artifact=out),
+        "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
+        "kind": payload["kind"],
+    }
 
 
 def figure_paths(out: Path) -> dict[str, Path]:
@@ -35,11 +49,13 @@ def solve_file(
 ) -> dict[str, Any]:
     """Solve the nominal and robust OCP on a PPANN checkpoint and write ocp.json and figures.
 
-    Nothing is written unless both solves succeed.
+    Nothing is written at `out` unless both solves succeed; a failed robust solve leaves the
+    nominal plan and the margin history in <stem>.failed.json (`failed_path`) and says so.
 
     Raises:
       CheckpointError: unreadable checkpoint, or not a PPANN (the black box has no physics).
-      OCPError, RobustError: the solves failed; nothing is written.
+      OCPError: the nominal solve failed; nothing is written.
+      RobustError: the robust loop failed; only <stem>.failed.json is written.
       OutputError: `out` cannot be written.
     """
     model_path, out = Path(model_path), Path(out)
@@ -56,17 +72,34 @@ def solve_file(
     started = time.perf_counter()
     ocp = NominalOCP(model, config)
     build_s = time.perf_counter() - started
-    result = solve_robust(model, config, ocp=ocp, on_iteration=on_iteration)
+    try:
+        result = solve_robust(model, config, ocp=ocp, on_iteration=on_iteration)
+    except RobustError as exc:
+        if exc.partial is not None:  # keep the nominal plan and the margin history
+            failed = failed_path(out)
+            try:
+                write_failed(
+                    failed,
+                    exc.partial,
+                    error=str(exc),
+                    config=config,
+                    dt=ocp.dt,
+                    model=_model_record(model_path, out, payload),
+                    variability=payload.get("variability"),
+                )
+                kept = f"the nominal plan and the margin history are in {failed}"
+            except OSError as not_written:  # a full disk: the solver's error stays the news
+                kept = f"the nominal plan could not be kept ({not_written})"
+            exc.args = (f"{exc}; {kept}",)
+        raise
+    with contextlib.suppress(FileNotFoundError):  # a failure's leftovers from an earlier solve
+        failed_path(out).unlink()
     written = write_ocp(
         out,
         result,
         config=config,
         dt=ocp.dt,
-        model={
-            "path": recorded_path(model_path, artifact=out),
-            "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
-            "kind": payload["kind"],
-        },
+        model=_model_record(model_path, out, payload),
         variability=payload.get("variability"),
         build_s=build_s,
     )

@@ -57,6 +57,8 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     assert config["generation"]["variability"]["name"] == "paper"
     assert (run_dir / "dataset.mcap").is_file() and (run_dir / "model.pt").is_file()
     assert not (run_dir / "ocp.json").exists() and not (run_dir / "report.json").exists()
+    failed = json.loads((run_dir / "ocp.failed.json").read_text())  # what the solve had
+    assert failed["status"] == "failed" and len(failed["nominal"]["tau"]) == 150
     log = (run_dir / "run.log").read_text()  # what the terminal showed, without bar frames
     assert log.splitlines()[0] == "generating the dataset ..." and "\r" not in log
     assert log.splitlines()[-1] == result.stderr.strip().splitlines()[-1]

@@ -4,6 +4,7 @@ folder left behind by a refused step, click's usage errors as one line, run name
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import subprocess
@@ -16,6 +17,10 @@ from mcap.reader import make_reader
 
 from common.atomic import OutputError, lock_path, output_lock
 from common.jsonio import recorded_path, without_wall_clock
+from control.config import OCPConfig
+from control.ocp import NominalOCP
+from control.ocp_file import FAILED_FORMAT, OCPFileError, read_ocp
+from control.solve import failed_path
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
 from replay.config import ReplayConfig
@@ -278,3 +283,30 @@ def test_recorded_paths_are_relative_inside_the_artifacts_folder(tmp_path: Path)
     assert without_wall_clock(
         {"created": "now", "a": [{"wall_time_s": 1.0, "cost": 2.0}], "timing": {"x_s": 3}}
     ) == {"a": [{"cost": 2.0}]}
+
+
+def test_a_failed_robust_solve_keeps_the_nominal_plan_and_the_margin_history(
+    tmp_path: Path,
+) -> None:
+    """A line far wider than the stroke: no ocp.json, one error line that names what was kept,
+    and <stem>.failed.json with the nominal profile (as ocp.json has it) and every iteration."""
+    model = tmp_path / "wide.pt"
+    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.3, 0.5, 0.5))
+    save(model, wide, kind="ppann", extra={"history": {}})
+    out = tmp_path / "ocp.json"
+    result = crank("solve", "--model", str(model), "--out", str(out), "--confidence", "0")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: the model's tightening of the slider at sample ")
+    assert last.endswith(f"the nominal plan and the margin history are in {failed_path(out)}")
+    assert not out.exists() and not any(tmp_path.glob("ocp.*.png"))
+    failed = json.loads(failed_path(out).read_text())
+    assert failed["format"] == FAILED_FORMAT and failed["status"] == "failed"
+    assert failed["error"] in last and failed["model"]["path"] == "wide.pt"
+    nominal = NominalOCP(wide, OCPConfig(confidence=0.0)).solve()
+    assert failed["nominal"]["cost"] == nominal.cost
+    assert failed["nominal"]["tau"] == nominal.tau.tolist()
+    assert len(failed["nominal"]["gain_theta"]) == len(nominal.tau) - 1
+    assert len(failed["robust_iterations"]) >= 1
+    with pytest.raises(OCPFileError, match="not a crank-ocp file"):
+        read_ocp(failed_path(out))
