@@ -159,6 +159,62 @@ def test_an_output_over_an_input_is_refused(
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+def _kill_mid_step(args: list[str], out: Path, *, after: float) -> None:
+    """Run `crank ARGS`, SIGKILL it `after` seconds into the step that writes `out` (once its
+    output lock exists), and wait for it."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "crank", *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    deadline = time.monotonic() + 120
+    while not lock_path(out).exists() and time.monotonic() < deadline:
+        assert process.poll() is None, "finished before it could be killed"
+        time.sleep(0.1)
+    time.sleep(after)
+    assert process.poll() is None, "finished before it could be killed"
+    process.kill()
+    process.wait()
+
+
+def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Path) -> None:
+    """SIGKILL mid-training and mid-solve: none of the step's outputs appear (no checkpoint, no
+    report, no ocp.json, no figure), and a rerun takes the stale lock over and writes them."""
+    data = tmp_path / "d.mcap"
+    assert crank("generate", "--seconds", "6", "--out", str(data)).returncode == 0
+    model = tmp_path / "m.pt"
+    _kill_mid_step(["train", "--data", str(data), "--out", str(model)], model, after=4.0)
+    assert not list(tmp_path.glob("m.*")), sorted(p.name for p in tmp_path.iterdir())
+    rerun = crank("train", "--data", str(data), "--out", str(model), "--epochs", "2")
+    assert rerun.returncode == 0, rerun.stderr
+    assert model.is_file() and (tmp_path / "m.report.json").is_file()
+
+    ppann = tmp_path / "c.pt"
+    save(
+        ppann,
+        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
+        kind="ppann",
+        extra={"history": {}},
+    )
+    ocp = tmp_path / "ocp.json"
+    slow = ["--mc-samples", "50000"]  # ~2 s per Monte-Carlo: killed inside the robust loop
+    _kill_mid_step(["solve", "--model", str(ppann), "--out", str(ocp), *slow], ocp, after=2.0)
+    assert not list(tmp_path.glob("ocp*")), sorted(p.name for p in tmp_path.iterdir())
+    rerun = crank("solve", "--model", str(ppann), "--out", str(ocp))
+    assert rerun.returncode == 0, rerun.stderr
+    assert read_ocp(ocp).robust.cost > read_ocp(ocp).nominal.cost
+
+
+def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None:
+    """SIGKILL mid-chain: the run folder keeps its config and the stages that finished, and says
+    it did not finish by lacking report.json; a run under another name completes its steps."""
+    run_dir = tmp_path / "r"
+    args = ["run", "--seconds", "12", "--logs", str(tmp_path), "--name", "r"]
+    _kill_mid_step(args, run_dir, after=8.0)
+    assert (run_dir / "config.json").is_file()
+    assert not (run_dir / "report.json").exists() and not (run_dir / "report.md").exists()
+    again = crank(*args)
+    assert again.returncode == 2 and "already exists" in again.stderr
+
+
 @pytest.mark.parametrize(
     ("command", "match"),
     [
