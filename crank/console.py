@@ -1,6 +1,6 @@
 """The `crank` command's shared parts: the Typer app, one-line errors, progress bars, option
-types and the printers several commands use. The commands are in crank/cli.py (one stage each)
-and crank/cli_chain.py (`run`, `study`)."""
+types and the printers several commands use. The commands are in crank/cli.py (one stage each),
+crank/cli_campaign.py (the replay stage's) and crank/cli_chain.py (`run`, `study`)."""
 
 from __future__ import annotations
 

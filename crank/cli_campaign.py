@@ -1,0 +1,208 @@
+"""`crank replay`, `heldout`, `recover` and `view`: the replay stage's commands (registered on
+the app by crank/cli.py's `main`). Like every command, a bad input is one line on stderr and exit
+code 2, with nothing written at the target path; the engines are imported inside each command."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from common.atomic import OutputError, check_suffix
+from crank.console import (
+    HELDOUT_SEED,
+    ModelPath,
+    Progress,
+    app,
+    one_line_errors,
+    print_heldout,
+    print_replay,
+)
+from replay.config import PROFILES, ReplayConfig, ReplayConfigError
+from twin import MODEL_PATH, __version__
+from twin.variability import Variability
+
+
+def _modes(text: str) -> tuple[str, ...]:
+    """--modes text as a tuple; ReplayConfig says what is wrong with its contents."""
+    return tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+def replay_campaign(
+    *, ocp: Path, out: Path, config: ReplayConfig, model: Path, resolved: dict[str, Any]
+) -> dict[str, Any]:
+    """`replay_file` with a progress bar over the runs."""
+    from replay.files import replay_file
+
+    total = config.runs * len(PROFILES) * len(config.modes)
+    with Progress(total, "replaying", unit="run") as bar:
+        done = 0
+
+        def on_run(n: int) -> None:
+            nonlocal done
+            bar.update(n - done)
+            done = n
+
+        return replay_file(
+            ocp, out, config=config, model_path=model, resolved=resolved, on_run=on_run
+        )
+
+
+@app.command("replay", short_help="Play both torques on fresh twins; write MCAP, stats, Rerun.")
+@one_line_errors
+def replay_command(
+    ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
+    runs: Annotated[int, typer.Option(help="Machines (runs) per profile and mode.")] = (
+        ReplayConfig.runs
+    ),
+    seed: Annotated[int, typer.Option(help="Seed of the machines and disturbances.")] = 0,
+    out: Annotated[Path, typer.Option(help="Campaign log MCAP to write.")] = Path(
+        "logs/replay.mcap"
+    ),
+    modes: Annotated[str, typer.Option(help="open, closed or open,closed.")] = "open,closed",
+    feedback: Annotated[
+        str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
+    ] = ReplayConfig.feedback,
+    kp: Annotated[float, typer.Option(help="PD: N·m/rad on the angle error.")] = (ReplayConfig.kp),
+    kd: Annotated[float, typer.Option(help="PD: N·m·s/rad on the speed error.")] = (
+        ReplayConfig.kd
+    ),
+    max_start_time: Annotated[
+        float, typer.Option(help="Machines have run U[0, this] s before (warm-up drift).")
+    ] = ReplayConfig.max_start_time,
+    variability: Annotated[
+        str | None,
+        typer.Option(
+            help="Scenario or range file of the machines (default: the one in ocp.json, which "
+            "is the training dataset's)."
+        ),
+    ] = None,
+    model: ModelPath = MODEL_PATH,
+) -> None:
+    """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
+    campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
+    from replay.files import ocp_variability
+
+    check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
+    config = ReplayConfig(
+        runs=runs,
+        seed=seed,
+        modes=_modes(modes),
+        feedback=feedback,
+        kp=kp,
+        kd=kd,
+        max_start_time=max_start_time,
+        variability=(
+            ocp_variability(ocp) if variability is None else Variability.resolve(variability)
+        ),
+    )
+    resolved = {
+        "command": "crank replay",
+        "argv": sys.argv[1:],
+        "ocp": str(ocp),
+        "replay": config.as_dict(),
+        "model": str(model),
+        "project_version": __version__,
+    }
+    stats = replay_campaign(ocp=ocp, out=out, config=config, model=model, resolved=resolved)
+    print_replay(stats, out)
+
+
+@app.command("heldout", short_help="Check both torques of an ocp.json on held-out machines.")
+@one_line_errors
+def heldout_command(
+    ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
+    model: Annotated[Path, typer.Option(help="The PPANN checkpoint the OCP was solved on.")] = (
+        Path("logs/model.pt")
+    ),
+    runs: Annotated[int, typer.Option(help="Held-out machines per profile.")] = 1000,
+    seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (HELDOUT_SEED),
+    out: Annotated[Path, typer.Option(help="heldout.json to write.")] = Path("logs/heldout.json"),
+    variability: Annotated[
+        str | None,
+        typer.Option(help="Scenario or range file (default: the one in ocp.json)."),
+    ] = None,
+    mode: Annotated[
+        str, typer.Option(help="open, or closed (each profile's LQR gains from ocp.json).")
+    ] = "open",
+    mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
+) -> None:
+    """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
+    with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
+    from replay.files import ocp_variability
+    from replay.heldout import heldout_file
+
+    check_suffix(out, ".json")  # before ocp.json is read for its scenario
+    if mode not in ("open", "closed"):
+        raise ReplayConfigError(f"mode must be open or closed, got {mode!r}")
+    ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
+    chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
+    result = heldout_file(
+        ocp,
+        out,
+        model=model,
+        runs=runs,
+        seed=seed,
+        variability=chosen,
+        mode=mode,
+        model_path=mjcf,
+    )
+    print_heldout(result)
+    typer.echo(f"wrote {out}")
+
+
+@app.command("recover", short_help="Rebuild a readable MCAP from a crashed campaign's file.")
+@one_line_errors
+def recover_command(
+    broken: Annotated[Path, typer.Argument(help="MCAP left by a crashed campaign (.partial).")],
+    fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
+) -> None:
+    """Rebuild a readable, indexed MCAP from what a crashed campaign writer left."""
+    from replay.campaign_log import recover
+
+    result = recover(broken, fixed)
+    state = "was complete" if result.complete else "was cut short"
+    typer.echo(
+        f"wrote {fixed}: {result.runs} complete runs, {result.messages} messages "
+        f"({result.dropped_messages} of an unfinished run dropped); {broken} {state}"
+    )
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or (
+        sys.platform in ("darwin", "win32")
+    )
+
+
+@app.command("view", short_help="Open a recording in the Rerun viewer.")
+@one_line_errors
+def view_command(
+    path: Annotated[Path, typer.Argument(help="A campaign's .rrd (or an .mcap log).")],
+) -> None:
+    """Open a recording in the Rerun viewer, or say how to open it where there is no display."""
+    from replay.recording import check_recording, rerun_version
+
+    if not path.is_file():
+        raise OutputError(f"file not found: {path}")
+    if path.suffix == ".mcap":
+        typer.echo(
+            f"{path} is an MCAP log: open it in Foxglove (Open local file), or view the "
+            f"Rerun recording beside it: crank view {path.with_suffix('.rrd')}"
+        )
+        return
+    if path.suffix != ".rrd":
+        raise OutputError(f"crank view opens .rrd recordings (or names .mcap logs), got {path}")
+    check_recording(path)
+    if not _has_display():
+        typer.echo(
+            f"no display here: copy {path} to a machine with a display and run "
+            f"`rerun {path.name}` (rerun-sdk {rerun_version()}), or drop it on the Rerun "
+            "web viewer of the same version"
+        )
+        return
+    subprocess.Popen([sys.executable, "-m", "rerun", str(path)], start_new_session=True)
+    typer.echo(f"opened {path} in the Rerun viewer")
