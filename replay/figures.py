@@ -12,6 +12,7 @@ from control.figures import constraint_boxes
 from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import Campaign
 from replay.config import PROFILES
+from twin.physics import STROKE_TOP
 
 COLORS = {"nominal": "C0", "robust": "C3"}
 
@@ -36,8 +37,9 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
                 t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({mode} loop)"
             )
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
-            ax.plot(t, s["slider"]["lower"], "k--", lw=0.8, label=f"twin ±{k:g}σ")
-            ax.plot(t, s["slider"]["upper"], "k--", lw=0.8)
+            for side, label in (("lower", f"twin ±{k:g}σ (within the stroke)"), ("upper", None)):
+                bound = np.clip(s["slider"][side], 0.0, STROKE_TOP)  # as the PPANN's band
+                ax.plot(t, bound, "k--", lw=0.8, label=label)
             constraint_boxes(ax, ocp)
             if mode == "closed":  # feedback keeps every run near the plan: show the constraint
                 ax.set_ylim(ocp.config.height - 0.005, 0.102)
