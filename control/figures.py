@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from control.ocp_file import OCPFile, Profile
-from twin.physics import STROKE_TOP
+from control.config import loop_of
+from control.ocp_file import OCPFile, Profile, predicted_band
 
 
 def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None) -> None:
@@ -23,10 +22,11 @@ def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None)
 def _slider(ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str) -> None:
     k = ocp.config.k_sigma
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
-    ax.fill_between(  # a slider cannot leave the stroke, however wide the predicted band
+    lower, upper = predicted_band(profile, loop_of(ocp.config.feedback), k)  # sized-for loop
+    ax.fill_between(
         profile.time,
-        np.clip(profile.slider_lower, 0.0, STROKE_TOP),
-        np.clip(profile.slider_upper, 0.0, STROKE_TOP),
+        lower,
+        upper,
         color=color,
         alpha=0.2,
         label=f"{label}: ±{k:g}σ (Monte-Carlo, {ocp.config.mc_samples} runs; within the stroke)",

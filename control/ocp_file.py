@@ -58,7 +58,7 @@ from control.config import OCPConfig
 from control.ocp import Solution
 from control.robust import Partial, RobustResult, Uncertainty
 from twin import __version__
-from twin.physics import STROKE_TOP
+from twin.physics import within_stroke
 
 FORMAT = "crank-ocp"
 FAILED_FORMAT = "crank-ocp-failed"
@@ -139,11 +139,11 @@ class OCPFile:
 
 def predicted_band(profile: Profile, mode: str, k_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
-    within the stroke [0, STROKE_TOP] (a slider cannot leave it, however wide the spread); for
-    drawing, not for statistics."""
+    within the stroke (twin.physics.within_stroke); for drawing, not for statistics."""
     sigma = profile.sigma_in(mode)
-    lower, upper = profile.slider - k_sigma * sigma, profile.slider + k_sigma * sigma
-    return np.clip(lower, 0.0, STROKE_TOP), np.clip(upper, 0.0, STROKE_TOP)
+    return within_stroke(profile.slider - k_sigma * sigma), within_stroke(
+        profile.slider + k_sigma * sigma
+    )
 
 
 def profile_dict(
@@ -202,6 +202,20 @@ def _header(
     }
 
 
+def _profile_of(
+    result: RobustResult | Partial, name: str, *, config: OCPConfig, dt: float
+) -> dict[str, Any]:
+    """The profile `name` of a result (or of a failed solve's partial one) as JSON-ready data."""
+    return profile_dict(
+        getattr(result, name),
+        getattr(result, f"{name}_uncertainty"),
+        gains=getattr(result, f"{name}_gains"),
+        loops=getattr(result, f"{name}_loops"),
+        k_sigma=config.k_sigma,
+        dt=dt,
+    )
+
+
 def _history(result: RobustResult | Partial) -> dict[str, Any]:
     """Every robust iteration and every margin IPOPT could not meet."""
     return {
@@ -247,17 +261,7 @@ def write_ocp(
     dataset's scenario (from the checkpoint), which replays draw their machines from."""
     payload = {
         **_header(config, dt=dt, model=model, variability=variability),
-        **{
-            name: profile_dict(
-                getattr(result, name),
-                getattr(result, f"{name}_uncertainty"),
-                gains=getattr(result, f"{name}_gains"),
-                loops=getattr(result, f"{name}_loops"),
-                k_sigma=config.k_sigma,
-                dt=dt,
-            )
-            for name in ("nominal", "robust")
-        },
+        **{name: _profile_of(result, name, config=config, dt=dt) for name in ("nominal", "robust")},
         **_history(result),
         "timing": {
             "build_s": build_s,
@@ -290,14 +294,7 @@ def write_failed(
         "format": FAILED_FORMAT,
         "status": "failed",
         "error": error,
-        "nominal": profile_dict(
-            partial.nominal,
-            partial.nominal_uncertainty,
-            gains=partial.nominal_gains,
-            loops=partial.nominal_loops,
-            k_sigma=config.k_sigma,
-            dt=dt,
-        ),
+        "nominal": _profile_of(partial, "nominal", config=config, dt=dt),
         **_history(partial),
         "timing": {
             "nominal_solve_s": partial.nominal.wall_time,

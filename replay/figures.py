@@ -12,7 +12,7 @@ from control.figures import constraint_boxes
 from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import Campaign
 from replay.config import PROFILES
-from twin.physics import STROKE_TOP
+from twin.physics import within_stroke
 
 COLORS = {"nominal": "C0", "robust": "C3"}
 
@@ -38,8 +38,7 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             )
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
             for side, label in (("lower", f"twin ±{k:g}σ (within the stroke)"), ("upper", None)):
-                bound = np.clip(s["slider"][side], 0.0, STROKE_TOP)  # as the PPANN's band
-                ax.plot(t, bound, "k--", lw=0.8, label=label)
+                ax.plot(t, within_stroke(s["slider"][side]), "k--", lw=0.8, label=label)
             constraint_boxes(ax, ocp)
             if mode == "closed":  # feedback keeps every run near the plan: show the constraint
                 ax.set_ylim(ocp.config.height - 0.005, 0.102)

@@ -83,10 +83,8 @@ def heldout_check(
     max_start_time: float = 60.0,
     mc_samples: int = 1000,
     mode: str = "open",
-    recorded_as: str | None = None,
 ) -> dict[str, Any]:
-    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content
-    (which records the ocp.json as `recorded_as`, default `ocp_path`)."""
+    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content."""
     ocp = read_ocp(ocp_path)
     config = ReplayConfig(
         runs=runs,
@@ -102,7 +100,7 @@ def heldout_check(
     out: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
-        "ocp": str(ocp_path) if recorded_as is None else recorded_as,
+        "ocp": str(ocp_path),
         "runs": runs,
         "seed": seed,
         "mode": mode,
@@ -219,12 +217,12 @@ def heldout_file(
         physics,
         ocp_path,
         ppann,
-        recorded_as=recorded_path(ocp_path, artifact=out),
         runs=runs,
         seed=seed,
         variability=variability,
         max_start_time=max_start_time,
         mode=mode,
     )
+    result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder
     write_json(out, result)
     return result

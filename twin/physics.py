@@ -24,6 +24,14 @@ ROD_LENGTH = 0.3
 """l2, connecting-rod length in m (paper section 3.1)."""
 STROKE_TOP = 2 * CRANK_LENGTH
 """Highest slider position (top dead centre), m; the lowest is 0 (bottom dead centre)."""
+
+
+def within_stroke(x: npt.ArrayLike) -> np.ndarray:
+    """Slider positions clipped to the stroke [0, STROKE_TOP]: how a predicted or observed
+    mean ∓ kσ is drawn, since no slider can leave it however wide the spread."""
+    return np.clip(x, 0.0, STROKE_TOP)
+
+
 SAMPLE_RATE = 500.0
 """Measurement rate in Hz; one sample every 2 ms (paper section 3.2)."""
 
