@@ -245,6 +245,13 @@ def solve_robust(
     nominal = ocp.solve()
     nominal_gains = tube(nominal)
     nominal_unc = slider_uncertainty(heads, nominal, config, gains=nominal_gains)
+
+    def nominal_feedback() -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The nominal plan's gains (the tube's, if already computed) and its open- and
+        closed-loop spread, for the result or a failed solve's partial one."""
+        gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+        return gains, _loops(heads, nominal, config, gains, nominal_unc)
+
     started = time.perf_counter()
     margin = np.zeros(len(index))
     target = nominal_unc.tightening
@@ -303,7 +310,7 @@ def solve_robust(
             if settled:
                 wall_time = time.perf_counter() - started
                 # the tube's gains and the sized-for loop's spread are known; only the rest is new
-                nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+                feedback_gains, feedback_loops = nominal_feedback()
                 robust_gains = gains_of(solution) if gains is None else gains
                 return RobustResult(
                     nominal=nominal,
@@ -313,9 +320,9 @@ def solve_robust(
                     iterations=tuple(iterations),
                     failed_proposals=tuple(failed),
                     wall_time=wall_time,
-                    nominal_gains=nominal_gains,
+                    nominal_gains=feedback_gains,
                     robust_gains=robust_gains,
-                    nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
+                    nominal_loops=feedback_loops,
                     robust_loops=_loops(heads, solution, config, robust_gains, unc),
                 )
             beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
@@ -326,12 +333,12 @@ def solve_robust(
             f"{config.margin_tolerance * 1e3:g} mm)"
         )
     except RobustError as exc:
-        nominal_gains = gains_of(nominal) if nominal_gains is None else nominal_gains
+        feedback_gains, feedback_loops = nominal_feedback()
         exc.partial = Partial(
             nominal=nominal,
             nominal_uncertainty=nominal_unc,
-            nominal_gains=nominal_gains,
-            nominal_loops=_loops(heads, nominal, config, nominal_gains, nominal_unc),
+            nominal_gains=feedback_gains,
+            nominal_loops=feedback_loops,
             iterations=tuple(iterations),
             failed_proposals=tuple(failed),
             wall_time=time.perf_counter() - started,
