@@ -55,6 +55,17 @@ def _main(
     """MuJoCo slider-crank twin and PPANN robust-control testbed."""
 
 
+INPUT_ERRORS = (CrankError, OSError)
+"""What a command turns into one `error:` line (a bad input, a disk that is full)."""
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line a command prints (and `transcript` logs) for an input error or Ctrl-C."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "error: interrupted; no unfinished file was put at a target path"
+    return f"error: {exc}"
+
+
 def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn the project's input errors into `error: ...` on stderr and exit code 2."""
 
@@ -62,11 +73,11 @@ def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return command(*args, **kwargs)
-        except (CrankError, OSError) as exc:
-            typer.echo(f"error: {exc}", err=True)
+        except INPUT_ERRORS as exc:
+            typer.echo(error_line(exc), err=True)
             raise typer.Exit(2) from None
-        except KeyboardInterrupt:
-            typer.echo("error: interrupted; no unfinished file was put at a target path", err=True)
+        except KeyboardInterrupt as exc:
+            typer.echo(error_line(exc), err=True)
             raise typer.Exit(130) from None
 
     return wrapper
@@ -108,11 +119,8 @@ def transcript(path: Path) -> Iterator[None]:
     sys.stdout, sys.stderr = _Tee(out, kept), _Tee(err, kept)
     try:
         yield
-    except (CrankError, OSError) as exc:
-        kept.append(f"error: {exc}\n")
-        raise
-    except KeyboardInterrupt:
-        kept.append("error: interrupted\n")
+    except (*INPUT_ERRORS, KeyboardInterrupt) as exc:
+        kept.append(error_line(exc) + "\n")
         raise
     finally:
         sys.stdout, sys.stderr = out, err
