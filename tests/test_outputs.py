@@ -22,7 +22,7 @@ from control.ocp import NominalOCP
 from control.ocp_file import FAILED_FORMAT, OCPFileError, read_ocp
 from control.solve import failed_path
 from ppann.checkpoint import save
-from ppann.model import constant_ppann
+from ppann.model import PPANN, constant_ppann
 from replay.config import ReplayConfig
 from tests.conftest import Written, crank
 from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
@@ -159,6 +159,15 @@ def test_an_output_over_an_input_is_refused(
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+def _constant_checkpoint(
+    path: Path, *, z_sigma: tuple[float, float, float] = (0.03, 0.05, 0.05)
+) -> PPANN:
+    """A PPANN with constant networks (z_mean 0, 0, -0.9) saved at `path`; returned."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=z_sigma)
+    save(path, model, kind="ppann", extra={"history": {}})
+    return model
+
+
 def _kill_mid_step(args: list[str], out: Path, *, after: float) -> None:
     """Run `crank ARGS`, SIGKILL it `after` seconds into the step that writes `out` (once its
     output lock exists), and wait for it."""
@@ -188,12 +197,7 @@ def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Pa
     assert model.is_file() and (tmp_path / "m.report.json").is_file()
 
     ppann = tmp_path / "c.pt"
-    save(
-        ppann,
-        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
-        kind="ppann",
-        extra={"history": {}},
-    )
+    _constant_checkpoint(ppann)
     ocp = tmp_path / "ocp.json"
     slow = ["--mc-samples", "50000"]  # ~2 s per Monte-Carlo: killed inside the robust loop
     _kill_mid_step(["solve", "--model", str(ppann), "--out", str(ocp), *slow], ocp, after=2.0)
@@ -241,17 +245,7 @@ def test_a_killed_generate_leaves_nothing_that_looks_complete(tmp_path: Path) ->
     """SIGKILL mid-way: no dataset at the target, only the dead writer's lock and temporaries;
     a rerun takes the stale lock over, removes them and writes the dataset."""
     out = tmp_path / "d.mcap"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "crank", "generate", "--seconds", "300", "--out", str(out)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    deadline = time.monotonic() + 120
-    while not lock_path(out).exists() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    time.sleep(3.0)  # well into the simulation
-    process.kill()
-    process.wait()
+    _kill_mid_step(["generate", "--seconds", "300", "--out", str(out)], out, after=3.0)
     assert lock_path(out).exists() and not out.exists()
     assert not list(tmp_path.glob("*.png"))
     result = crank("generate", "--seconds", "1", "--out", str(out))
@@ -317,12 +311,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_output(tmp_path: Path, full_disk:
     _one_line(result, f"cannot write {full_disk / 'd.mcap'}: No space left on device")
     assert not any(full_disk.iterdir())
     model = tmp_path / "m.pt"
-    save(
-        model,
-        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
-        kind="ppann",
-        extra={"history": {}},
-    )
+    _constant_checkpoint(model)
     result = crank("solve", "--model", str(model), "--out", str(full_disk / "ocp.json"))
     assert result.returncode == 2 and "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]  # after the robust loop's progress lines
@@ -347,8 +336,7 @@ def test_a_failed_robust_solve_keeps_the_nominal_plan_and_the_margin_history(
     """A line far wider than the stroke: no ocp.json, one error line that names what was kept,
     and <stem>.failed.json with the nominal profile (as ocp.json has it) and every iteration."""
     model = tmp_path / "wide.pt"
-    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.3, 0.5, 0.5))
-    save(model, wide, kind="ppann", extra={"history": {}})
+    wide = _constant_checkpoint(model, z_sigma=(0.3, 0.5, 0.5))
     out = tmp_path / "ocp.json"
     result = crank("solve", "--model", str(model), "--out", str(out), "--confidence", "0")
     assert result.returncode == 2 and "Traceback" not in result.stderr
