@@ -106,7 +106,10 @@ def tightening(
     """The margin one constraint sample asks for, and its standard error, from Monte-Carlo slider
     positions `samples` (n,) under a plan whose mean-model slider position is `plan`.
 
-    gaussian  k·σ (paper eq. 16); standard error k·σ / sqrt(2 (n − 1)) (normal samples).
+    gaussian  k·σ (paper eq. 16); standard error k·σ·sqrt((κ − 1) / (4 n)), κ the samples'
+              kurtosis (the delta method on Var(s²) = (μ₄ − σ⁴) / n): k·σ / sqrt(2 n) for
+              normal samples, and larger for the heavy, skewed tails near top dead centre, where
+              the normal formula understated the estimate's spread (2× for an exponential law).
     quantile  plan − Q_p, Q_p the empirical lower quantile at p = Φ(−k), so that the slider is
               above the height with the probability k·σ stands for even when the spread is skewed
               or its mean is not the plan; standard error half the distance between the order
@@ -115,7 +118,10 @@ def tightening(
     n = samples.shape[0]
     if method == "gaussian":
         sigma = float(np.std(samples, ddof=1))
-        return k_sigma * sigma, k_sigma * sigma / math.sqrt(2 * (n - 1))
+        centred = samples - samples.mean()
+        second = float(np.mean(centred**2))
+        kurtosis = float(np.mean(centred**4)) / second**2 if second > 0 else 3.0
+        return k_sigma * sigma, k_sigma * sigma * math.sqrt(max(kurtosis - 1, 0.0) / (4 * n))
     p = lower_tail(k_sigma)
     ordered = np.sort(samples)
     spread = math.sqrt(n * p * (1 - p))

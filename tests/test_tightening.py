@@ -66,6 +66,19 @@ def test_gaussian_tightening_and_its_standard_error() -> None:
     assert errors.mean() == pytest.approx(margins.std(ddof=1), rel=0.15)
 
 
+def test_gaussian_standard_error_holds_for_a_heavy_tailed_law() -> None:
+    """An exponential spread (kurtosis 9): the standard error of k·σ is twice the normal law's
+    k·σ / sqrt(2 n); the reported one must be the estimates' real spread (within 15 %)."""
+    rng = np.random.default_rng(2)
+    values = [
+        tightening(PLAN - rng.exponential(4e-3, 1000), PLAN, k_sigma=3.0, method="gaussian")
+        for _ in range(400)
+    ]
+    margins, errors = np.array([m for m, _ in values]), np.array([s for _, s in values])
+    assert errors.mean() == pytest.approx(margins.std(ddof=1), rel=0.15)
+    assert errors.mean() > 1.6 * 3.0 * 4e-3 / math.sqrt(2 * 1000)
+
+
 def test_sample_counts_follow_the_tightening() -> None:
     assert OCPConfig().mc_samples == 1000
     assert OCPConfig().mc_mode == "mixed"
