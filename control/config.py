@@ -4,12 +4,12 @@ validated config, and the normal-law helpers the tightening is sized with."""
 from __future__ import annotations
 
 import math
-import statistics
 from dataclasses import asdict, dataclass
 from typing import Any
 
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
+from ppann.confidence import DEFAULT_CONFIDENCE
 from ppann.modes import check_mode
 
 
@@ -36,13 +36,6 @@ def loop_of(feedback: str) -> str:
 def lower_tail(k_sigma: float) -> float:
     """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
     return 0.5 * math.erfc(k_sigma / math.sqrt(2))
-
-
-def confidence_quantile(confidence: float) -> float:
-    """z of a confidence split evenly between the line's mean and its spread (Bonferroni):
-    each one-sided bound at 1 − (1 − confidence) / 2, so both hold together with probability
-    >= confidence. 0 gives 0 (no allowance); 0.95 gives 1.96."""
-    return statistics.NormalDist().inv_cdf(1 - (1 - confidence) / 2)
 
 
 @dataclass(frozen=True)
@@ -74,11 +67,11 @@ class OCPConfig:
     default: one machine per trajectory plus white noise, the machine-level model)."""
     tightening: str = "gaussian"
     """gaussian: k·σ (eq. 16); quantile: plan − the lower quantile at Φ(−k) (control/robust.py)."""
-    confidence: float = 0.95
-    """Confidence about the line that the robust tightening allows for, beyond the paper
-    (control/robust.py): the training machines are a few draws of the line, so its mean and
-    spread are known only to within what they show. 0 takes the fitted line as the truth (the
-    paper's eq. 16)."""
+    confidence: float = DEFAULT_CONFIDENCE
+    """Confidence that the robust tightening is not short, beyond the paper (control/robust.py):
+    the training machines are a few draws of the line, so its mean and spread are known only to
+    within what they show, and the Monte-Carlo estimates the tightening from finitely many
+    trajectories. 0 takes the fitted line and the estimate as the truth (the paper's eq. 16)."""
     mc_seed: int = 0
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
     feedback: str = "none"

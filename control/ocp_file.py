@@ -2,7 +2,7 @@
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 4
+  format, version            "crank-ocp", 5
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
@@ -30,8 +30,9 @@ mean and standard deviation of the slider position, in the loop the tightening w
 (the Monte-Carlo std of the plan open loop and closed under its gains, which the replay's rows
 compare against); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus
 `heights`, the slider lower bounds used at the constraint samples, and `tightening`,
-`tightening_se` there (m), and `population`, the part of `tightening` that allows for the
-line's uncertain mean (m, control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
+`tightening_se` there (m), and `population` and `sampling`, the parts of `tightening` that
+allow for the line's uncertain mean and for the Monte-Carlo's standard error (m,
+control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
 (N - 1 each), the LQR gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the
 twin's closed loop applies before samples 1..N-1. With config.feedback "lqr" the Monte-Carlo
 bands and the tightening are those of that closed loop.
@@ -63,9 +64,10 @@ from twin.physics import within_stroke
 FORMAT = "crank-ocp"
 FAILED_FORMAT = "crank-ocp-failed"
 """The format of what a failed robust solve leaves beside the ocp.json it could not write."""
-VERSION = 4
+VERSION = 5
 """2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
-population in each profile."""
+population in each profile; 4: LQR gains and both loops' spreads; 5: sampling in each profile
+(the tightening includes the Monte-Carlo's standard-error allowance)."""
 INDEX_CONVENTION = (
     "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
     "t_{k+1}; constraint_samples are 1-based"
@@ -177,6 +179,7 @@ def profile_dict(
         "tightening": [float(v) for v in uncertainty.tightening],
         "tightening_se": [float(v) for v in uncertainty.tightening_se],
         "population": [float(v) for v in uncertainty.population],
+        "sampling": [float(v) for v in uncertainty.sampling],
         "gain_theta": [float(v) for v in gains[:, 0]],
         "gain_omega": [float(v) for v in gains[:, 1]],
         "cost": solution.cost,

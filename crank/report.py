@@ -58,6 +58,9 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
         ),
         "of which for the line's mean": ", ".join(f"{1e3 * v:.2f} mm" for v in r["population"])
         + f" (confidence {payload['config']['confidence']:g})",
+        "of which for the Monte-Carlo's standard error": ", ".join(
+            f"{1e3 * v:.2f} mm" for v in r["sampling"]
+        ),
     }
 
 

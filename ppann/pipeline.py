@@ -10,7 +10,6 @@ Outputs for `--out logs/model.pt`:
 from __future__ import annotations
 
 import os
-import statistics
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ from common.atomic import check_writable, writes
 from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint, figures
+from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile
 from ppann.fit import Fitted, fit
 from ppann.kinds import KINDS
 from ppann.machine import sigma_upper
@@ -39,9 +39,9 @@ from ppann.train_config import TrainConfig
 from twin.mcap_dataset import read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
 
-LINE_Z = statistics.NormalDist().inv_cdf(0.975)
-"""The report's one-sided 97.5 % bounds (z = 1.96): what the robust OCP allows for at its
-default confidence 0.95 (control/config.py, Bonferroni over mean and spread)."""
+LINE_Z = confidence_quantile(DEFAULT_CONFIDENCE)
+"""The report's one-sided bounds on the line (z = 2.13): what the robust OCP allows for at its
+default confidence 0.95 (ppann/confidence.py)."""
 
 
 def sibling(out: Path, suffix: str) -> Path:

@@ -113,7 +113,10 @@ def test_quantile_tightening_keeps_the_monte_carlo_quantile(model: PPANN) -> Non
     for i, k in enumerate(SAMPLES):
         quantile = np.quantile(slider[:, k], lower_tail(3.0))
         assert quantile >= 0.08 - 1.5e-4
-        assert result.robust.slider[k] - unc.tightening[i] == pytest.approx(quantile, abs=1e-12)
+        point = unc.tightening[i] - unc.population[i] - unc.sampling[i]  # plan − quantile
+        assert result.robust.slider[k] - point == pytest.approx(quantile, abs=1e-12)
+        # the allowance for the Monte-Carlo's error puts the quantile itself above the height
+        assert quantile >= 0.08 + unc.sampling[i] - 1.5e-4 and unc.sampling[i] > 0
     assert config.mc_samples == 14816
 
 
