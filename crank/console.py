@@ -216,8 +216,9 @@ FeedbackOption = Annotated[
 Confidence = Annotated[
     float,
     typer.Option(
-        help="Confidence about the line the robust tightening allows for (its mean and spread "
-        "are estimated from few machines); 0 = the paper's eq. 16."
+        help="Confidence that the robust tightening is not short (the line's mean and spread "
+        "are estimated from few machines, the spread's effect from a finite Monte-Carlo); "
+        "0 = the paper's eq. 16."
     ),
 ]
 ModelPath = Annotated[Path, typer.Option("--model", help="The slider-crank MJCF.")]
