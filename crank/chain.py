@@ -38,6 +38,7 @@ from replay.statistics import summary_rows
 from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.generation import check_generation_memory, generate_file
+from twin.physics import SliderCrank, load_model
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,7 @@ def run_chain(
     if run_dir.exists():
         raise OutputError(f"run folder already exists: {run_dir}")
     check_generation_memory(config.generation)
+    SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     stage = hooks.on_stage or (lambda _: None)
     resolved = {
         "command": "crank run",
