@@ -1,0 +1,314 @@
+"""Every subcommand against bad input, as one table: each case must end with exit code 2, a
+single `error: ...` line on stderr naming what was wrong, no traceback, nothing on stdout's
+success path, and no new file or folder, neither in the working folder nor beside the inputs
+(whose bytes stay as they were).
+
+The commands run in this process (`crank.cli.main` with its argv), so the table costs
+milliseconds a case instead of an interpreter start; tests/test_cli.py and tests/test_outputs.py
+run the CLI as a subprocess where the process itself matters (kills, locks, a full disk)."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from crank.cli import main
+from ppann.checkpoint import save
+from ppann.model import constant_ppann
+from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
+from twin.dataset import GenerationConfig
+from twin.generation import generate_file
+
+RANGES = {
+    "swapped": "[motor_damping]\nlow = 0.1\nhigh = 0.05\n",
+    "nan": "[slider_damping]\nlow = nan\nhigh = 9\n",
+    "unknown": "[motor_wobble]\nlow = 0.1\nhigh = 0.2\n",
+    "negative": "[motor_damping]\nlow = -0.1\nhigh = 0.2\n",
+    "broken": "[motor_damping\nlow = ",
+}
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:  # noqa: F811
+    """Valid inputs of every stage and broken ones, in a folder of their own."""
+    d = tmp_path_factory.mktemp("inputs")
+    ds = d / "ds.mcap"
+    generate_file(GenerationConfig(seconds=2.0, episode_seconds=1.0), out=ds, figures=False)
+    model = d / "m.pt"
+    save(
+        model,
+        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
+        kind="ppann",
+        extra={"history": {}},
+    )
+    ocp = d / "ocp.json"
+    ocp.write_bytes(ocp_path.read_bytes())
+    (d / "text.txt").write_text("not a file of any of ours\n")
+    (d / "text.mcap").write_text("not an mcap\n")
+    (d / "empty.mcap").write_bytes(b"")
+    (d / "text.pt").write_text("not a checkpoint\n")
+    (d / "cut.pt").write_bytes(model.read_bytes()[: model.stat().st_size // 2])
+    (d / "text.json").write_text("{not json")
+    (d / "list.json").write_text("[1, 2]")
+    (d / "other.json").write_text(json.dumps({"format": "something-else", "version": 1}))
+    (d / "garbage.xml").write_text("<mujoco><worldbody><body><joint type='x'/>")
+    (d / "nameless.xml").write_text("<mujoco/>")
+    (d / "folder").mkdir()
+    (d / "file").write_text("a file where a folder should be\n")
+    for name, text in RANGES.items():
+        (d / f"{name}.toml").write_text(text)
+    return {p.name: p for p in d.iterdir()} | {"dir": d}
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    return {
+        str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+        for p in folder.rglob("*")
+    }
+
+
+CASES: list[tuple[str, str]] = [
+    # --- usage errors (click) ---
+    ("nosuchcommand", "No such command 'nosuchcommand'"),
+    ("generate --bogus", "No such option: --bogus"),
+    ("train --data", "Option '--data' requires an argument"),
+    ("solve --seed 1.5", "Invalid value for '--seed'"),
+    ("replay --runs many", "Invalid value for '--runs'"),
+    ("run --seed", "Option '--seed' requires an argument"),
+    ("inspect", "Missing argument"),
+    ("inspect {ds.mcap} {ds.mcap}", "Got unexpected extra argument"),
+    ("recover", "Missing argument"),
+    ("view", "Missing argument"),
+    ("study --seeds 0-1 --drift-off", "No such option: --drift-off"),
+    ("heldout --runs 1e3", "Invalid value for '--runs'"),
+    ("generate --seconds ten", "Invalid value for '--seconds'"),
+    # --- generate ---
+    ("generate --seconds 0 --out o/d.mcap", "seconds must be > 0"),
+    ("generate --seconds -2 --out o/d.mcap", "seconds must be > 0"),
+    ("generate --seconds nan --out o/d.mcap", "seconds must be a finite number"),
+    ("generate --seconds inf --out o/d.mcap", "seconds must be a finite number"),
+    ("generate --seconds 1e9 --out o/d.mcap", "needs about 5e+05 GB of memory"),
+    ("generate --seconds 1 --episode-seconds nan --out o/d.mcap", "episode_seconds must be a"),
+    ("generate --seconds 1 --episode-seconds 0 --out o/d.mcap", "episode_seconds must be > 0"),
+    ("generate --seconds 1 --episode-seconds -1 --out o/d.mcap", "episode_seconds must be > 0"),
+    ("generate --seconds 1 --amplitude -1 --out o/d.mcap", "excitation.amplitude must be >= 0"),
+    ("generate --seconds 1 --amplitude nan --out o/d.mcap", "amplitude must be a finite number"),
+    ("generate --seconds 1 --seed -1 --out o/d.mcap", "seed must be"),
+    ("generate --seconds 1 --seed 100000000000000000000000 --out o/d.mcap", "seed must be"),
+    ("generate --seconds 1 --model {dir}/absent.xml --out o/d.mcap", "MJCF not found"),
+    ("generate --seconds 1 --model {garbage.xml} --out o/d.mcap", "invalid MJCF"),
+    ("generate --seconds 1 --model {nameless.xml} --out o/d.mcap", "no joint named 'motor'"),
+    ("generate --seconds 1 --model {folder} --out o/d.mcap", "cannot read MJCF"),
+    ("generate --seconds 1 --variability line-20 --out o/d.mcap", "unknown variability scenario"),
+    ("generate --seconds 1 --variability {swapped.toml} --out o/d.mcap", "low 0.1 > high 0.05"),
+    ("generate --seconds 1 --variability {nan.toml} --out o/d.mcap", "must be a finite number"),
+    ("generate --seconds 1 --variability {unknown.toml} --out o/d.mcap", "motor_wobble"),
+    ("generate --seconds 1 --variability {negative.toml} --out o/d.mcap", "motor_damping"),
+    ("generate --seconds 1 --variability {broken.toml} --out o/d.mcap", "broken.toml"),
+    ("generate --seconds 1 --variability {dir}/absent.toml --out o/d.mcap", "absent.toml"),
+    ("generate --seconds 1 --variability {text.txt} --out o/d.mcap", "text.txt"),
+    ("generate --seconds 1 --out o/d.txt", "must end in .mcap"),
+    ("generate --seconds 1 --out {folder}", "it must end in .mcap"),
+    ("generate --seconds 1 --out {file}/d.mcap", "cannot write to"),
+    ("generate --seconds 1 --model {garbage.xml} --out {garbage.xml}", "must end in .mcap"),
+    # --- inspect ---
+    ("inspect {dir}/absent.mcap", "dataset not found"),
+    ("inspect {text.mcap}", "not an MCAP file"),
+    ("inspect {empty.mcap}", "not an MCAP file"),
+    ("inspect {text.txt}", "not an MCAP file"),
+    ("inspect {folder}", "folder"),
+    ("inspect {m.pt}", "not an MCAP file"),
+    # --- train ---
+    ("train --data {dir}/absent.mcap --out o/m.pt", "dataset not found"),
+    ("train --data {text.mcap} --out o/m.pt", "not an MCAP file"),
+    ("train --data {empty.mcap} --out o/m.pt", "not an MCAP file"),
+    ("train --data {folder} --out o/m.pt", "folder"),
+    ("train --data {ds.mcap} --out o/m.txt", "must end in .pt"),
+    ("train --data {ds.mcap} --out {ds.mcap}", "must end in .pt"),
+    ("train --data {ds.mcap} --out {folder}", "folder"),
+    ("train --data {ds.mcap} --out {file}/m.pt", "cannot write to"),
+    ("train --data {ds.mcap} --out o/m.pt --seed -1", "seed must be"),
+    ("train --data {ds.mcap} --out o/m.pt --seed 100000000000000000000000", "seed must be"),
+    ("train --data {ds.mcap} --out o/m.pt --sigma-block 0", "sigma_block must be an integer"),
+    ("train --data {ds.mcap} --out o/m.pt --sigma-block -3", "sigma_block must be an integer"),
+    ("train --data {ds.mcap} --out o/m.pt --epochs 0", "epochs must be"),
+    ("train --data {ds.mcap} --out o/m.pt --epochs -5", "epochs must be"),
+    ("train --data {ds.mcap} --out o/m.pt --sigma-epochs -1", "sigma_epochs must be"),
+    ("train --data {ds.mcap} --out o/m.pt --horizon 0", "horizon must be"),
+    ("train --data {ds.mcap} --out o/m.pt --horizon -2", "horizon must be"),
+    ("train --data {ds.mcap} --out o/m.pt --horizon 100000", "horizon"),
+    # --- solve ---
+    ("solve --model {dir}/absent.pt --out o/ocp.json", "not found"),
+    ("solve --model {text.pt} --out o/ocp.json", "text.pt"),
+    ("solve --model {cut.pt} --out o/ocp.json", "cut.pt"),
+    ("solve --model {folder} --out o/ocp.json", "folder"),
+    ("solve --model {ds.mcap} --out o/ocp.json", "ds.mcap"),
+    ("solve --model {m.pt} --out o/ocp.txt", "must end in .json"),
+    ("solve --model {m.pt} --out {m.pt}", "must end in .json"),
+    ("solve --model {m.pt} --out {file}/ocp.json", "cannot write to"),
+    ("solve --model {m.pt} --out o/ocp.json --horizon 2", "horizon must be >= 3 samples"),
+    ("solve --model {m.pt} --out o/ocp.json --horizon 0", "horizon must be >= 3 samples"),
+    ("solve --model {m.pt} --out o/ocp.json --height nan", "height must be a finite number"),
+    ("solve --model {m.pt} --out o/ocp.json --height inf", "height must be a finite number"),
+    ("solve --model {m.pt} --out o/ocp.json --samples 0,200", "outside 2..149"),
+    ("solve --model {m.pt} --out o/ocp.json --samples 50,50", "must be distinct"),
+    ("solve --model {m.pt} --out o/ocp.json --samples x", "--samples"),
+    ("solve --model {m.pt} --out o/ocp.json --samples ''", "--samples"),
+    ("solve --model {m.pt} --out o/ocp.json --samples 50,,100", "--samples"),
+    ("solve --model {m.pt} --out o/ocp.json --samples 1", "outside 2..149"),
+    ("solve --model {m.pt} --out o/ocp.json --k-sigma -1", "k_sigma must be >= 0"),
+    ("solve --model {m.pt} --out o/ocp.json --k-sigma nan", "k_sigma must be a finite number"),
+    ("solve --model {m.pt} --out o/ocp.json --mc-mode often", "Monte-Carlo mode must be one of"),
+    ("solve --model {m.pt} --out o/ocp.json --tightening mean", "tightening must be one of"),
+    ("solve --model {m.pt} --out o/ocp.json --mc-samples 100000000", "mc_samples must be an"),
+    ("solve --model {m.pt} --out o/ocp.json --mc-samples -5", "mc_samples must be an"),
+    ("solve --model {m.pt} --out o/ocp.json --mc-samples 1", "mc_samples must be >= 2"),
+    (
+        "solve --model {m.pt} --out o/ocp.json --tightening quantile --mc-samples 1000",
+        "needs >= 14816 Monte-Carlo samples",
+    ),
+    ("solve --model {m.pt} --out o/ocp.json --confidence 1", "confidence must be in [0, 1)"),
+    ("solve --model {m.pt} --out o/ocp.json --confidence -0.1", "confidence must be >= 0"),
+    ("solve --model {m.pt} --out o/ocp.json --confidence nan", "confidence must be a finite"),
+    ("solve --model {m.pt} --out o/ocp.json --feedback pid", "feedback must be one of none, lqr"),
+    ("solve --model {m.pt} --out o/ocp.json --torque-limit 0", "torque_limit must be > 0"),
+    ("solve --model {m.pt} --out o/ocp.json --torque-limit nan", "torque_limit must be a finite"),
+    ("solve --model {m.pt} --out o/ocp.json --torque-limit -3", "torque_limit must be > 0"),
+    ("solve --model {m.pt} --out o/ocp.json --theta-start nan", "theta_start must be a finite"),
+    ("solve --model {m.pt} --out o/ocp.json --theta-end inf", "theta_end must be a finite"),
+    ("solve --model {m.pt} --out o/ocp.json --seed -1", "mc_seed must be"),
+    # --- replay ---
+    ("replay --ocp {dir}/absent.json --out o/r.mcap --runs 2", "not found"),
+    ("replay --ocp {text.json} --out o/r.mcap --runs 2", "text.json"),
+    ("replay --ocp {list.json} --out o/r.mcap --runs 2", "list.json"),
+    ("replay --ocp {other.json} --out o/r.mcap --runs 2", "not a crank-ocp file"),
+    ("replay --ocp {folder} --out o/r.mcap --runs 2", "folder"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --runs 0", "runs must be an integer 1..100000"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --runs -3", "runs must be an integer 1..100000"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --runs 1000000", "runs must be an integer"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --variability line-99", "unknown variability"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --variability {swapped.toml}", "low 0.1 > high"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --modes open,sideways", "modes must be a non-empty"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --modes ''", "modes must be a non-empty"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --kp nan", "kp must be a finite number, got nan"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --kd -1", "kd must be >= 0"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --feedback pid", "feedback must be one of lqr, pd"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --max-start-time -1", "max_start_time"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --max-start-time nan", "max_start_time"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --seed -1", "seed must be"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --model {garbage.xml}", "invalid MJCF"),
+    ("replay --ocp {ocp.json} --out {file}/r.mcap", "cannot write"),
+    ("replay --ocp {ocp.json} --out o/r.txt", "must end in .mcap"),
+    ("replay --ocp {ocp.json} --out {ocp.json}", "must end in .mcap"),
+    ("replay --ocp {ocp.json} --out {folder}", "folder"),
+    # --- heldout ---
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --runs 0", "runs must be an"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --runs 1000000", "runs must be"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.txt", "must end in .json"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out {ocp.json}", "would overwrite"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out {file}/h.json", "cannot write"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --mode sideways", "mode must be"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --mode open,closed", "got 'open,c"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --seed -1", "seed must be"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --variability x", "unknown variab"),
+    ("heldout --ocp {dir}/absent.json --model {m.pt} --out o/h.json", "not found"),
+    ("heldout --ocp {text.json} --model {m.pt} --out o/h.json", "text.json"),
+    ("heldout --ocp {ocp.json} --model {dir}/absent.pt --out o/h.json", "not found"),
+    ("heldout --ocp {ocp.json} --model {text.pt} --out o/h.json", "text.pt"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --mjcf {nameless.xml}", "motor"),
+    # --- recover ---
+    ("recover {dir}/absent.mcap o/r.mcap", "not found"),
+    ("recover {text.mcap} o/r.mcap", "text.mcap"),
+    ("recover {ds.mcap} o/r.mcap", "not a campaign"),
+    ("recover {folder} o/r.mcap", "folder"),
+    ("recover {ds.mcap} o/r.txt", "must end in .mcap"),
+    ("recover {ds.mcap} {ds.mcap}", "would overwrite"),
+    # --- view ---
+    ("view {dir}/absent.rrd", "not found"),
+    ("view {text.txt}", "text.txt"),
+    ("view {folder}", "folder"),
+    # --- run ---
+    ("run --logs L --name ../escaped", "--name must be a plain folder name"),
+    ("run --logs L --name /tmp/absolute-run", "--name must be a plain folder name"),
+    ("run --logs L --name a/b", "--name must be a plain folder name"),
+    ("run --logs L --name ..", "--name must be a plain folder name"),
+    ("run --logs L --name ''", "--name must be a plain folder name"),
+    ("run --logs L --seconds 0", "seconds must be > 0"),
+    ("run --logs L --seconds nan", "seconds must be a finite number"),
+    ("run --logs L --seconds 1e9", "needs about 5e+05 GB of memory"),
+    ("run --logs L --episode-seconds 0", "episode_seconds must be > 0"),
+    ("run --logs L --confidence -0.5", "confidence must be >= 0"),
+    ("run --logs L --confidence nan", "confidence must be a finite number"),
+    ("run --logs L --confidence 1", "confidence must be in [0, 1)"),
+    ("run --logs L --variability wide", "unknown variability scenario 'wide'"),
+    ("run --logs L --variability {swapped.toml}", "low 0.1 > high 0.05"),
+    ("run --logs L --heldout-runs 1000000", "heldout_runs must be an integer"),
+    ("run --logs L --heldout-runs -1", "heldout_runs must be an integer"),
+    ("run --logs L --runs 0", "runs must be an integer"),
+    ("run --logs L --seed -1", "seed must be"),
+    ("run --logs L --feedback pid", "feedback must be one of none, lqr"),
+    ("run --logs L --model {garbage.xml}", "invalid MJCF"),
+    ("run --logs {file}", "cannot write"),
+    # --- study ---
+    ("study --out S --seeds ''", "--seeds takes a range like 0-9"),
+    ("study --out S --seeds 0-", "--seeds takes a range like 0-9"),
+    ("study --out S --seeds 5-2", "runs backwards"),
+    ("study --out S --seeds 1,1", "repeats a seed"),
+    ("study --out S --seeds x", "--seeds takes a range like 0-9"),
+    ("study --out S --seeds -1", "--seeds takes a range like 0-9"),
+    ("study --out S --seeds 0-5000", "--seeds must name 1..1000 seeds"),
+    ("study --out S --seeds 0-1 --tightening mean", "tightening must be one of"),
+    ("study --out S --seeds 0-1 --mc-mode often", "Monte-Carlo mode must be one of"),
+    ("study --out S --seeds 0-1 --confidence 1", "confidence must be in [0, 1), got 1"),
+    ("study --out S --seeds 0-1 --heldout-runs -1", "heldout_runs must be an integer"),
+    ("study --out S --seeds 0-1 --variability line-99", "unknown variability scenario"),
+    ("study --out S --seeds 0-1 --seconds 0", "seconds must be > 0"),
+    ("study --out S --seeds 0-1 --runs 0", "runs must be an integer"),
+    ("study --out S --seeds 0-1 --feedback pid", "feedback must be one of none, lqr"),
+    ("study --out {file}/S --seeds 0-1", "cannot write"),
+]
+
+
+def _argv(case: str, inputs: dict[str, Path]) -> list[str]:
+    """The case's words with {name} replaced by the input's path and '' by an empty word."""
+    words = []
+    for word in case.split(" "):
+        for name, path in inputs.items():
+            word = word.replace("{" + name + "}", str(path))
+        words.append("" if word == "''" else word)
+    return words
+
+
+@pytest.mark.parametrize(("case", "match"), CASES, ids=[c for c, _ in CASES])
+def test_bad_input_is_one_line_and_writes_nothing(
+    case: str,
+    match: str,
+    inputs: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["crank", *_argv(case, inputs)])
+    before = _snapshot(inputs["dir"])
+    with pytest.raises(SystemExit) as ended:
+        main()
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert ended.value.code == 2, err
+    assert "Traceback" not in err and "Traceback" not in out
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert match in lines[0], lines[0]
+    assert os.listdir(tmp_path) == [], "a refused command left files in the working folder"
+    assert _snapshot(inputs["dir"]) == before, "a refused command touched its inputs' folder"
+
+
+def test_the_table_covers_every_subcommand_with_130_cases() -> None:
+    commands = {c.split(" ")[0] for c, _ in CASES}
+    expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
+    assert commands >= expected | {"run", "study"}
+    assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)
