@@ -279,13 +279,12 @@ def test_recover_refuses_a_file_that_is_not_a_campaign_log(
     assert not any(tmp_path.iterdir())
 
 
-@pytest.fixture
-def full_disk(tmp_path: Path):
-    """A 200 KB tmpfs (needs root and mount; skipped otherwise)."""
+def _tmpfs(tmp_path: Path, options: str):
+    """A 200 KB tmpfs mounted with `options` (needs root and mount; skipped otherwise)."""
     mount = tmp_path / "tiny"
     mount.mkdir()
     done = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(mount)],
+        ["mount", "-t", "tmpfs", "-o", f"size=200k,{options}", "tmpfs", str(mount)],
         capture_output=True,
         check=False,
     )
@@ -295,6 +294,41 @@ def full_disk(tmp_path: Path):
         yield mount
     finally:
         subprocess.run(["umount", str(mount)], check=False)
+
+
+@pytest.fixture
+def full_disk(tmp_path: Path):
+    yield from _tmpfs(tmp_path, "rw")
+
+
+@pytest.fixture
+def read_only(tmp_path: Path):
+    yield from _tmpfs(tmp_path, "ro")
+
+
+def test_a_read_only_filesystem_is_one_line_for_every_writer(
+    tmp_path: Path,
+    read_only: Path,
+    ocp_path: Path,  # noqa: F811
+) -> None:
+    """Every command that writes, pointed at a read-only mount (root's permissions do not stop
+    it, as a chmod would not): one line naming the file and the cause, exit 2."""
+    model = tmp_path / "m.pt"
+    _constant_checkpoint(model)
+    ro = str(read_only)
+    commands = [
+        ["generate", "--seconds", "1", "--out", f"{ro}/d.mcap"],
+        ["train", "--data", str(tmp_path / "absent.mcap"), "--out", f"{ro}/m.pt"],
+        ["solve", "--model", str(model), "--out", f"{ro}/ocp.json"],
+        ["replay", "--ocp", str(ocp_path), "--runs", "2", "--out", f"{ro}/r.mcap"],
+        ["heldout", "--ocp", str(ocp_path), "--model", str(model), "--out", f"{ro}/h.json"],
+        ["run", "--logs", ro, "--name", "r"],
+        ["study", "--seeds", "0", "--out", f"{ro}/s"],
+    ]
+    for command in commands:
+        result = crank(*command, cwd=tmp_path)
+        _one_line(result, "Read-only file system")
+    assert not any(read_only.iterdir())
 
 
 def test_a_full_disk_is_one_line_and_leaves_no_output(tmp_path: Path, full_disk: Path) -> None:
