@@ -12,10 +12,10 @@ call `run_chain` directly.
 
 from __future__ import annotations
 
-import contextlib
+import json
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -37,8 +37,11 @@ from replay.heldout import heldout_file
 from replay.statistics import summary_rows
 from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
+from twin.excitation import Excitation
 from twin.generation import check_generation_memory, generate_file
-from twin.physics import SliderCrank, load_model
+from twin.mcap_dataset import read_run
+from twin.physics import SliderCrank, load_model, model_sha256
+from twin.variability import Variability
 
 
 @dataclass(frozen=True)
@@ -117,6 +120,33 @@ class RunConfig:
             replay=replace(self.replay, seed=seed),
         )
 
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> RunConfig:
+        """Rebuild from `as_dict()` (config.json; its command and stream keys are ignored).
+
+        Raises:
+          ConfigError: naming the key that is missing, unknown or out of range.
+        """
+        try:
+            gen, rep = dict(values["generation"]), dict(values["replay"])
+            gen["variability"] = Variability.from_dict(gen["variability"])
+            gen["excitation"] = Excitation(**gen["excitation"])
+            rep["variability"] = Variability.from_dict(rep["variability"])
+            rep["modes"] = tuple(rep["modes"])
+            options = {k: values[k] for k in ("seed", "heldout_runs", "heldout_seed")}
+            options |= {k: values[k] for k in ("model_path", "baselines")}
+            return cls(
+                generation=GenerationConfig(**gen),
+                train=TrainConfig(**values["train"]),
+                ocp=OCPConfig(**values["ocp"]),
+                replay=ReplayConfig(**rep),
+                **options,
+            )
+        except KeyError as exc:
+            raise ConfigError(f"run configuration lacks the key {exc}") from None
+        except TypeError as exc:  # an unknown key of a stage
+            raise ConfigError(f"run configuration: {exc}") from None
+
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["ocp"] = self.ocp.as_dict()
@@ -139,6 +169,11 @@ class Hooks:
     on_run: Callable[[int], None] | None = None
 
 
+STAGES_FILE = "stages.json"
+"""What each finished stage of an unfinished run returned (crank run --resume reads it); removed
+once report.json and report.md are written."""
+
+
 @writes("run_dir", all_or_nothing=False)
 def run_chain(
     config: RunConfig,
@@ -146,15 +181,20 @@ def run_chain(
     *,
     hooks: Hooks | None = None,
     argv: list[str] | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Run every stage into `run_dir` (which must not exist) and return report.json's content.
 
     Files: config.json first, then each stage's outputs, report.json and report.md last, so a
-    folder without report.md did not finish.
+    folder without report.md did not finish. After each stage what it returned goes into
+    stages.json; with `resume`, `run_dir` is such an unfinished folder of this `config` (its
+    config.json), the stages recorded there are skipped and the rest run as they would have.
+    A stage that was cut off mid-way is redone: its outputs are replaced.
     """
     hooks = hooks or Hooks()
     run_dir = Path(run_dir)
-    if run_dir.exists():
+    done = _resumable(config, run_dir) if resume else {}
+    if not resume and run_dir.exists():
         raise OutputError(f"run folder already exists: {run_dir}")
     check_generation_memory(config.generation)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
@@ -165,56 +205,79 @@ def run_chain(
         "project_version": __version__,
         **config.as_dict(),
     }
-    check_writable(run_dir / "config.json")
-    write_json(run_dir / "config.json", resolved, indent=2)
+    if resume:
+        resolved = json.loads((run_dir / "config.json").read_text())
+    else:
+        check_writable(run_dir / "config.json")
+        write_json(run_dir / "config.json", resolved, indent=2)
     steps: dict[str, float] = {}
     started = time.perf_counter()
 
-    @contextlib.contextmanager
-    def timed(name: str, text: str) -> Iterator[None]:
-        """Announce a stage, run it, and record its wall time under `name`."""
+    def stage_result(name: str, text: str, work: Callable[[], Any]) -> Any:
+        """A stage's result: recorded by an earlier attempt, or announced, run, timed and
+        recorded now."""
+        if name in done:
+            stage(f"{text}: done before, kept")
+            return done[name]
         stage(text)
         t0 = time.perf_counter()
-        yield
+        result = work()
         steps[name] = time.perf_counter() - t0
+        done[name] = result
+        write_json(run_dir / STAGES_FILE, done, indent=1)
+        return result
 
-    with timed("generate", "generating the dataset"):
-        dataset = generate_file(
+    dataset = stage_result(
+        "generate",
+        "generating the dataset",
+        lambda: generate_file(
             config.generation,
             out=run_dir / "dataset.mcap",
             model_path=config.model_path,
             on_simulated=hooks.on_simulated,
             on_written=hooks.on_written,
-        )
-    with timed("train", "training the PPANN" + (" and its baselines" if config.baselines else "")):
-        trained = train_and_report(
+        ),
+    )
+    trained = stage_result(
+        "train",
+        "training the PPANN" + (" and its baselines" if config.baselines else ""),
+        lambda: train_and_report(
             run_dir / "dataset.mcap",
             run_dir / "model.pt",
             config=config.train,
             baselines=config.baselines,
             on_epoch=hooks.on_epoch,
             on_stage=hooks.on_stage,
-        )
-    with timed("solve", "solving the nominal and robust OCP"):
-        solved = solve_file(
+        ),
+    )
+    solved = stage_result(
+        "solve",
+        "solving the nominal and robust OCP",
+        lambda: solve_file(
             run_dir / "model.pt",
             run_dir / "ocp.json",
             config=config.ocp,
             on_iteration=hooks.on_iteration,
-        )
-    with timed("replay", "replaying on the twin"):
-        stats = replay_file(
+        ),
+    )
+    stats = stage_result(
+        "replay",
+        "replaying on the twin",
+        lambda: replay_file(
             run_dir / "ocp.json",
             run_dir / "replay.mcap",
             config=config.replay,
             model_path=config.model_path,
             resolved=resolved,
             on_run=hooks.on_run,
-        )
+        ),
+    )
     heldout = None
     if config.heldout_runs:
-        with timed("heldout", f"held-out check on {config.heldout_runs} machines"):
-            heldout = heldout_file(
+        heldout = stage_result(
+            "heldout",
+            f"held-out check on {config.heldout_runs} machines",
+            lambda: heldout_file(
                 run_dir / "ocp.json",
                 run_dir / "heldout.json",
                 model=run_dir / "model.pt",
@@ -224,7 +287,8 @@ def run_chain(
                 max_start_time=config.replay.max_start_time,
                 mode=config.loop,
                 model_path=config.model_path,
-            )
+            ),
+        )
     steps["total"] = time.perf_counter() - started
 
     report = {
@@ -243,4 +307,46 @@ def run_chain(
     }
     write_json(run_dir / "report.json", report, indent=2)
     write_markdown(run_dir / "report.md", report, stats=stats)
+    (run_dir / STAGES_FILE).unlink(missing_ok=True)
     return report
+
+
+def resumed_config(run_dir: str | Path) -> RunConfig:
+    """The configuration of the run folder `run_dir` (its config.json), to resume it.
+
+    Raises:
+      OutputError: not a run folder.
+      ConfigError: its config.json is not a run configuration.
+    """
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise OutputError(f"nothing to resume: {run_dir} is not a run folder (no config.json)")
+    try:
+        values = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: not a run configuration ({exc})") from None
+    return RunConfig.from_dict(values)
+
+
+def _resumable(config: RunConfig, run_dir: Path) -> dict[str, Any]:
+    """The stages an unfinished run folder of `config` recorded (see run_chain).
+
+    Raises:
+      OutputError: no such folder, not a run folder, or a finished one.
+      ConfigError: its config.json is not `config`, or its twin's MJCF has changed since.
+    """
+    recorded = resumed_config(run_dir)
+    if (run_dir / "report.md").exists():
+        raise OutputError(f"nothing to resume: {run_dir} finished (it has report.md)")
+    if recorded != config:
+        raise ConfigError(f"{run_dir}/config.json is another run's configuration")
+    stages = run_dir / STAGES_FILE
+    done = json.loads(stages.read_text()) if stages.is_file() else {}
+    if "generate" in done:
+        made_on = read_run(run_dir / "dataset.mcap")["mjcf_sha256"]
+        if made_on != model_sha256(config.model_path):
+            raise ConfigError(
+                f"the twin's MJCF {config.model_path} changed since {run_dir}/dataset.mcap was "
+                f"generated on it; start a new run"
+            )
+    return done

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -36,10 +36,14 @@ from replay.config import ReplayConfig
 from twin import MODEL_PATH
 from twin.variability import Variability
 
+if TYPE_CHECKING:
+    from crank.chain import RunConfig
+
 
 @app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
 @one_line_errors
 def run_command(
+    context: typer.Context,
     seconds: Seconds = 90.0,
     seed: Seed = 0,
     logs: Annotated[Path, typer.Option(help="Output root; the run goes in logs/<run>/.")] = Path(
@@ -61,12 +65,29 @@ def run_command(
         HELDOUT_SEED
     ),
     model: ModelPath = MODEL_PATH,
+    resume: Annotated[
+        Path | None,
+        typer.Option(
+            help="Continue an unfinished run folder with its own config.json, from the first "
+            "stage it has not finished (no other option may be given)."
+        ),
+    ] = None,
 ) -> None:
     """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
     them on the twin open and closed loop, report (report.json, report.md, figures)."""
-    from crank.chain import Hooks, RunConfig, run_chain
-    from crank.report import train_summary
+    from crank.chain import RunConfig, resumed_config
 
+    if resume is not None:
+        given = [
+            p
+            for p in context.params
+            if p != "resume" and getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
+        ]
+        if given:
+            option = "--" + given[0].replace("_", "-")
+            raise ConfigError(f"--resume continues with the folder's config.json; drop {option}")
+        _run(resumed_config(resume), resume, resume=True)
+        return
     config = RunConfig.for_seed(
         seed,
         generation={
@@ -83,8 +104,15 @@ def run_command(
     if name is not None and (name in ("", ".", "..") or Path(name).name != name or "\\" in name):
         raise ConfigError(f"--name must be a plain folder name inside --logs, got {name!r}")
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
-    run_dir = logs / name
-    with transcript(run_dir / "run.log"):
+    _run(config, logs / name, resume=False)
+
+
+def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
+    """run_chain with progress bars, stage lines, run.log and the summary tables."""
+    from crank.chain import Hooks, run_chain
+    from crank.report import train_summary
+
+    with transcript(run_dir / "run.log", append=resume):
         bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})
         with (
             Progress(config.generation.n_samples, "simulating") as sim,
@@ -113,7 +141,7 @@ def run_command(
                 on_run=on_run,
             )
             try:
-                report = run_chain(config, run_dir, hooks=hooks)
+                report = run_chain(config, run_dir, hooks=hooks, resume=resume)
             finally:
                 bars.close()
         print_summary(f"run {run_dir}: dataset", report["dataset"])

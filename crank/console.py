@@ -109,10 +109,11 @@ class _Tee:
 
 
 @contextlib.contextmanager
-def transcript(path: Path) -> Iterator[None]:
+def transcript(path: Path, *, append: bool = False) -> Iterator[None]:
     """Everything the command prints on stdout and stderr (but progress frames), and its error
     line if it fails, also goes to `path` once the command ends, if the command created path's
-    folder (a run folder, created by the chain; an existing folder is never written into)."""
+    folder (a run folder, created by the chain; an existing folder is never written into), or
+    after what `path` holds with `append` (a resumed run's own folder)."""
     created = not path.parent.exists()
     kept: list[str] = []
     out, err = sys.stdout, sys.stderr
@@ -124,9 +125,12 @@ def transcript(path: Path) -> Iterator[None]:
         raise
     finally:
         sys.stdout, sys.stderr = out, err
-        if created and path.parent.is_dir():
-            with contextlib.suppress(OSError):  # the log is a convenience, never the failure
-                path.write_text("".join(kept), encoding="utf-8")
+        if (created or append) and path.parent.is_dir():
+            with (
+                contextlib.suppress(OSError),  # the log is a convenience, never the failure
+                open(path, "a" if append else "w", encoding="utf-8") as log,
+            ):
+                log.write("".join(kept))
 
 
 class LineBar:

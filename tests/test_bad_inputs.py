@@ -253,6 +253,10 @@ CASES: list[tuple[str, str]] = [
     ("run --logs L --feedback pid", "feedback must be one of none, lqr"),
     ("run --logs L --model {garbage.xml}", "invalid MJCF"),
     ("run --logs {file}", "cannot write"),
+    ("run --resume {folder}", "nothing to resume: "),
+    ("run --resume {dir}/absent", "nothing to resume: "),
+    ("run --resume {folder} --seconds 5", "drop --seconds"),
+    ("run --resume {folder} --no-drift", "drop --drift"),
     # --- study ---
     ("study --out S --seeds ''", "--seeds takes a range like 0-9"),
     ("study --out S --seeds 0-", "--seeds takes a range like 0-9"),

@@ -12,8 +12,9 @@ import torch
 from mcap.reader import make_reader
 
 from common.atomic import OutputError
+from common.errors import ConfigError
 from common.jsonio import without_wall_clock
-from crank.chain import RunConfig, run_chain
+from crank.chain import STAGES_FILE, Hooks, RunConfig, resumed_config, run_chain
 from twin.mcap_dataset import read_dataset
 
 SHORT = RunConfig.for_seed(
@@ -30,12 +31,64 @@ SHORT = RunConfig.for_seed(
 )
 
 
+class _StoppedError(Exception):
+    """Stands for Ctrl-C or a crash between two stages."""
+
+
+def _stop_at_replay(text: str) -> None:
+    if text == "replaying on the twin":
+        raise _StoppedError
+
+
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict]:
+    """The same run twice: "a" straight through; "b" stopped before its replay and resumed, so
+    that every test comparing the two also checks that a resumed run is the run."""
     root = tmp_path_factory.mktemp("chain")
     report = run_chain(SHORT, root / "a", argv=[])
-    run_chain(SHORT, root / "b", argv=[])
-    return root / "a", root / "b", report
+    b = root / "b"
+    with pytest.raises(_StoppedError):
+        run_chain(SHORT, b, argv=[], hooks=Hooks(on_stage=_stop_at_replay))
+    assert set(json.loads((b / STAGES_FILE).read_text())) == {"generate", "train", "solve"}
+    assert not (b / "replay.mcap").exists() and not (b / "report.md").exists()
+    trained = (b / "model.pt").stat().st_mtime_ns
+    stages: list[str] = []
+    run_chain(SHORT, b, argv=[], hooks=Hooks(on_stage=stages.append), resume=True)
+    assert stages[:3] == [
+        "generating the dataset: done before, kept",
+        "training the PPANN: done before, kept",
+        "solving the nominal and robust OCP: done before, kept",
+    ]
+    assert stages[3] == "replaying on the twin"
+    assert (b / "model.pt").stat().st_mtime_ns == trained  # not trained again
+    assert not (b / STAGES_FILE).exists()
+    return root / "a", b, report
+
+
+def test_resume_refuses_a_finished_or_foreign_folder(two_runs, tmp_path: Path) -> None:
+    a, _, _ = two_runs
+    with pytest.raises(OutputError, match="finished"):
+        run_chain(SHORT, a, resume=True)
+    with pytest.raises(OutputError, match="not a run folder"):
+        run_chain(SHORT, tmp_path, resume=True)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "config.json").write_text((a / "config.json").read_text())
+    with pytest.raises(ConfigError, match="another run's configuration"):
+        run_chain(SHORT.with_seed(1), other, resume=True)
+
+
+def test_run_config_round_trips_through_config_json(two_runs) -> None:
+    a, _, _ = two_runs
+    assert resumed_config(a) == SHORT
+    assert RunConfig.from_dict(json.loads(json.dumps(RunConfig().as_dict()))) == RunConfig()
+    broken = SHORT.as_dict()
+    del broken["ocp"]["height"], broken["train"]
+    with pytest.raises(ConfigError, match="lacks the key 'train'"):
+        RunConfig.from_dict(broken)
+    broken = SHORT.as_dict() | {"ocp": {**SHORT.ocp.as_dict(), "heigth": 0.08}}
+    with pytest.raises(ConfigError, match="heigth"):
+        RunConfig.from_dict(broken)
 
 
 def test_in_process_run_writes_every_artifact(two_runs) -> None:

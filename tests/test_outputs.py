@@ -209,7 +209,7 @@ def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Pa
 
 def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None:
     """SIGKILL mid-chain: the run folder keeps its config and the stages that finished, and says
-    it did not finish by lacking report.json; a run under another name completes its steps."""
+    it did not finish by lacking report.json; the same command is refused, --resume goes on."""
     run_dir = tmp_path / "r"
     args = ["run", "--seconds", "12", "--logs", str(tmp_path), "--name", "r"]
     _kill_mid_step(args, run_dir, after=8.0)
@@ -217,6 +217,17 @@ def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None
     assert not (run_dir / "report.json").exists() and not (run_dir / "report.md").exists()
     again = crank(*args)
     assert again.returncode == 2 and "already exists" in again.stderr
+    # --resume continues it: the dataset is kept, and this 12 s model meets the same one-line
+    # refusal of the robust OCP as an uninterrupted run (test_cli.py), logged after the first try
+    first_log = (run_dir / "run.log").read_text() if (run_dir / "run.log").exists() else ""
+    dataset = (run_dir / "dataset.mcap").stat().st_mtime_ns
+    resumed = crank("run", "--resume", str(run_dir))
+    assert resumed.returncode == 2 and "Traceback" not in resumed.stderr
+    assert "generating the dataset: done before, kept" in resumed.stderr
+    assert resumed.stderr.strip().splitlines()[-1].startswith("error: the model's tightening")
+    assert (run_dir / "dataset.mcap").stat().st_mtime_ns == dataset
+    log = (run_dir / "run.log").read_text()
+    assert log.startswith(first_log) and "done before, kept" in log
 
 
 @pytest.mark.parametrize(
