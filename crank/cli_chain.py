@@ -13,6 +13,7 @@ import typer
 from common.errors import ConfigError
 from control.config import OCPConfig
 from crank.console import (
+    HELDOUT_RUNS,
     HELDOUT_SEED,
     Confidence,
     Drift,
@@ -60,7 +61,7 @@ def run_command(
     ),
     heldout_runs: Annotated[
         int, typer.Option(help="Held-out machines per profile; 0 skips the check.")
-    ] = 1000,
+    ] = HELDOUT_RUNS,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
@@ -72,39 +73,88 @@ def run_command(
             "stage it has not finished (no other option may be given)."
         ),
     ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="A crank.toml with any of the chain's settings (crank config --show); the "
+            "flags given here override it."
+        ),
+    ] = None,
 ) -> None:
     """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
     them on the twin open and closed loop, report (report.json, report.md, figures)."""
-    from crank.chain import RunConfig, resumed_config
+    from crank.chain import resumed_config
+    from crank.config_file import build, defaults, merge, read_values
 
+    given = {
+        p: v
+        for p, v in context.params.items()
+        if getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
+    }
     if resume is not None:
-        given = [
-            p
-            for p in context.params
-            if p != "resume" and getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
-        ]
-        if given:
-            option = "--" + given[0].replace("_", "-")
+        others = [p for p in given if p != "resume"]
+        if others:
+            option = "--" + others[0].replace("_", "-")
             raise ConfigError(f"--resume continues with the folder's config.json; drop {option}")
         _run(resumed_config(resume), resume, resume=True)
         return
-    config = RunConfig.for_seed(
-        seed,
-        generation={
-            "seconds": seconds,
-            "episode_seconds": episode_seconds,
-            "variability": Variability.resolve(variability, drift=drift),
-        },
-        ocp={"confidence": confidence, "feedback": feedback},
-        replay={"runs": runs},
-        heldout_runs=heldout_runs,
-        heldout_seed=heldout_seed,
-        model_path=str(model),
-    )
+    values = read_values(config) if config is not None else defaults()
+    values = merge(values, flag_values(given), source="the command line")
+    run_config = build(values, source=str(config) if config is not None else "command line")
     if name is not None and (name in ("", ".", "..") or Path(name).name != name or "\\" in name):
         raise ConfigError(f"--name must be a plain folder name inside --logs, got {name!r}")
-    name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{seed}"
-    _run(config, logs / name, resume=False)
+    name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{run_config.seed}"
+    _run(run_config, logs / name, resume=False)
+
+
+FLAG_KEYS = {
+    "seed": ("seed",),
+    "seconds": ("generation", "seconds"),
+    "episode_seconds": ("generation", "episode_seconds"),
+    "drift": ("generation", "drift"),
+    "variability": ("generation", "variability"),
+    "confidence": ("ocp", "confidence"),
+    "feedback": ("ocp", "feedback"),
+    "runs": ("replay", "runs"),
+    "heldout_runs": ("heldout_runs",),
+    "heldout_seed": ("heldout_seed",),
+    "model": ("model",),
+}
+"""Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
+
+
+def flag_values(given: dict[str, Any]) -> dict[str, Any]:
+    """The flags given on the command line as a partial config file."""
+    out: dict[str, Any] = {}
+    for flag, value in given.items():
+        if flag not in FLAG_KEYS:
+            continue
+        *tables, key = FLAG_KEYS[flag]
+        table = out
+        for t in tables:
+            table = table.setdefault(t, {})
+        table[key] = str(value) if isinstance(value, Path) else value
+    return out
+
+
+@app.command("config", short_help="Print the chain's configuration as a crank.toml.")
+@one_line_errors
+def config_command(
+    config: Annotated[
+        Path | None, typer.Option(help="A crank.toml to resolve (default: the defaults alone).")
+    ] = None,
+    show: Annotated[bool, typer.Option(help="Print the resolved configuration.")] = True,
+) -> None:
+    """Print the configuration `crank run --config FILE` would use, as TOML: every key with its
+    value (the defaults, or FILE's values over them); flags of `crank run` override it."""
+    from crank.config_file import build, defaults, read_values, to_toml
+
+    values = read_values(config) if config is not None else defaults()
+    build(values, source=str(config) if config is not None else "defaults")  # values in range
+    if show:
+        source = f"{config} over the defaults" if config is not None else "the defaults"
+        header = f"crank run --config: {source}; flags of crank run override these"
+        typer.echo(to_toml(values, header=header), nl=False)
 
 
 def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
@@ -172,7 +222,9 @@ def study_command(
     seconds: Seconds = 90.0,
     episode_seconds: EpisodeSeconds = 10.0,
     runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
-    heldout_runs: Annotated[int, typer.Option(help="Held-out machines per profile.")] = 1000,
+    heldout_runs: Annotated[
+        int, typer.Option(help="Held-out machines per profile.")
+    ] = HELDOUT_RUNS,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),

@@ -235,6 +235,8 @@ VariabilityOption = Annotated[
 ]
 HELDOUT_SEED = 20261122
 """Default root seed of held-out machines; never used while developing the method."""
+HELDOUT_RUNS = 1000
+"""Held-out machines per profile in `crank run` and `crank study`."""
 
 
 class EpochBars:

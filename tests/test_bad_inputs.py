@@ -29,6 +29,9 @@ RANGES = {
     "unknown": "[motor_wobble]\nlow = 0.1\nhigh = 0.2\n",
     "negative": "[motor_damping]\nlow = -0.1\nhigh = 0.2\n",
     "broken": "[motor_damping\nlow = ",
+    "cfg_unknown": "[ocp]\nheigth = 0.08\n",
+    "cfg_type": "[ocp]\nhorizon = 'x'\n",
+    "cfg_range": "[ocp]\nhorizon = 2\n",
 }
 
 
@@ -257,6 +260,16 @@ CASES: list[tuple[str, str]] = [
     ("run --resume {dir}/absent", "nothing to resume: "),
     ("run --resume {folder} --seconds 5", "drop --seconds"),
     ("run --resume {folder} --no-drift", "drop --drift"),
+    ("run --resume {folder} --config {cfg_range.toml}", "drop --config"),
+    ("run --logs L --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
+    ("run --logs L --config {cfg_type.toml}", 'ocp.horizon must be an integer, got "x"'),
+    ("run --logs L --config {cfg_range.toml}", "horizon must be >= 3 samples"),
+    ("run --logs L --config {broken.toml}", "is not TOML"),
+    ("run --logs L --config {dir}/absent.toml", "cannot read config"),
+    ("run --logs L --config {folder}", "cannot read config"),
+    ("config --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
+    ("config --config {cfg_range.toml}", "horizon must be >= 3 samples"),
+    ("config --config {text.txt}", "is not TOML"),
     # --- study ---
     ("study --out S --seeds ''", "--seeds takes a range like 0-9"),
     ("study --out S --seeds 0-", "--seeds takes a range like 0-9"),
@@ -314,5 +327,5 @@ def test_bad_input_is_one_line_and_writes_nothing(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study"}
+    assert commands >= expected | {"run", "study", "config"}
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

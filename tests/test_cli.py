@@ -44,14 +44,19 @@ def test_generate_writes_a_contract_dataset(tmp_path: Path) -> None:
 
 
 def test_run_writes_config_and_report(tmp_path: Path) -> None:
-    """2 s of data train a PPANN too uncertain for a robust profile: the chain runs to the robust
-    OCP and stops there with one line naming why, leaving no ocp.json or report."""
-    result = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
+    """2 s of data (from a config file) train a PPANN too uncertain for a robust profile: the
+    chain runs to the robust OCP and stops there with one line naming why, leaving no ocp.json or
+    report; config.json holds the file's values under the flags given."""
+    settings = tmp_path / "crank.toml"  # a config file, and a flag that overrides it
+    settings.write_text("heldout_runs = 50\n[generation]\nseconds = 2.0\n[ocp]\nheight = 0.081\n")
+    args = ["--config", str(settings), "--heldout-runs", "7", "--logs", str(tmp_path)]
+    result = crank("run", *args, "--name", "r1")
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1].startswith("error: the model's tightening")
     run_dir = tmp_path / "r1"
     config = json.loads((run_dir / "config.json").read_text())
     assert config["seed"] == 0 and config["generation"]["seconds"] == 2.0
+    assert config["ocp"]["height"] == 0.081 and config["heldout_runs"] == 7
     assert config["ocp"]["horizon"] == 150 and config["ocp"]["mc_seed"] == 0
     assert config["ocp"]["mc_samples"] == 1000 and config["ocp"]["mc_mode"] == "mixed"
     assert config["streams"]["root_seed"] == 0 and "replay_machines" in config["streams"]["streams"]
@@ -63,7 +68,7 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     log = (run_dir / "run.log").read_text()  # what the terminal showed, without bar frames
     assert log.splitlines()[0] == "generating the dataset ..." and "\r" not in log
     assert log.splitlines()[-1] == result.stderr.strip().splitlines()[-1]
-    again = crank("run", "--seconds", "2", "--logs", str(tmp_path), "--name", "r1")
+    again = crank("run", *args, "--name", "r1")
     assert again.returncode == 2 and "already exists" in again.stderr
     assert (run_dir / "run.log").read_text() == log  # another run's folder is never written
 

@@ -1,0 +1,78 @@
+"""One config file for the chain (crank/config_file.py): the defaults are what `crank run` does,
+they round-trip through TOML, a file's keys and types are checked, flags override the file."""
+
+from __future__ import annotations
+
+import inspect
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from common.errors import CrankError
+from crank.chain import RunConfig
+from crank.cli_chain import FLAG_KEYS, flag_values, run_command
+from crank.config_file import build, defaults, merge, read_values, to_toml
+from crank.console import HELDOUT_RUNS, HELDOUT_SEED
+from twin import MODEL_PATH
+
+
+def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
+    values = defaults()
+    assert build(values) == RunConfig.for_seed(
+        0, heldout_runs=HELDOUT_RUNS, heldout_seed=HELDOUT_SEED, model_path=str(MODEL_PATH)
+    )
+    text = to_toml(values, header="a header\nof two lines")
+    assert text.startswith("# a header\n# of two lines\n")
+    assert merge(defaults(), tomllib.loads(text), source="t") == values
+    # every flag of crank run shows the default the file's defaults hold
+    signature = inspect.signature(run_command).parameters
+    for flag, path in FLAG_KEYS.items():
+        value = values
+        for key in path:
+            value = value[key]
+        default = signature[flag].default
+        assert (str(default) if isinstance(default, Path) else default) == value, flag
+
+
+def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
+    path = tmp_path / "crank.toml"
+    path.write_text(
+        "seed = 4\n[generation]\nseconds = 30\nvariability = 'line-15'\ndrift = false\n"
+        "[ocp]\nheight = 0.085\nconstraint_samples = [60, 90, 120]\n[train]\nsigma_block = 5\n"
+        "[replay]\nmodes = ['closed']\n"
+    )
+    values = merge(read_values(path), flag_values({"seconds": 12.0}), source="flags")
+    config = build(values, source=str(path))
+    assert config.seed == config.train.seed == config.ocp.mc_seed == config.replay.seed == 4
+    assert config.generation.seconds == 12.0  # the flag wins over the file's 30
+    assert config.generation.variability.name == "line-15"
+    assert not config.generation.variability.drift
+    assert config.replay.variability == config.generation.variability
+    assert config.ocp.height == 0.085 and config.ocp.constraint_samples == (60, 90, 120)
+    assert config.train.sigma_block == 5 and config.replay.modes == ("closed",)
+    assert config.heldout_runs == HELDOUT_RUNS  # untouched keys keep their defaults
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("[ocp]\nheigth = 0.08\n", "unknown key 'ocp.heigth'"),
+        ("[train]\nseed = 3\n", "unknown key 'train.seed' (every stage uses the top-level seed)"),
+        ("[ocp]\nhorizon = '150'\n", 'ocp.horizon must be an integer, got "150"'),
+        ("[ocp]\nhorizon = 150.0\n", "ocp.horizon must be an integer, got 150.0"),
+        ("[ocp]\nconstraint_samples = [50, 'x']\n", "must be a list of an integer"),
+        ("baselines = 1\n", "baselines must be true or false, got 1"),
+        ("ocp = 3\n", "ocp must be a table, got 3"),
+        ("[ocp]\nhorizon = 2\n", "horizon must be >= 3 samples"),
+        ("[generation]\nvariability = 'line-99'\n", "unknown variability scenario 'line-99'"),
+        ("[generation]\nseconds = nan\n", "seconds must be a finite number"),
+        ("[ocp\n", "is not TOML"),
+    ],
+)
+def test_a_bad_file_is_refused_naming_the_key(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / "crank.toml"
+    path.write_text(text)
+    with pytest.raises(CrankError) as caught:
+        build(read_values(path), source=str(path))
+    assert match in str(caught.value) and str(path) in str(caught.value)
