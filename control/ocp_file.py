@@ -57,7 +57,8 @@ from common.errors import CrankError
 from common.jsonio import write_json
 from control.config import OCPConfig
 from control.ocp import Solution
-from control.robust import Partial, RobustResult, Uncertainty
+from control.robust import Partial, RobustResult
+from control.tightening import Uncertainty
 from twin import __version__
 from twin.physics import within_stroke
 

@@ -57,20 +57,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import CrankError
-from common.streams import rng, stream
 from control.config import OCPConfig, loop_of
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
-from control.ocp import NominalOCP, OCPError, Solution, slider_position
-from control.tightening import (
-    line_allowance,
-    population_margin,
-    sampling_allowance,
-    tightening,
-)
+from control.ocp import NominalOCP, OCPError, Solution
+from control.tightening import Uncertainty, slider_uncertainty
 from ppann.model import PPANN, FusedHeads
-from ppann.montecarlo import Feedback, monte_carlo
-from ppann.transmission import draw
 from twin.physics import STROKE_TOP
 
 MIN_DAMPING = 1 / 256
@@ -98,27 +90,6 @@ class BeyondStrokeError(RobustError):
         self.tightening = tightening
         self.available = available
         self.line = line
-
-
-@dataclass(frozen=True)
-class Uncertainty:
-    """Monte-Carlo slider position under one torque: mean and std per sample, (N,) each, m; and
-    the tightening it asks for at the constraint samples, with its standard error, m."""
-
-    mean: np.ndarray
-    std: np.ndarray
-    wall_time: float
-    tightening: np.ndarray
-    """Per constraint sample: k·σ (gaussian) or plan − quantile (quantile), plus `population`
-    and `sampling`, m."""
-    tightening_se: np.ndarray
-    """Standard error of k·σ (or plan − quantile) from the finite Monte-Carlo, m."""
-    population: np.ndarray
-    """The part of `tightening` that allows for the line's uncertain mean, m (module docstring);
-    zeros at confidence 0."""
-    sampling: np.ndarray
-    """The part of `tightening` that allows for the Monte-Carlo's finite sample, about z times
-    `tightening_se`, m (module docstring); zeros at confidence 0."""
 
 
 @dataclass(frozen=True)
@@ -171,64 +142,6 @@ class RobustResult:
     """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
     whatever the tightening was sized for (the replay's rows compare against these)."""
     robust_loops: dict[str, np.ndarray]
-
-
-def slider_uncertainty(
-    heads: FusedHeads,
-    solution: Solution,
-    config: OCPConfig,
-    *,
-    constraints_only: bool = False,
-    gains: np.ndarray | None = None,
-) -> Uncertainty:
-    """Monte-Carlo (eq. 11, or the configured mode) of the slider position under the solution's
-    torque u_1..u_{N-1}, and the tightening of `config.tightening` at the constraint samples.
-    The draws are the same for every call (common random numbers). With `gains` (N-1, 2) each
-    machine runs under the LQR law along the solution (config.feedback "lqr": a tube), and so do
-    the shifted lines of the line allowance.
-
-    constraints_only: simulate only up to the last constraint sample (mean and std then stop
-    there); the tightening is the same to the last bit, since every draw is a prefix of the full
-    run's. The drafts of the robust loop need nothing more.
-    """
-    started = time.perf_counter()
-    steps = max(config.constraint_samples) - 1 if constraints_only else len(solution.tau) - 1
-    spread, z = line_allowance(heads, config)
-    feedback = None
-    if gains is not None:
-        feedback = Feedback(solution.states, gains, config.torque_limit)
-    bands = monte_carlo(
-        heads,
-        solution.states[0],
-        solution.tau[:steps],
-        n_samples=config.mc_samples,
-        mode=config.mc_mode,
-        seed=stream(config.mc_seed, "monte_carlo"),
-        machine_sigma=spread,
-        feedback=feedback,
-    )
-    # The crank's angle to the motor (ppann/transmission.py): zero if the model has none. Drawn
-    # time-major so that a shorter run's draws are a prefix of a longer one's (the drafts).
-    n, length = bands.samples.shape[:2]
-    delta = draw(heads.transmission, (length, n), rng(config.mc_seed, "transmission")).T
-    with np.errstate(over="ignore", invalid="ignore"):
-        slider = slider_position(bands.samples[:, :, 0] + delta)
-    plan = solution.slider
-    columns = [(slider[:, k - 1], plan[k - 1]) for k in config.constraint_samples]
-    options = {"k_sigma": config.k_sigma, "method": config.tightening}
-    margins = [tightening(x, at, **options) for x, at in columns]
-    sampling = np.array([sampling_allowance(x, at, **options, z=z) for x, at in columns])
-    population = population_margin(heads, solution, config, z, feedback=feedback)
-    standard_error = np.array([se for _, se in margins])
-    return Uncertainty(
-        slider.mean(axis=0),
-        slider.std(axis=0, ddof=1),
-        time.perf_counter() - started,
-        tightening=np.array([m for m, _ in margins]) + population + sampling,
-        tightening_se=standard_error,
-        population=population,
-        sampling=sampling,
-    )
 
 
 def solve_robust(

@@ -12,7 +12,8 @@ from scipy.linalg import solve_discrete_are
 from control.config import OCPConfig, OCPConfigError
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, linearise, riccati_gains
-from control.robust import slider_uncertainty, solve_robust
+from control.robust import solve_robust
+from control.tightening import slider_uncertainty
 from ppann.model import FusedHeads, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 

@@ -16,8 +16,9 @@ from common.streams import stream
 from control.config import OCPConfig, OCPConfigError, lower_tail
 from control.ocp import NominalOCP, OCPError, slider_position
 from control.ocp_file import OCPFileError, read_ocp
-from control.robust import slider_uncertainty, solve_robust
+from control.robust import solve_robust
 from control.solve import figure_paths, solve_file
+from control.tightening import slider_uncertainty
 from ppann.checkpoint import CheckpointError, save
 from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
 from ppann.montecarlo import monte_carlo

@@ -14,17 +14,12 @@ from scipy import stats
 from control.config import OCPConfig, OCPConfigError, lower_tail
 from control.fixed_point import Bracket
 from control.ocp import NominalOCP, slider_position
-from control.robust import (
-    STROKE_SHARE,
-    STROKE_TOP,
-    BeyondStrokeError,
-    slider_uncertainty,
-    solve_robust,
-)
+from control.robust import STROKE_SHARE, STROKE_TOP, BeyondStrokeError, solve_robust
 from control.tightening import (
     line_allowance,
     population_margin,
     sampling_allowance,
+    slider_uncertainty,
     tightening,
 )
 from ppann.confidence import confidence_quantile

@@ -10,7 +10,7 @@ from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, slider_position
-from control.robust import slider_uncertainty
+from control.tightening import slider_uncertainty
 from ppann.model import FusedHeads, constant_ppann
 from ppann.transmission import (
     LEVELS,
