@@ -91,7 +91,8 @@ def robust_figure(ocp: OCPFile) -> Figure:
             fmt="x--",
             color=f"C{i}",
             capsize=3,
-            label=f"{ocp.config.tightening} tightening of its solution (± s.e.), sample {k}",
+            label=f"tightening its solution asks (± s.e.; {ocp.config.tightening} and allowances), "
+            f"sample {k}",
         )
     full = [step for step, it in enumerate(iterations, 1) if not it.get("draft", False)]
     for step in full:
