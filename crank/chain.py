@@ -193,21 +193,22 @@ def run_chain(
     """
     hooks = hooks or Hooks()
     run_dir = Path(run_dir)
-    done = _resumable(config, run_dir) if resume else {}
-    if not resume and run_dir.exists():
+    if resume:
+        resolved, done = _resumable(config, run_dir)
+    elif run_dir.exists():
         raise OutputError(f"run folder already exists: {run_dir}")
+    else:
+        done = {}
+        resolved = {
+            "command": "crank run",
+            "argv": sys.argv[1:] if argv is None else argv,
+            "project_version": __version__,
+            **config.as_dict(),
+        }
     check_generation_memory(config.generation)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     stage = hooks.on_stage or (lambda _: None)
-    resolved = {
-        "command": "crank run",
-        "argv": sys.argv[1:] if argv is None else argv,
-        "project_version": __version__,
-        **config.as_dict(),
-    }
-    if resume:
-        resolved = json.loads((run_dir / "config.json").read_text())
-    else:
+    if not resume:
         check_writable(run_dir / "config.json")
         write_json(run_dir / "config.json", resolved, indent=2)
     steps: dict[str, float] = {}
@@ -318,27 +319,32 @@ def resumed_config(run_dir: str | Path) -> RunConfig:
       OutputError: not a run folder.
       ConfigError: its config.json is not a run configuration.
     """
-    path = Path(run_dir) / "config.json"
+    return RunConfig.from_dict(_config_json(Path(run_dir)))
+
+
+def _config_json(run_dir: Path) -> dict[str, Any]:
+    """A run folder's config.json as written (the command, argv and version included)."""
+    path = run_dir / "config.json"
     if not path.is_file():
         raise OutputError(f"nothing to resume: {run_dir} is not a run folder (no config.json)")
     try:
-        values = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{path}: not a run configuration ({exc})") from None
-    return RunConfig.from_dict(values)
 
 
-def _resumable(config: RunConfig, run_dir: Path) -> dict[str, Any]:
-    """The stages an unfinished run folder of `config` recorded (see run_chain).
+def _resumable(config: RunConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """An unfinished run folder of `config`: its config.json as written, and the results its
+    finished stages recorded (see run_chain).
 
     Raises:
       OutputError: no such folder, not a run folder, or a finished one.
       ConfigError: its config.json is not `config`, or its twin's MJCF has changed since.
     """
-    recorded = resumed_config(run_dir)
+    resolved = _config_json(run_dir)
     if (run_dir / "report.md").exists():
         raise OutputError(f"nothing to resume: {run_dir} finished (it has report.md)")
-    if recorded != config:
+    if RunConfig.from_dict(resolved) != config:
         raise ConfigError(f"{run_dir}/config.json is another run's configuration")
     stages = run_dir / STAGES_FILE
     done = json.loads(stages.read_text()) if stages.is_file() else {}
@@ -349,4 +355,4 @@ def _resumable(config: RunConfig, run_dir: Path) -> dict[str, Any]:
                 f"the twin's MJCF {config.model_path} changed since {run_dir}/dataset.mcap was "
                 f"generated on it; start a new run"
             )
-    return done
+    return resolved, done
