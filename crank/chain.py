@@ -27,18 +27,13 @@ from common.errors import ConfigError
 from common.jsonio import write_json
 from control.config import OCPConfig, loop_of
 from control.robust import Iteration
-from control.solve import solve_file
-from crank.report import solve_summary, write_markdown
-from ppann.pipeline import train_and_report
+from crank import stages
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig
-from replay.files import output_paths, replay_file
-from replay.heldout import heldout_file
-from replay.statistics import summary_rows
 from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.excitation import Excitation
-from twin.generation import check_generation_memory, generate_file
+from twin.generation import check_generation_memory
 from twin.mcap_dataset import read_run
 from twin.physics import SliderCrank, load_model, model_sha256
 from twin.variability import Variability
@@ -229,85 +224,43 @@ def run_chain(
         return result
 
     dataset = stage_result(
-        "generate",
-        "generating the dataset",
-        lambda: generate_file(
-            config.generation,
-            out=run_dir / "dataset.mcap",
-            model_path=config.model_path,
-            on_simulated=hooks.on_simulated,
-            on_written=hooks.on_written,
-        ),
+        "generate", "generating the dataset", lambda: stages.generate(config, run_dir, hooks=hooks)
     )
     trained = stage_result(
         "train",
         "training the PPANN" + (" and its baselines" if config.baselines else ""),
-        lambda: train_and_report(
-            run_dir / "dataset.mcap",
-            run_dir / "model.pt",
-            config=config.train,
-            baselines=config.baselines,
-            on_epoch=hooks.on_epoch,
-            on_stage=hooks.on_stage,
-        ),
+        lambda: stages.train(config, run_dir / stages.DATASET, run_dir, hooks=hooks),
     )
     solved = stage_result(
         "solve",
         "solving the nominal and robust OCP",
-        lambda: solve_file(
-            run_dir / "model.pt",
-            run_dir / "ocp.json",
-            config=config.ocp,
-            on_iteration=hooks.on_iteration,
-        ),
+        lambda: stages.solve(config, run_dir / stages.MODEL, run_dir, hooks=hooks),
     )
     stats = stage_result(
         "replay",
         "replaying on the twin",
-        lambda: replay_file(
-            run_dir / "ocp.json",
-            run_dir / "replay.mcap",
-            config=config.replay,
-            model_path=config.model_path,
-            resolved=resolved,
-            on_run=hooks.on_run,
+        lambda: stages.replay(
+            config, run_dir / stages.OCP, run_dir, resolved=resolved, hooks=hooks
         ),
     )
-    heldout = None
+    checked = None
     if config.heldout_runs:
-        heldout = stage_result(
+        checked = stage_result(
             "heldout",
             f"held-out check on {config.heldout_runs} machines",
-            lambda: heldout_file(
-                run_dir / "ocp.json",
-                run_dir / "heldout.json",
-                model=run_dir / "model.pt",
-                runs=config.heldout_runs,
-                seed=config.heldout_seed,
-                variability=config.generation.variability,
-                max_start_time=config.replay.max_start_time,
-                mode=config.loop,
-                model_path=config.model_path,
-            ),
+            lambda: stages.heldout(config, run_dir / stages.OCP, run_dir / stages.MODEL, run_dir),
         )
     steps["total"] = time.perf_counter() - started
-
-    report = {
-        "config": resolved,
-        "dataset": dataset,
-        "ppann": trained,
-        "ocp": solve_summary(solved),
-        "replay": {
-            "claim": stats["claim"],
-            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
-            "table": summary_rows(stats),
-            "stats": output_paths(run_dir / "replay.mcap")["stats"].name,
-        },
-        "heldout": heldout,
-        "wall_seconds": steps,
-    }
-    write_json(run_dir / "report.json", report, indent=2)
-    write_markdown(run_dir / "report.md", report, stats=stats)
+    report = stages.write_report(
+        run_dir,
+        resolved=resolved,
+        dataset=dataset,
+        trained=trained,
+        solved=solved,
+        stats=stats,
+        checked=checked,
+        seconds=steps,
+    )
     (run_dir / STAGES_FILE).unlink(missing_ok=True)
     return report
 

@@ -1,0 +1,126 @@
+"""The chain's stages, each with its inputs and output folder named: what `run_chain` runs in one
+folder and what `crank sweep` runs in a folder per shared step (one dataset per twin and seed, one
+model per dataset and training, one solve per model and task, one leaf per solve and replay).
+
+Every stage writes its files into `out` under fixed names and returns the summary its caller
+records; the inputs are read from the paths given, so a stage does not care which folder made them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from common.jsonio import write_json
+from control.solve import solve_file
+from crank.report import solve_summary, write_markdown
+from ppann.pipeline import train_and_report
+from replay.files import output_paths, replay_file
+from replay.heldout import heldout_file
+from replay.statistics import summary_rows
+from twin.generation import generate_file
+
+if TYPE_CHECKING:
+    from crank.chain import Hooks, RunConfig
+
+DATASET = "dataset.mcap"
+MODEL = "model.pt"
+OCP = "ocp.json"
+REPLAY = "replay.mcap"
+HELDOUT = "heldout.json"
+
+
+def generate(config: RunConfig, out: Path, *, hooks: Hooks) -> dict[str, Any]:
+    """The dataset of `config.generation` on the twin of `config.model_path`: `out`/dataset.mcap."""
+    return generate_file(
+        config.generation,
+        out=out / DATASET,
+        model_path=config.model_path,
+        on_simulated=hooks.on_simulated,
+        on_written=hooks.on_written,
+    )
+
+
+def train(config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
+    """The PPANN (and baselines if asked) trained on `dataset`: `out`/model.pt and its report."""
+    return train_and_report(
+        dataset,
+        out / MODEL,
+        config=config.train,
+        baselines=config.baselines,
+        on_epoch=hooks.on_epoch,
+        on_stage=hooks.on_stage,
+    )
+
+
+def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
+    """The nominal and robust OCP of `config.ocp` on `model`: `out`/ocp.json and its figures."""
+    return solve_file(model, out / OCP, config=config.ocp, on_iteration=hooks.on_iteration)
+
+
+def replay(
+    config: RunConfig,
+    ocp: Path,
+    out: Path,
+    *,
+    resolved: dict[str, Any],
+    hooks: Hooks,
+    nthread: int | None = None,
+) -> dict[str, Any]:
+    """Both profiles of `ocp` played on the campaign machines: `out`/replay.mcap and its stats."""
+    return replay_file(
+        ocp,
+        out / REPLAY,
+        config=config.replay,
+        model_path=config.model_path,
+        resolved=resolved,
+        nthread=nthread,
+        on_run=hooks.on_run,
+    )
+
+
+def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, Any]:
+    """Both profiles of `ocp` on `config.heldout_runs` held-out machines: `out`/heldout.json."""
+    return heldout_file(
+        ocp,
+        out / HELDOUT,
+        model=model,
+        runs=config.heldout_runs,
+        seed=config.heldout_seed,
+        variability=config.generation.variability,
+        max_start_time=config.replay.max_start_time,
+        mode=config.loop,
+        model_path=config.model_path,
+    )
+
+
+def write_report(
+    out: Path,
+    *,
+    resolved: dict[str, Any],
+    dataset: dict[str, Any],
+    trained: dict[str, Any],
+    solved: dict[str, Any],
+    stats: dict[str, Any],
+    checked: dict[str, Any] | None,
+    seconds: dict[str, float],
+) -> dict[str, Any]:
+    """`out`/report.json and report.md from what the stages returned; returns report.json's
+    content. report.md is written last: a folder with it is finished."""
+    report = {
+        "config": resolved,
+        "dataset": dataset,
+        "ppann": trained,
+        "ocp": solve_summary(solved),
+        "replay": {
+            "claim": stats["claim"],
+            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
+            "table": summary_rows(stats),
+            "stats": output_paths(out / REPLAY)["stats"].name,
+        },
+        "heldout": checked,
+        "wall_seconds": seconds,
+    }
+    write_json(out / "report.json", report, indent=2)
+    write_markdown(out / "report.md", report, stats=stats)
+    return report
