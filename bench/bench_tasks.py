@@ -2,6 +2,7 @@
 Monte-Carlo seeds and every returned robust torque checked on held-out machines.
 
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
+        [--only "horizon 200"] [--out tasks.json]
 
 Per task and Monte-Carlo seed: the verdict (a robust torque, or the one-line reason there is
 none), the margins and their standard errors, the cost premium, and the held-out violation rate
@@ -39,12 +40,16 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=1000)
     parser.add_argument("--mc-seeds", default="0-4")
     parser.add_argument("--heldout-seed", type=int, default=HELDOUT_SEED)
+    parser.add_argument("--only", default="", help="run the tasks whose name contains this")
+    parser.add_argument("--out", default="tasks.json", help="file name beside the model")
     args = parser.parse_args()
     model = Path(args.model)
     work = model.parent / "tasks"
     work.mkdir(exist_ok=True)
     rows = []
     for t, (task, options) in enumerate(TASKS.items()):
+        if args.only not in task:
+            continue
         for mc_seed in parse_seeds(args.mc_seeds):
             config = OCPConfig(**options, mc_seed=mc_seed)
             ocp_path = work / f"task{t}-mc{mc_seed}.json"
@@ -85,10 +90,10 @@ def main() -> None:
                 f"nominal {100 * row['nominal_heldout_rate']:.1f} %",
                 flush=True,
             )
-    for task in TASKS:
+    for task in (t for t in TASKS if args.only in t):
         verdicts = {r["verdict"] for r in rows if r["task"] == task}
         print(f"{task}: verdict {'/'.join(sorted(verdicts))} over the Monte-Carlo seeds")
-    out = model.parent / "tasks.json"
+    out = model.parent / args.out
     out.write_text(json.dumps({"runs": args.runs, "rows": rows}, indent=1))
     print(f"wrote {out}")
 

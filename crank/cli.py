@@ -230,9 +230,10 @@ def main() -> None:
     """The `crank` entry point: the app, with click's usage errors (an unknown option, a value
     that does not parse) as one `error:` line and exit code 2 like every other input error."""
     # register the other commands on the app, in the help's order: replay, heldout, recover,
-    # view (crank/cli_campaign.py), then run and study (crank/cli_chain.py)
+    # view (crank/cli_campaign.py), run and study (crank/cli_chain.py), sweep (crank/cli_sweep.py)
     import crank.cli_campaign
-    import crank.cli_chain  # noqa: F401
+    import crank.cli_chain
+    import crank.cli_sweep  # noqa: F401
 
     try:
         code = app(standalone_mode=False)

@@ -59,16 +59,21 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
     """One row of the study from a finished seed folder."""
-    report = json.loads((run_dir / "report.json").read_text())
-    stats = json.loads((run_dir / report["replay"]["stats"]).read_text())
-    ocp = json.loads((run_dir / "ocp.json").read_text())
+    return {"seed": seed} | run_row(run_dir, run_dir / "ocp.json")
+
+
+def run_row(leaf: Path, ocp_path: Path) -> dict[str, Any]:
+    """The figures of a finished chain: its report.json and replay stats in `leaf`, and the
+    ocp.json it played (a sweep keeps them in separate step folders)."""
+    report = json.loads((leaf / "report.json").read_text())
+    stats = json.loads((leaf / report["replay"]["stats"]).read_text())
+    ocp = json.loads(ocp_path.read_text())
     heldout = report["heldout"]
     mode = ocp["config"]["mc_mode"]
     k = ocp["config"]["k_sigma"]
     loop = loop_of(ocp["config"]["feedback"])
     played = {p: stats["profiles"][p][loop] for p in ("nominal", "robust")}
     row: dict[str, Any] = {
-        "seed": seed,
         "error": None,
         "loop": loop,
         "robust_100": played["robust"]["violating_runs"],
@@ -155,13 +160,14 @@ def run_study(
         "wall_s": time.perf_counter() - started,
     }
     write_json(out / "study.json", study, indent=2)
-    _write_csv(out / "study.csv", rows)
+    write_csv(out / "study.csv", rows)
     (out / "study.md").write_text(markdown(study))
     save_figure(figure(rows), out / "study.png")
     return study
 
 
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    """`rows` as CSV with every key any row has (tables left out), written atomically."""
     keys: list[str] = []
     for row in rows:
         keys += [k for k in row if k not in keys and not isinstance(row[k], dict)]

@@ -32,6 +32,22 @@ RANGES = {
     "cfg_unknown": "[ocp]\nheigth = 0.08\n",
     "cfg_type": "[ocp]\nhorizon = 'x'\n",
     "cfg_range": "[ocp]\nhorizon = 2\n",
+    "sw_ok": "[grid]\nseed = [0, 1]\n",
+    "sw_unknown": '[grid]\n"ocp.heigth" = [0.08]\n',
+    "sw_base_unknown": "[base]\nseeds = 3\n[grid]\nseed = [0]\n",
+    "sw_section": "[grids]\nseed = [0, 1]\n",
+    "sw_empty": "[base]\nseed = 1\n",
+    "sw_axis": "[grid]\nseed = []\n",
+    "sw_scalar": "[grid]\nseed = 3\n",
+    "sw_range": '[grid]\n"ocp.horizon" = [150, 2]\n',
+    "sw_seed": "[grid]\nseed = [-1, 0]\n",
+    "sw_type": '[grid]\n"ocp.height" = ["high"]\n',
+    "sw_same": '[grid]\nseed = [0]\n[[cases]]\nname = "a"\n[[cases]]\nname = "b"\n',
+    "sw_names": '[[cases]]\nname = "a"\n[[cases]]\nname = "a"\nseed = 1\n',
+    "sw_cases": "cases = [1, 2]\n",
+    "sw_big": '[grid]\nseed = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]\n"ocp.height" = ['
+    + ", ".join(str(0.07 + i * 1e-5) for i in range(1001))
+    + "]\n",
 }
 
 
@@ -287,6 +303,29 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-1 --runs 0", "runs must be an integer"),
     ("study --out S --seeds 0-1 --feedback pid", "feedback must be one of none, lqr"),
     ("study --out {file}/S --seeds 0-1", "cannot write"),
+    # --- sweep ---
+    ("sweep {sw_unknown.toml} --out S", "unknown key 'ocp.heigth'"),
+    ("sweep {sw_base_unknown.toml} --out S", "unknown key 'seeds'"),
+    ("sweep {sw_section.toml} --out S", "unknown section 'grids'"),
+    ("sweep {sw_empty.toml} --out S", "empty grid: give [grid] values or [[cases]]"),
+    ("sweep {sw_axis.toml} --out S", "empty grid: [grid] seed must be a non-empty list"),
+    ("sweep {sw_scalar.toml} --out S", "empty grid: [grid] seed must be a non-empty list"),
+    ("sweep {sw_range.toml} --out S", "leaf ocp.horizon=2: horizon must be >= 3 samples"),
+    ("sweep {sw_seed.toml} --out S", "seed must be"),
+    ("sweep {sw_type.toml} --out S", 'ocp.height must be a number, got "high"'),
+    ("sweep {sw_same.toml} --out S", "are the same run"),
+    ("sweep {sw_names.toml} --out S", "two cases share a name"),
+    ("sweep {sw_cases.toml} --out S", "cases must be an array of tables"),
+    ("sweep {sw_big.toml} --out S", "10010 leaves, more than 10000"),
+    ("sweep {broken.toml} --out S", "is not TOML"),
+    ("sweep {dir}/absent.toml --out S", "cannot read sweep spec"),
+    ("sweep --out S", "give the sweep's spec file"),
+    ("sweep {sw_ok.toml} --out S --executor dask", "executor must be one of ray, sequential"),
+    ("sweep {sw_ok.toml} --out S --workers 0", "--workers must be >= 1"),
+    ("sweep {sw_ok.toml} --out {dir}", "sweep folder already exists"),
+    ("sweep {sw_ok.toml} --out {file}/S", "cannot write"),
+    ("sweep --resume {dir}", "nothing to resume: "),
+    ("sweep {sw_ok.toml} --resume {dir}", "give no spec"),
 ]
 
 
@@ -327,5 +366,5 @@ def test_bad_input_is_one_line_and_writes_nothing(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study", "config"}
+    assert commands >= expected | {"run", "study", "config", "sweep"}
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

@@ -1,0 +1,172 @@
+"""A sweep's results, assembled from its step folders: sweep.csv (one row per leaf: its options and
+every figure of its report), sweep.md (the verdict, then a pivot table over every option but the
+seed) and sweep.png (held-out violation rate and premium per option group, one dot per seed)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+
+from common.atomic import atomic_path
+from common.figures import save_figure
+from crank import stages
+from crank.study import TARGET_HELDOUT_RATE, run_row, write_csv
+from crank.sweep_spec import KINDS, Leaf
+
+Records = list[tuple[Leaf, list[dict[str, Any]]]]
+
+
+def rows_of(records: Records, out: Path) -> list[dict[str, Any]]:
+    """One row per leaf: its options, the first failed step's error or the chain's figures, and
+    each step's wall time (the step may be shared with other leaves)."""
+    rows = []
+    for leaf, steps in records:
+        row: dict[str, Any] = {"leaf": leaf.name, **leaf.options}
+        row["campaign_runs"] = leaf.config.replay.runs
+        failed = next((s for s in steps if s.get("error")), None)
+        if failed is not None:
+            row |= {"error": failed["error"], "failed_step": failed["kind"]}
+        else:
+            by_kind = dict(zip(KINDS, steps, strict=True))
+            leaf_dir = out / "leaf" / by_kind["leaf"]["key"]
+            ocp = out / "solve" / by_kind["solve"]["key"] / stages.OCP
+            row |= run_row(leaf_dir, ocp)
+            row |= {f"{kind}_s": step["seconds"] for kind, step in by_kind.items()}
+            row |= {f"{kind}_key": step["key"] for kind, step in by_kind.items()}
+        rows.append(row)
+    return rows
+
+
+def groups(rows: list[dict[str, Any]], axes: list[str]) -> dict[str, list[dict[str, Any]]]:
+    """Rows by their options other than the seed (label "all" when the seed is the only axis)."""
+    out: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        label = " ".join(f"{a}={row[a]}" for a in axes if a != "seed") or "all"
+        out[label].append(row)
+    return dict(out)
+
+
+def _pct(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None else f"{100 * value:.{digits}f} %"
+
+
+def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """sweep.md: what ran, the verdict against the held-out target, the pivot table, the errors."""
+    axes = sweep["axes"]
+    ok = [r for r in rows if not r.get("error") and "robust_heldout_rate" in r]
+    failed = [r for r in rows if r.get("error")]
+    lines = [
+        f"# Sweep: {len(rows)} leaves over {', '.join(axes) or 'one configuration'}",
+        "",
+        f"Steps: {sweep['steps']} ({sweep['executor']}; {sweep['wall_s']:.0f} s wall). "
+        f"Held-out seed {sweep['heldout_seeds']}. Spec: `sweep.toml`; one row per leaf: "
+        "`sweep.csv`.",
+        "",
+    ]
+    if ok:
+        worst = max(ok, key=lambda r: r["robust_heldout_rate"])
+        holds = worst["robust_heldout_rate"] <= TARGET_HELDOUT_RATE and not failed
+        lines.append(
+            "- robust torque on held-out machines: worst leaf "
+            f"{_pct(worst['robust_heldout_rate'])} "
+            f"({worst['leaf']}), target <= {_pct(TARGET_HELDOUT_RATE, 1)} on every leaf: "
+            f"**{'met' if holds else 'NOT met'}**"
+        )
+    if failed:
+        lines.append(f"- {len(failed)} leaf/leaves gave no result (errors below)")
+    lines += ["", "![held-out violation rate and premium per option group](sweep.png)", ""]
+    head = [
+        "options",
+        "leaves",
+        "robust held-out (all machines)",
+        "worst leaf",
+        "worst 95 % bound",
+        "robust campaign",
+        "premium (min–max)",
+        "errors",
+    ]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label, members in groups(rows, axes).items():
+        good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
+        bad = len(members) - len(good)
+        if not good:
+            lines.append(f"| {label} | {len(members)} | n/a | n/a | n/a | n/a | n/a | {bad} |")
+            continue
+        machines = sum(r["heldout_runs"] for r in good)
+        violated = sum(round(r["robust_heldout_rate"] * r["heldout_runs"]) for r in good)
+        premium = [r["premium"] for r in good]
+        campaign = sum(r["robust_100"] for r in good), sum(r["campaign_runs"] for r in good)
+        mean = sum(premium) / len(premium)
+        cells = [
+            label,
+            str(len(members)),
+            f"{violated}/{machines} ({_pct(violated / machines)})",
+            _pct(max(r["robust_heldout_rate"] for r in good)),
+            _pct(max(r["robust_heldout_upper_95"] for r in good)),
+            f"{campaign[0]}/{campaign[1]}",
+            f"{_pct(mean, 1)} ({_pct(min(premium), 1)}–{_pct(max(premium), 1)})",
+            str(bad),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    if failed:
+        lines += ["", "## Errors", ""]
+        lines += [f"- {r['leaf']}: {r['failed_step']} step: {r['error']}" for r in failed]
+    return "\n".join(lines) + "\n"
+
+
+def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
+    """Per option group (x), each seed's held-out violation rate with its 95 % bound (top) and
+    cost premium (bottom); a red cross where a leaf failed."""
+    grouped = groups(rows, axes)
+    fig = Figure(figsize=(max(6.0, 1.2 * len(grouped) + 3), 6), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for x, members in enumerate(grouped.values()):
+        good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
+        spread = [x + 0.3 * (i / max(1, len(good) - 1) - 0.5) for i in range(len(good))]
+        if len(good) == 1:
+            spread = [float(x)]
+        top.scatter(spread, [100 * r["robust_heldout_rate"] for r in good], color="C0", s=18)
+        top.scatter(
+            spread,
+            [100 * r["robust_heldout_upper_95"] for r in good],
+            color="C3",
+            marker="_",
+            s=120,
+        )
+        bottom.scatter(spread, [100 * r["premium"] for r in good], color="C1", s=18)
+        if len(good) < len(members):
+            top.scatter([x], [0], color="C3", marker="x", s=80)
+    top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1)
+    top.set_ylabel("robust, held-out violations [%]")
+    top.set_ylim(bottom=0)
+    top.legend(
+        handles=[
+            top.scatter([], [], color="C0", s=18, label="a seed's rate"),
+            top.scatter([], [], color="C3", marker="_", s=120, label="its 95 % upper bound"),
+            top.plot([], [], color="k", ls="--", lw=1, label="target")[0],
+        ],
+        fontsize=8,
+    )
+    bottom.set_ylabel("robust cost premium [%]")
+    bottom.set_ylim(bottom=0)
+    ticks = []
+    for label, members in grouped.items():
+        bad = sum(1 for r in members if r.get("error") or "robust_heldout_rate" not in r)
+        ticks.append(label + (f"\n({bad} of {len(members)} failed)" if bad else ""))
+    bottom.set_xticks(range(len(grouped)), ticks, rotation=20, ha="right", fontsize=8)
+    bottom.set_xlim(-0.5, len(grouped) - 0.5)
+    fig.suptitle("Sweep: robust torque per option group (one dot per seed)")
+    return fig
+
+
+def write_results(out: Path, sweep: dict[str, Any], records: Records) -> list[dict[str, Any]]:
+    """sweep.csv, sweep.md and sweep.png from the step folders; returns the rows."""
+    rows = rows_of(records, out)
+    write_csv(out / "sweep.csv", rows)
+    save_figure(figure(rows, sweep["axes"]), out / "sweep.png")
+    with atomic_path(out / "sweep.md") as tmp:
+        tmp.write_text(markdown(sweep, rows))
+    return rows

@@ -1,0 +1,278 @@
+"""`crank sweep`: a 2 x 2 grid on Ray gives the numbers of the same four chains run one by one,
+trains each model once, survives a killed worker, records a failing step and goes on, and a
+killed sweep resumes without redoing finished steps. Short chains (tests/test_chain.py's SHORT)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch
+
+from common.jsonio import without_wall_clock
+from crank.chain import RunConfig, run_chain
+from crank.console import HELDOUT_SEED
+from crank.study import run_row
+from crank.sweep import RESULT, execute, leaf_results, run_node, run_sweep
+from crank.sweep_report import rows_of
+from crank.sweep_spec import graph, leaves_of, node_key
+from tests.test_chain import SHORT
+
+SPEC = """
+[base]
+heldout_runs = 20
+baselines = false
+[base.generation]
+seconds = 12.0
+episode_seconds = 2.0
+[base.train]
+max_epochs = 3
+sigma_epochs = 20
+[base.ocp]
+k_sigma = 0.5
+mc_samples = 200
+confidence = 0.0
+[base.replay]
+runs = 4
+"""
+GRID = (
+    SPEC
+    + """
+[grid]
+seed = [0, 1]
+"ocp.constraint_samples" = [[50, 100], [60, 90]]
+"""
+)
+TASKS = [(50, 100), (60, 90)]
+
+
+def _chain_config(seed: int, samples: tuple[int, int]) -> RunConfig:
+    """The chain a leaf of GRID stands for, built without the spec: SHORT at `seed` on the task
+    `samples`, checked on the default held-out machines (the spec's base does not set them)."""
+    config = SHORT.with_seed(seed)
+    return replace(
+        config, ocp=replace(config.ocp, constraint_samples=samples), heldout_seed=HELDOUT_SEED
+    )
+
+
+def _kill_first_training(out: Path, killed: list[int], stop: threading.Event) -> None:
+    """SIGKILL the Ray worker of the first model step seen running (its pid file)."""
+    while not stop.is_set():
+        for pid_file in (out / "model").glob("*.partial/worker.pid"):
+            try:
+                pid = int(pid_file.read_text())
+            except (OSError, ValueError):
+                continue
+            time.sleep(1.0)  # mid-training, not at its first line
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+            return
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list[int], Path]:
+    """The 2 x 2 sweep on a local Ray (one training worker killed mid-way), and the same four
+    chains run one by one in this process with torch on the workers' one thread."""
+    root = tmp_path_factory.mktemp("sweep")
+    (root / "grid.toml").write_text(GRID)
+    out = root / "out"
+    killed: list[int] = []
+    stop = threading.Event()
+    watcher = threading.Thread(target=_kill_first_training, args=(out, killed, stop), daemon=True)
+    watcher.start()
+    try:
+        sweep = run_sweep(root / "grid.toml", out, executor="ray", workers=2)
+    finally:
+        stop.set()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for seed in (0, 1):
+            for samples in TASKS:
+                name = f"seed-{seed}-{samples[0]}-{samples[1]}"
+                run_chain(_chain_config(seed, samples), root / "chains" / name, argv=[])
+    finally:
+        torch.set_num_threads(threads)
+    return out, sweep, killed, root / "chains"
+
+
+def test_sweep_equals_the_four_chains_run_one_by_one(swept) -> None:
+    out, sweep, _, chains = swept
+    assert len(sweep["rows"]) == 4 and not any(r.get("error") for r in sweep["rows"])
+    for leaf in leaves_of(tomllib.loads(GRID), source="grid"):
+        assert leaf.config == _chain_config(
+            leaf.options["seed"], tuple(leaf.options["ocp.constraint_samples"])
+        ), leaf.name
+    for row in sweep["rows"]:
+        samples = row["ocp.constraint_samples"]
+        chain = chains / f"seed-{row['seed']}-{samples[0]}-{samples[1]}"
+        expected = run_row(chain, chain / "ocp.json")
+        got = {k: row[k] for k in expected}
+        assert {k: v for k, v in got.items() if k != "wall_s"} == {
+            k: v for k, v in expected.items() if k != "wall_s"
+        }, row["leaf"]
+        leaf, solve = out / "leaf" / row["leaf_key"], out / "solve" / row["solve_key"]
+        plans = [
+            without_wall_clock(json.loads((d / "ocp.json").read_text())) for d in (solve, chain)
+        ]
+        for key in ("nominal", "robust", "robust_iterations"):
+            assert plans[0][key] == plans[1][key], (row["leaf"], key)
+        ours, theirs = (json.loads((d / "report.json").read_text()) for d in (leaf, chain))
+        checked = [without_wall_clock(r["heldout"]) for r in (ours, theirs)]
+        assert checked[0].pop("ocp") == str(solve / "ocp.json")  # the plan it checked, by path
+        assert checked[1].pop("ocp") == "ocp.json"
+        assert checked[0] == checked[1]
+        assert ours["replay"]["table"] == theirs["replay"]["table"]
+
+
+def test_a_sweep_over_tasks_trains_each_model_once(swept) -> None:
+    out, sweep, _, _ = swept
+    models = [d for d in (out / "model").iterdir() if d.is_dir()]
+    assert len(models) == 2 and not any(d.name.endswith(".partial") for d in models)
+    assert sweep["step_counts"] == {"data": 2, "model": 2, "solve": 4, "leaf": 4}
+    for kind, count in (("data", 2), ("solve", 4), ("leaf", 4)):
+        finished = [d for d in (out / kind).iterdir() if (d / RESULT).is_file()]
+        assert len(finished) == count, kind
+    for model in models:  # each model serves both tasks of its seed
+        result = json.loads((model / RESULT).read_text())
+        assert len(result["leaves"]) == 2 and result["torch_threads"] == 1
+    assert (out / "sweep.md").is_file() and (out / "sweep.png").stat().st_size > 10_000
+    csv_lines = (out / "sweep.csv").read_text().splitlines()
+    assert len(csv_lines) == 5 and "robust_heldout_rate" in csv_lines[0]
+
+
+def test_a_killed_worker_is_retried_and_the_sweep_completes(swept) -> None:
+    out, sweep, killed, _ = swept
+    assert len(killed) == 1, "the watcher did not catch a training to kill"
+    attempts = {p.stem: p.read_text().count("\n") for p in (out / "model").glob("*.attempts")}
+    assert sorted(attempts.values()) == [1, 2]  # the killed step ran again; the other once
+    retried = next(key for key, n in attempts.items() if n == 2)
+    assert json.loads((out / "model" / retried / RESULT).read_text())["attempts"] == 2
+    assert all(not r.get("error") for r in sweep["rows"])
+
+
+def test_a_failing_step_is_recorded_and_the_sweep_goes_on(tmp_path: Path) -> None:
+    """A model folder whose checkpoint is garbage: both solves on it fail with the checkpoint's
+    one-line error, the leaves after them are not run, and the sweep returns every result."""
+    leaves = leaves_of(
+        {"base": {"seed": 0}, "grid": {"ocp.horizon": [150, 140]}} | _spec_tables(),
+        source="test",
+    )
+    nodes = graph(leaves)
+    broken = tmp_path / "out"
+    model = next(n for n in nodes if n.kind == "model")
+    data = next(n for n in nodes if n.kind == "data")
+    for node in (data, model):  # made by hand: a dataset (reused) and a bad checkpoint
+        (broken / node.kind / node.key).mkdir(parents=True)
+        (broken / node.kind / node.key / RESULT).write_text(
+            json.dumps({"kind": node.kind, "key": node.key, "summary": {}, "seconds": 0.0})
+        )
+    (broken / "model" / model.key / "model.pt").write_text("not a checkpoint\n")
+    results = execute(nodes, broken, executor="sequential")
+    solves = [results[n.id] for n in nodes if n.kind == "solve"]
+    bad = f"{broken}/model/{model.key}/model.pt: not a checkpoint, or a damaged one"
+    assert [s["error"].startswith(bad) for s in solves] == [True, True]
+    assert all("\n" not in s["error"] for s in solves)
+    leaf_errors = [results[n.id]["error"] for n in nodes if n.kind == "leaf"]
+    assert leaf_errors == ["not run: its solve step failed"] * 2
+    rows = rows_of(leaf_results(leaves, broken), broken)
+    assert [r["failed_step"] for r in rows] == ["solve", "solve"]
+    assert all(
+        (broken / "solve" / f"{n.key}.error.json").is_file() for n in nodes if n.kind == "solve"
+    )
+    assert run_node(model, broken)["key"] == model.key  # a finished step is found, not redone
+
+
+def _spec_tables() -> dict:
+    return {"base": tomllib.loads(SPEC)["base"] | {"seed": 0}}
+
+
+def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -> None:
+    spec = tmp_path / "tasks.toml"
+    spec.write_text(SPEC + '\n[grid]\n"ocp.constraint_samples" = [[50, 100], [60, 90]]\n')
+    out = tmp_path / "out"
+    crank = [sys.executable, "-m", "crank", "sweep", str(spec), "--out", str(out)]
+    process = subprocess.Popen(
+        [*crank, "--workers", "2"],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not list((out / "model").glob(f"*/{RESULT}")):
+            assert process.poll() is None and time.monotonic() < deadline, "no model step finished"
+            time.sleep(0.1)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)  # the sweep and its local Ray
+        process.wait()
+    assert not (out / "sweep.md").exists()
+    (model,) = [d for d in (out / "model").iterdir() if (d / RESULT).is_file()]
+    made = (model / RESULT).stat().st_mtime_ns
+    resumed = subprocess.run(
+        [sys.executable, "-m", "crank", "sweep", "--resume", str(out), "--executor", "sequential"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert (model / RESULT).stat().st_mtime_ns == made
+    for kind in ("data", "model"):
+        (attempts,) = (out / kind).glob("*.attempts")
+        assert attempts.read_text().count("\n") == 1, f"the {kind} step ran again"
+    assert not list(out.glob("*/*.partial"))
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert len(rows) == 3 and "wrote" in resumed.stdout
+
+
+def test_the_graph_shares_each_step_between_the_leaves_that_agree_on_it() -> None:
+    """Seeds x cases: a case changing the task shares the model, one changing the training does
+    not, one changing only the replay shares the solve; keys follow what each step reads."""
+    spec = tomllib.loads(
+        SPEC
+        + """
+[grid]
+seed = [0, 1]
+[[cases]]
+name = "paper"
+[[cases]]
+name = "task"
+ocp = { height = 0.079 }
+[[cases]]
+name = "longer training"
+train = { max_epochs = 4 }
+[[cases]]
+name = "more replays"
+replay = { runs = 8 }
+"""
+    )
+    leaves = leaves_of(spec, source="spec")
+    nodes = graph(leaves)
+    counts = {kind: sum(n.kind == kind for n in nodes) for kind in ("data", "model", "solve")}
+    assert counts == {"data": 2, "model": 4, "solve": 6}
+    assert sum(n.kind == "leaf" for n in nodes) == len(leaves) == 8
+    by_name = {leaf.name: leaf for leaf in leaves}
+    keys = {
+        name: [node_key(kind, leaf.config) for kind in ("data", "model", "solve", "leaf")]
+        for name, leaf in by_name.items()
+    }
+    paper, task = keys["seed=0 case=paper"], keys["seed=0 case=task"]
+    longer, replays = keys["seed=0 case=longer training"], keys["seed=0 case=more replays"]
+    assert task[:2] == paper[:2] and task[2] != paper[2]
+    assert longer[0] == paper[0] and longer[1] != paper[1]
+    assert replays[:3] == paper[:3] and replays[3] != paper[3]
+    assert keys["seed=1 case=paper"][0] != paper[0]
+    order = [n.kind for n in nodes]
+    assert order == sorted(order, key=("data", "model", "solve", "leaf").index)
+    assert by_name["seed=1 case=task"].config.ocp.height == 0.079
+    assert by_name["seed=1 case=task"].config.ocp.mc_seed == 1  # the root seed reaches every stage
