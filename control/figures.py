@@ -22,7 +22,9 @@ def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None)
 def _slider(ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str) -> None:
     k = ocp.config.k_sigma
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
-    lower, upper = predicted_band(profile, loop_of(ocp.config.feedback), k)  # sized-for loop
+    lower, upper = predicted_band(
+        profile, loop_of(ocp.config.feedback), k, geometry=ocp.geometry
+    )  # the loop it was sized for
     ax.fill_between(
         profile.time,
         lower,

@@ -47,7 +47,7 @@ from common.errors import CrankError
 from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
 from ppann.model import PPANN
-from twin.physics import CRANK_LENGTH, ROD_LENGTH
+from twin.geometry import Geometry
 
 
 class OCPError(CrankError, RuntimeError):
@@ -85,18 +85,6 @@ start's primal point only: after a jump that large, IPOPT's multiplier warm star
 iterations than it saves (17 against 10 on the seed-0 model's first robust step)."""
 
 
-def slider_position(theta: Any) -> Any:
-    """Slider position (m) of crank angle theta, for NumPy arrays and CasADi expressions alike:
-    l1 cos(theta) + sqrt(l2^2 - l1^2 sin^2(theta)) + l1 - l2 (twin.physics' formula)."""
-    lib = ca if isinstance(theta, ca.SX | ca.MX | ca.DM) else np
-    return (
-        CRANK_LENGTH * lib.cos(theta)
-        + lib.sqrt(ROD_LENGTH**2 - (CRANK_LENGTH * lib.sin(theta)) ** 2)
-        + CRANK_LENGTH
-        - ROD_LENGTH
-    )
-
-
 @dataclass(frozen=True)
 class Solution:
     """One solved OCP. Arrays are indexed by sample - 1 (see the module docstring)."""
@@ -114,13 +102,15 @@ class Solution:
     wall_time: float
     """Seconds, all passes."""
     turn_passes: int
+    geometry: Geometry
+    """The mechanism whose slider the constraints hold (the model's, twin/geometry.py)."""
     lam_g: np.ndarray = field(repr=False)
     lam_x: np.ndarray = field(repr=False)
 
     @property
     def slider(self) -> np.ndarray:
         """Slider position of the mean-model states, (N,), m."""
-        return slider_position(self.states[:, 0])
+        return self.geometry.slider_position(self.states[:, 0])
 
 
 class NominalOCP:
@@ -129,6 +119,7 @@ class NominalOCP:
 
     def __init__(self, model: PPANN, config: OCPConfig | None = None) -> None:
         self.config = c = config or OCPConfig()
+        self.geometry = model.geometry
         self.dynamics = CasadiPPANN(model)
         self.dt = self.dynamics.dt
         n = c.horizon
@@ -140,7 +131,7 @@ class NominalOCP:
         du = (u[1:] - u[:-1]) / self.dt
         cost = ca.sumsqr(u) + c.smoothness_weight * ca.sumsqr(du)
         index = [k - 1 for k in c.constraint_samples]
-        slider = ca.vertcat(*(slider_position(x[0, i]) for i in index))
+        slider = ca.vertcat(*(self.geometry.slider_position(x[0, i], lib=ca) for i in index))
         boundary = ca.vertcat(x[0, 0], x[1, 0], x[0, n - 1], x[1, n - 1])
         g = ca.vertcat(ca.vec(defects), boundary, slider)
         w = ca.vertcat(ca.vec(x), u)
@@ -273,6 +264,7 @@ class NominalOCP:
                     iterations=0,
                     wall_time=0.0,
                     turn_passes=passes,
+                    geometry=self.geometry,
                     lam_g=args["lam_g0"],
                     lam_x=args["lam_x0"],
                 )

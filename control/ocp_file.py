@@ -2,13 +2,15 @@
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 5
+  format, version            "crank-ocp", 6
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
   constraint_samples         1-based samples of the slider constraint
   config                     the resolved OCPConfig
   model                      {path, sha256, kind} of the checkpoint solved on
+  geometry                   {crank_length, rod_length} (m) of the mechanism, the checkpoint's
+                             (twin/geometry.py); a replay refuses a twin of another
   nominal, robust            profiles (below)
   variability                the training dataset's variability scenario (replays draw from it)
   robust_iterations          one entry per robust solve: margin, tightening, tightening_se (m,
@@ -60,15 +62,15 @@ from control.ocp import Solution
 from control.robust import Partial, RobustResult
 from control.tightening import Uncertainty
 from twin import __version__
-from twin.physics import within_stroke
+from twin.geometry import Geometry, GeometryError
 
 FORMAT = "crank-ocp"
 FAILED_FORMAT = "crank-ocp-failed"
 """The format of what a failed robust solve leaves beside the ocp.json it could not write."""
-VERSION = 5
+VERSION = 6
 """2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
 population in each profile; 4: LQR gains and both loops' spreads; 5: sampling in each profile
-(the tightening includes the Monte-Carlo's standard-error allowance)."""
+(the tightening includes the Monte-Carlo's standard-error allowance); 6: geometry."""
 INDEX_CONVENTION = (
     "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
     "t_{k+1}; constraint_samples are 1-based"
@@ -88,7 +90,7 @@ SERIES = (
 )
 GAINS = ("gain_theta", "gain_omega")
 SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
-TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "nominal", "robust")
+TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "geometry", "nominal", "robust")
 
 
 class OCPFileError(CrankError, ValueError):
@@ -130,6 +132,7 @@ class Profile:
 @dataclass(frozen=True)
 class OCPFile:
     config: OCPConfig
+    geometry: Geometry
     dt: float
     nominal: Profile
     robust: Profile
@@ -140,13 +143,14 @@ class OCPFile:
         return self.config.horizon
 
 
-def predicted_band(profile: Profile, mode: str, k_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+def predicted_band(
+    profile: Profile, mode: str, k_sigma: float, *, geometry: Geometry
+) -> tuple[np.ndarray, np.ndarray]:
     """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
-    within the stroke (twin.physics.within_stroke); for drawing, not for statistics."""
+    within `geometry`'s stroke; for drawing, not for statistics."""
     sigma = profile.sigma_in(mode)
-    return within_stroke(profile.slider - k_sigma * sigma), within_stroke(
-        profile.slider + k_sigma * sigma
-    )
+    clip = geometry.within_stroke
+    return clip(profile.slider - k_sigma * sigma), clip(profile.slider + k_sigma * sigma)
 
 
 def profile_dict(
@@ -191,7 +195,12 @@ def profile_dict(
 
 
 def _header(
-    config: OCPConfig, *, dt: float, model: dict[str, Any], variability: dict[str, Any] | None
+    config: OCPConfig,
+    *,
+    dt: float,
+    model: dict[str, Any],
+    geometry: Geometry,
+    variability: dict[str, Any] | None,
 ) -> dict[str, Any]:
     return {
         "format": FORMAT,
@@ -202,6 +211,7 @@ def _header(
         "constraint_samples": list(config.constraint_samples),
         "config": config.as_dict(),
         "model": model,
+        "geometry": geometry.as_dict(),
         "variability": variability,
     }
 
@@ -258,13 +268,14 @@ def write_ocp(
     config: OCPConfig,
     dt: float,
     model: dict[str, Any],
+    geometry: Geometry,
     build_s: float,
     variability: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write ocp.json atomically and return what was written. `variability` is the training
     dataset's scenario (from the checkpoint), which replays draw their machines from."""
     payload = {
-        **_header(config, dt=dt, model=model, variability=variability),
+        **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
         **{name: _profile_of(result, name, config=config, dt=dt) for name in ("nominal", "robust")},
         **_history(result),
         "timing": {
@@ -288,13 +299,14 @@ def write_failed(
     config: OCPConfig,
     dt: float,
     model: dict[str, Any],
+    geometry: Geometry,
     variability: dict[str, Any] | None = None,
 ) -> None:
     """Write what a failed robust solve leaves (`<stem>.failed.json`): the nominal profile in
     ocp.json's form, the margin history and the error, marked `"status": "failed"`. It is not an
     ocp.json (no robust profile), and read_ocp refuses it by its format name."""
     payload = {
-        **_header(config, dt=dt, model=model, variability=variability),
+        **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
         "format": FAILED_FORMAT,
         "status": "failed",
         "error": error,
@@ -344,8 +356,14 @@ def read_ocp(path: str | Path) -> OCPFile:
     dt = _finite(path, "dt", raw["dt"])
     if dt <= 0:
         raise OCPFileError(f"{path}: dt must be > 0, got {dt}")
+    if not isinstance(raw["geometry"], dict):
+        raise OCPFileError(f"{path}: geometry must be a table, got {raw['geometry']!r}")
+    try:
+        geometry = Geometry.from_dict(raw["geometry"], source=str(path))
+    except GeometryError as exc:
+        raise OCPFileError(str(exc)) from None
     profiles = {name: _profile(path, name, raw[name], config) for name in ("nominal", "robust")}
-    return OCPFile(config=config, dt=dt, raw=raw, **profiles)
+    return OCPFile(config=config, geometry=geometry, dt=dt, raw=raw, **profiles)
 
 
 def _finite(path: Path, name: str, value: Any) -> float:

@@ -63,7 +63,6 @@ from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, OCPError, Solution
 from control.tightening import Uncertainty, slider_uncertainty
 from ppann.model import PPANN, FusedHeads
-from twin.physics import STROKE_TOP
 
 MIN_DAMPING = 1 / 256
 STROKE_SHARE = 0.95
@@ -163,7 +162,8 @@ def solve_robust(
     heads = FusedHeads(model)
     index = np.array(config.constraint_samples) - 1
     base = np.full(len(index), config.height)
-    cap = np.full(len(index), STROKE_SHARE * (STROKE_TOP - config.height))
+    available = model.geometry.stroke_top - config.height
+    cap = np.full(len(index), STROKE_SHARE * available)
 
     weights = LQRWeights.from_config(config)
 
@@ -228,7 +228,9 @@ def solve_robust(
                 on_iteration(iterations[-1])
             beyond = (proposal >= cap) & (new_target > cap)
             if beyond.any():
-                raise _beyond_stroke(config, int(np.flatnonzero(beyond)[0]), unc, cap)
+                raise _beyond_stroke(
+                    config, int(np.flatnonzero(beyond)[0]), unc, cap, available=available
+                )
             residual = new_target - proposal
             bracket.update(proposal, residual)
             margin, target, current = proposal, new_target, solution
@@ -278,7 +280,7 @@ def solve_robust(
 
 
 def _beyond_stroke(
-    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray
+    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray, *, available: float
 ) -> BeyondStrokeError:
     """The error for constraint `k` (0-based) whose tightening `unc` asks for exceeds the cap."""
     sample = config.constraint_samples[k]
@@ -298,7 +300,7 @@ def _beyond_stroke(
         f"loop: open loop cannot keep this spread)",
         sample=sample,
         tightening=float(unc.tightening[k]),
-        available=float(STROKE_TOP - config.height),
+        available=float(available),
         line=float(unc.population[k]),
     )
 

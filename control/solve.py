@@ -85,6 +85,7 @@ def solve_file(
                     config=config,
                     dt=ocp.dt,
                     model=_model_record(model_path, out, payload),
+                    geometry=model.geometry,
                     variability=payload.get("variability"),
                 )
                 kept = f"the nominal plan and the margin history are in {failed}"
@@ -100,6 +101,7 @@ def solve_file(
         config=config,
         dt=ocp.dt,
         model=_model_record(model_path, out, payload),
+        geometry=model.geometry,
         variability=payload.get("variability"),
         build_s=build_s,
     )

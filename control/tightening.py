@@ -15,7 +15,7 @@ import numpy as np
 
 from common.streams import rng, stream
 from control.config import OCPConfig, lower_tail
-from control.ocp import Solution, slider_position
+from control.ocp import Solution
 from ppann.confidence import confidence_quantile
 from ppann.machine import sigma_upper
 from ppann.model import FusedHeads
@@ -89,7 +89,7 @@ def _slider_at(
     """Mean-model slider position at samples `index` of lines shifted by delta (n, 3): (n, k)."""
     paths = rollout(heads, x0, tau, n_samples=len(delta), factors=np.exp(delta), feedback=feedback)
     with np.errstate(invalid="ignore"):
-        return slider_position(paths[:, index, 0])
+        return heads.geometry.slider_position(paths[:, index, 0])
 
 
 ELLIPSOID_DIRECTIONS = 64
@@ -231,7 +231,7 @@ def slider_uncertainty(
     n, length = bands.samples.shape[:2]
     delta = draw(heads.transmission, (length, n), rng(config.mc_seed, "transmission")).T
     with np.errstate(over="ignore", invalid="ignore"):
-        slider = slider_position(bands.samples[:, :, 0] + delta)
+        slider = heads.geometry.slider_position(bands.samples[:, :, 0] + delta)
     plan = solution.slider
     columns = [(slider[:, k - 1], plan[k - 1]) for k in config.constraint_samples]
     options = {"k_sigma": config.k_sigma, "method": config.tightening}

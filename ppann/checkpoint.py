@@ -16,6 +16,7 @@ from common.atomic import atomic_path
 from common.errors import CrankError
 from ppann.kinds import KINDS, MODEL_KINDS
 from twin.dataset import Dataset
+from twin.geometry import Geometry
 
 FORMAT = "crank-ppann-checkpoint"
 VERSION = 4
@@ -36,7 +37,10 @@ def fingerprint(dataset: Dataset) -> str:
 
 
 def save(path: str | Path, model: torch.nn.Module, *, kind: str, extra: dict[str, Any]) -> None:
-    """Write a checkpoint atomically; `extra` holds history, train config, scaling, fingerprint."""
+    """Write a checkpoint atomically; `extra` holds history, train config, scaling, fingerprint.
+    A model with a `geometry` (the PPANN) records it: the mechanism its slider is about."""
+    if hasattr(model, "geometry"):
+        extra = {**extra, "geometry": model.geometry.as_dict()}
     payload = {
         "format": FORMAT,
         "version": VERSION,
@@ -85,5 +89,7 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     except RuntimeError as exc:
         reason = " ".join(str(exc).split())[:200]
         raise CheckpointError(f"{path}: weights from another architecture ({reason})") from None
+    if hasattr(model, "geometry"):  # a checkpoint from before geometry was recorded: the paper's
+        model.geometry = Geometry.from_dict(payload.get("geometry"), source=str(path))
     model.eval()
     return model, payload

@@ -40,6 +40,8 @@ def fit(
     torch.manual_seed(torch_seed(config.seed, "training"))
     spec = model_kind(kind)
     model = spec.new(ppann_config if kind == "ppann" else None)
+    if hasattr(model, "geometry"):
+        model.geometry = dataset.geometry
     history = History()
     started = time.perf_counter()
     train_mean(
@@ -54,7 +56,11 @@ def fit(
         with torch.no_grad():
             model.transmission.copy_(
                 torch.from_numpy(
-                    fit_quantiles(dataset.theta[:stop], dataset.slider_position[:stop])
+                    fit_quantiles(
+                        dataset.theta[:stop],
+                        dataset.slider_position[:stop],
+                        geometry=dataset.geometry,
+                    )
                 )
             )
         train_sigma(

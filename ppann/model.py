@@ -26,6 +26,7 @@ from torch import nn
 from common.checks import check_finite
 from common.errors import CrankError
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
+from twin.geometry import PAPER, Geometry
 
 Z_NAMES = ("J", "B", "K")
 PROFILE_GRID = np.geomspace(1e-4, 1.0, 97)
@@ -90,6 +91,9 @@ class PPANN(nn.Module):
     def __init__(self, config: PPANNConfig | None = None) -> None:
         super().__init__()
         self.config = config or PPANNConfig()
+        self.geometry: Geometry = PAPER
+        """The mechanism whose slider this model's constraints and transmission are about:
+        the training data's (set by ppann/fit.py, restored by ppann/checkpoint.py)."""
         c = self.config
         # J_m, B_m, K_m = prior × factor: Adam moves a parameter by about lr per step, so the
         # factor (starting at 1) makes that step relative rather than 5e-3 kg·m² on a 3e-3 J_m.
@@ -234,6 +238,7 @@ class FusedHeads:
         self.common_covariance = model.common_covariance.detach().numpy().copy()
         self.machine_profile = model.machine_profile.detach().numpy().copy()
         self.transmission = model.transmission.detach().numpy().copy()
+        self.geometry = model.geometry
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         hidden = sum(net[0].out_features for net in nets)
         self.w_in = np.zeros((4, hidden), dtype=np.float32)  # row 3: the biases

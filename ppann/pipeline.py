@@ -87,6 +87,9 @@ def train_and_report(
     physics = SliderCrank(
         compile_mjcf(read_model_xml(data_path), source=f"{data_path}:model.xml")[0]
     )
+    physics.geometry.check_same(
+        dataset.geometry, this=f"{data_path}:model.xml", that=f"{data_path}'s run record"
+    )
     replay = twin_replay(dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed)
     fingerprint = checkpoint.fingerprint(dataset)
     report: dict[str, Any] = {
@@ -109,7 +112,7 @@ def train_and_report(
                 "theta": float(replay.theta[:, -1].std(ddof=1)),
                 "slider_position": float(replay.slider_position[:, -1].std(ddof=1)),
             },
-            **{mode: calibration(b, replay) for mode, b in mc.items()},
+            **{mode: calibration(b, replay, geometry=physics.geometry) for mode, b in mc.items()},
         },
     }
     for kind, f in fitted.items():

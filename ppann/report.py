@@ -26,7 +26,8 @@ from ppann.model import n_step_prediction, rollout
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, monte_carlo
 from twin.dataset import Dataset
-from twin.physics import SliderCrank, slider_position_formula
+from twin.geometry import Geometry
+from twin.physics import SliderCrank
 from twin.stepping import simulate
 from twin.variability import Variability
 
@@ -136,13 +137,13 @@ def ratio_summary(predicted: np.ndarray, observed: np.ndarray) -> dict[str, floa
     return {"median": float(median), "p10": float(p10), "p90": float(p90)}
 
 
-def calibration(band: Bands, replay: TwinReplay) -> dict[str, Any]:
-    """Predicted σ / observed σ over time for theta and the slider position (NaN, reported as
-    null, where a diverged draw left no number)."""
+def calibration(band: Bands, replay: TwinReplay, *, geometry: Geometry) -> dict[str, Any]:
+    """Predicted σ / observed σ over time for theta and the slider position (by `geometry`'s
+    kinematics; NaN, reported as null, where a diverged draw left no number)."""
     length = replay.theta.shape[1]
     predicted_theta = band.std[:length, 0]
     with np.errstate(over="ignore", invalid="ignore"):
-        slider = slider_position_formula(band.samples[:, :length, 0])
+        slider = geometry.slider_position(band.samples[:, :length, 0])
         predicted_slider = slider.std(axis=0, ddof=1)
     observed_theta = replay.theta.std(axis=0, ddof=1)
     observed_slider = replay.slider_position.std(axis=0, ddof=1)

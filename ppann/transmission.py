@@ -20,35 +20,39 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from twin.physics import CRANK_LENGTH, slider_position_formula
+from twin.geometry import Geometry
 
 LEVELS = np.linspace(0.0, 1.0, 101)
 """Probability levels of the stored quantiles of delta."""
 NEWTON_STEPS = 4
 SLOPE_SHARE = 0.5
-"""Samples used: |dx/dtheta| >= this share of its largest value (~CRANK_LENGTH)."""
+"""Samples used: |dx/dtheta| >= this share of its largest value (~ the crank length)."""
 
 
-def _slope(theta: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    return (slider_position_formula(theta + h) - slider_position_formula(theta - h)) / (2 * h)
+def slope(geometry: Geometry, theta: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """dx/dtheta of `geometry`'s kinematics, by central differences."""
+    x = geometry.slider_position
+    return (x(theta + h) - x(theta - h)) / (2 * h)
 
 
-def transmission_angles(theta: npt.ArrayLike, slider: npt.ArrayLike) -> np.ndarray:
+def transmission_angles(
+    theta: npt.ArrayLike, slider: npt.ArrayLike, *, geometry: Geometry
+) -> np.ndarray:
     """delta (rad) of the samples away from the dead centres, from motor angle and measured
     slider position (module docstring)."""
     theta, slider = np.asarray(theta, dtype=float), np.asarray(slider, dtype=float)
-    usable = np.abs(_slope(theta)) >= SLOPE_SHARE * CRANK_LENGTH
+    usable = np.abs(slope(geometry, theta)) >= SLOPE_SHARE * geometry.crank_length
     theta, slider = theta[usable], slider[usable]
     delta = np.zeros_like(theta)
     for _ in range(NEWTON_STEPS):
         crank = theta + delta
-        delta = delta + (slider - slider_position_formula(crank)) / _slope(crank)
+        delta = delta + (slider - geometry.slider_position(crank)) / slope(geometry, crank)
     return delta
 
 
-def fit_quantiles(theta: npt.ArrayLike, slider: npt.ArrayLike) -> np.ndarray:
+def fit_quantiles(theta: npt.ArrayLike, slider: npt.ArrayLike, *, geometry: Geometry) -> np.ndarray:
     """Quantiles of delta at LEVELS, (len(LEVELS),); zeros if no sample is usable."""
-    delta = transmission_angles(theta, slider)
+    delta = transmission_angles(theta, slider, geometry=geometry)
     if delta.size == 0:
         return np.zeros(len(LEVELS))
     return np.quantile(delta, LEVELS)

@@ -12,7 +12,6 @@ from control.figures import constraint_boxes
 from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import Campaign
 from replay.config import PROFILES
-from twin.physics import within_stroke
 
 COLORS = {"nominal": "C0", "robust": "C3"}
 
@@ -24,6 +23,7 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
     axes = fig.subplots(len(modes) + 1, 2, sharex=True, squeeze=False)
     t = np.arange(ocp.horizon) * ocp.dt
     k = ocp.config.k_sigma
+    top = ocp.geometry.within_stroke
     for col, profile in enumerate(PROFILES):
         color = COLORS[profile]
         planned = getattr(ocp, profile)
@@ -32,18 +32,18 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             replay = campaign.replays[profile, mode]
             s = stats["profiles"][profile][mode]
             ax.plot(t, replay.slider_position.T, color=color, lw=0.4, alpha=0.35)
-            lower, upper = predicted_band(planned, mode, k)
+            lower, upper = predicted_band(planned, mode, k, geometry=ocp.geometry)
             ax.fill_between(
                 t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({mode} loop)"
             )
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
             for side, label in (("lower", f"twin ±{k:g}σ (within the stroke)"), ("upper", None)):
-                ax.plot(t, within_stroke(s["slider"][side]), "k--", lw=0.8, label=label)
+                ax.plot(t, top(s["slider"][side]), "k--", lw=0.8, label=label)
             constraint_boxes(ax, ocp)
             if mode == "closed":  # feedback keeps every run near the plan: show the constraint
-                ax.set_ylim(ocp.config.height - 0.005, 0.102)
+                ax.set_ylim(ocp.config.height - 0.005, ocp.geometry.stroke_top + 0.002)
             else:
-                ax.set_ylim(-0.005, 0.105)
+                ax.set_ylim(-0.005, ocp.geometry.stroke_top + 0.005)
             shown = ", ".join(f"{v} at k={n}" for n, v in s["violations"].items())
             ax.set_title(f"{profile}, {mode} loop: {shown} of {s['runs']} below", fontsize=10)
             ax.set_ylabel("slider position [m]")

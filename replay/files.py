@@ -75,6 +75,7 @@ def replay_file(
     check_not_partial(out)
     model, model_xml = load_model(model_path)
     physics = SliderCrank(model)
+    ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that=f"the twin {model_path}")
     if abs(ocp.dt * SAMPLE_RATE - 1.0) > 1e-9:
         raise OCPFileError(
             f"{ocp_path}: dt {ocp.dt} s differs from the twin's {1 / SAMPLE_RATE} s samples"

@@ -43,7 +43,6 @@ from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
 from control.config import lower_tail
-from control.ocp import slider_position
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
@@ -84,8 +83,14 @@ def heldout_check(
     mc_samples: int = 1000,
     mode: str = "open",
 ) -> dict[str, Any]:
-    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content."""
+    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content.
+
+    Raises:
+      GeometryError: the plan, the model and the twin are not all of one mechanism.
+    """
     ocp = read_ocp(ocp_path)
+    ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that="the twin")
+    ocp.geometry.check_same(model.geometry, this=str(ocp_path), that="the model")
     config = ReplayConfig(
         runs=runs,
         seed=seed,
@@ -161,7 +166,7 @@ def heldout_check(
             }
             for mc_mode, bands in predicted.items():
                 with np.errstate(over="ignore", invalid="ignore"):
-                    slider = slider_position(bands.samples[:, k - 1, 0] + delta)
+                    slider = ocp.geometry.slider_position(bands.samples[:, k - 1, 0] + delta)
                     sigma = float(np.std(slider, ddof=1))
                 entry["predicted"][mc_mode] = {
                     "sigma": sigma,

@@ -36,7 +36,6 @@ from common.atomic import atomic_path
 from common.errors import CrankError
 from control.ocp_file import OCPFile, predicted_band
 from replay.campaign import Campaign
-from twin.physics import CRANK_LENGTH, ROD_LENGTH, STROKE_TOP
 
 APPLICATION_ID = "crank_replay"
 COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40)}
@@ -70,13 +69,14 @@ def _label(profile: str, mode: str) -> str:
 
 def _mechanism(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
     n, dt = ocp.horizon, ocp.dt
+    l1, l2 = ocp.geometry.crank_length, ocp.geometry.rod_length
     loops = list(campaign.replays)
     for i, (profile, mode) in enumerate(loops):
         replay = campaign.replays[profile, mode]
         x0 = SPACING * (i - (len(loops) - 1) / 2)
         angle = replay.crank_angle[0]
-        pin = np.stack([x0 + CRANK_LENGTH * np.sin(angle), 0 * angle, CRANK_LENGTH * np.cos(angle)])
-        slider_z = replay.slider_position[0] + ROD_LENGTH - CRANK_LENGTH
+        pin = np.stack([x0 + l1 * np.sin(angle), 0 * angle, l1 * np.cos(angle)])
+        slider_z = replay.slider_position[0] + l2 - l1
         tip = np.stack([np.full(n, x0), 0 * angle, slider_z])
         axis = np.tile([[x0], [0.0], [0.0]], (1, n))
         strips = np.stack([axis.T, pin.T, tip.T], axis=1)  # (n, 3 points, xyz)
@@ -102,13 +102,13 @@ def _mechanism(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> Non
         rec.log(
             f"{path}/guide",
             rr.Boxes3D(
-                centers=[[x0, 0, ROD_LENGTH - CRANK_LENGTH + 0.05]],
-                half_sizes=[[0.03, 0.001, 0.075]],
+                centers=[[x0, 0, l2]],  # the stroke's middle
+                half_sizes=[[0.03, 0.001, l1 + 0.025]],
                 colors=[(*COLORS[profile], 60)],
             ),
             static=True,
         )
-    z = ocp.config.height + ROD_LENGTH - CRANK_LENGTH
+    z = ocp.config.height + l2 - l1
     half = SPACING * len(loops) / 2
     rec.log(
         "/mechanism/constraint",
@@ -162,7 +162,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
         _lines(
             rec,
             f"/slider/{loop}/band",
-            band_lines(*predicted_band(planned, mode, c.k_sigma)),
+            band_lines(*predicted_band(planned, mode, c.k_sigma, geometry=ocp.geometry)),
             n=n,
             dt=dt,
             colors=[(*REFERENCE, 45)] * BAND_LINES,
@@ -207,6 +207,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
 def blueprint(campaign: Campaign, ocp: OCPFile) -> rrb.Blueprint:
     """The "replay" and "Fig. 12" tabs of the module docstring."""
     c = ocp.config
+    top = ocp.geometry.stroke_top
     loops = list(campaign.replays)
     profiles = list(dict.fromkeys(p for p, _ in loops))
     hidden = rrb.PlotLegend(visible=False)
@@ -214,7 +215,7 @@ def blueprint(campaign: Campaign, ocp: OCPFile) -> rrb.Blueprint:
         rrb.TimeSeriesView(
             origin=f"/slider/{_loop(p, m)}",
             name=f"slider [m], {_label(p, m)}: runs, plan ∓{c.k_sigma:g}σ, height",
-            axis_y=rrb.ScalarAxis(range=(0.0, STROKE_TOP + 0.005)),
+            axis_y=rrb.ScalarAxis(range=(0.0, top + 0.005)),
             plot_legend=hidden,
         )
         for p, m in loops
@@ -242,11 +243,11 @@ def blueprint(campaign: Campaign, ocp: OCPFile) -> rrb.Blueprint:
                     origin=f"/slider/{_loop(p, m)}",
                     name=f"{_label(p, m)}, sample {k} [m]",
                     axis_x=rrb.TimeAxis(view_range=window),
-                    axis_y=rrb.ScalarAxis(range=(c.height - ZOOM_BELOW, STROKE_TOP + 0.002)),
+                    axis_y=rrb.ScalarAxis(range=(c.height - ZOOM_BELOW, top + 0.002)),
                     plot_legend=hidden,
                 )
             )
-    middle = ROD_LENGTH - CRANK_LENGTH / 2
+    middle = ocp.geometry.rod_length - ocp.geometry.crank_length / 2
     return rrb.Blueprint(
         rrb.Tabs(
             rrb.Horizontal(

@@ -20,6 +20,7 @@ from crank.cli import main
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
 from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
+from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
 
@@ -75,6 +76,19 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     (d / "list.json").write_text("[1, 2]")
     (d / "other.json").write_text(json.dumps({"format": "something-else", "version": 1}))
     (d / "garbage.xml").write_text("<mujoco><worldbody><body><joint type='x'/>")
+    # the crank lengthened to 0.06 m without moving the slider: its loop cannot close
+    long_crank = MODEL_PATH.read_text()
+    for old, new in (
+        ('name="crank_pin" pos="0 0 0.05"', 'name="crank_pin" pos="0 0 0.06"'),
+        ('<body name="rod" pos="0 0 0.05">', '<body name="rod" pos="0 0 0.06">'),
+    ):
+        long_crank = long_crank.replace(old, new)
+    (d / "long_crank.xml").write_text(long_crank)
+    unmeasured = json.loads(ocp.read_text())
+    del unmeasured["geometry"]
+    (d / "no_geometry.json").write_text(json.dumps(unmeasured))
+    unmeasured["geometry"] = {"crank_length": 0.5, "rod_length": 0.3}
+    (d / "locked.json").write_text(json.dumps(unmeasured))
     (d / "nameless.xml").write_text("<mujoco/>")
     (d / "folder").mkdir()
     (d / "file").write_text("a file where a folder should be\n")
@@ -120,6 +134,11 @@ CASES: list[tuple[str, str]] = [
     ("generate --seconds 1 --seed 100000000000000000000000 --out o/d.mcap", "seed must be"),
     ("generate --seconds 1 --model {dir}/absent.xml --out o/d.mcap", "MJCF not found"),
     ("generate --seconds 1 --model {garbage.xml} --out o/d.mcap", "invalid MJCF"),
+    ("generate --seconds 1 --model {long_crank.xml} --out o/d.mcap", "puts top dead centre"),
+    ("run --logs L --model {long_crank.xml}", "crank (l1 = 0.06 m) and rod (l2 = 0.3 m) reach"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --model {long_crank.xml}", "puts top dead centre"),
+    ("replay --ocp {no_geometry.json} --out o/r.mcap", "missing key 'geometry'"),
+    ("replay --ocp {locked.json} --out o/r.mcap", "must be longer than the crank"),
     ("generate --seconds 1 --model {nameless.xml} --out o/d.mcap", "no joint named 'motor'"),
     ("generate --seconds 1 --model {folder} --out o/d.mcap", "cannot read MJCF"),
     ("generate --seconds 1 --variability line-20 --out o/d.mcap", "unknown variability scenario"),

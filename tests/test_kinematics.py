@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twin.physics import STATE_SPEC, SliderCrank, slider_position_formula
+from twin.physics import STATE_SPEC, SliderCrank
 from twin.stepping import simulate
 from twin.variability import Variability
 
@@ -44,7 +44,7 @@ def test_slider_follows_the_formula_over_a_full_turn(
     assert turned.max() > 2 * np.pi, "the crank did not complete a turn"
     turn = turned <= 2 * np.pi
     np.testing.assert_allclose(
-        slider[turn], slider_position_formula(theta[turn]), rtol=0, atol=1e-6
+        slider[turn], physics.geometry.slider_position(theta[turn]), rtol=0, atol=1e-6
     )
 
 
@@ -59,5 +59,7 @@ def test_initial_state_closes_the_loop(physics: SliderCrank, theta: float, omega
     rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
     assert np.abs(data.efc_pos[rows]).max() < 1e-12
     assert np.abs(data.efc_vel[rows]).max() < 1e-10
-    assert physics.sensor(data.sensordata, "slider_position") == slider_position_formula(theta)
+    assert physics.sensor(data.sensordata, "slider_position") == physics.geometry.slider_position(
+        theta
+    )
     assert physics.sensor(data.sensordata, "omega") == omega

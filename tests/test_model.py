@@ -7,15 +7,8 @@ import numpy as np
 import pytest
 
 from twin.dataset import GenerationConfig, generate
-from twin.physics import (
-    CRANK_LENGTH,
-    MODEL_PATH,
-    ROD_LENGTH,
-    ModelError,
-    SliderCrank,
-    load_model,
-    slider_position_formula,
-)
+from twin.geometry import PAPER, Geometry
+from twin.physics import MODEL_PATH, ModelError, SliderCrank, load_model
 from twin.variability import Variability
 
 NAMED = {
@@ -49,13 +42,16 @@ def test_every_element_is_named(physics: SliderCrank, kind: str) -> None:
 
 
 def test_geometry_matches_the_paper(physics: SliderCrank) -> None:
+    """Read from the MJCF's named elements: l1 = 0.05 m, l2 = 0.3 m (paper section 3.1)."""
     model = physics.model
-    assert model.body("rod").pos[2] == pytest.approx(CRANK_LENGTH)
-    assert model.site("rod_tip").pos[2] == pytest.approx(ROD_LENGTH)
+    assert physics.geometry == Geometry.of_model(model) == PAPER
+    assert (PAPER.crank_length, PAPER.rod_length) == (0.05, 0.3)
+    assert model.body("rod").pos[2] == pytest.approx(PAPER.crank_length)
+    assert model.site("rod_tip").pos[2] == pytest.approx(PAPER.rod_length)
     # Slider joint ref makes its qpos the paper's slider position: 0.1 m at top dead centre.
     assert model.qpos0[physics.layout.qpos["slider"]] == pytest.approx(0.1)
-    assert slider_position_formula(0.0) == pytest.approx(0.1)
-    assert slider_position_formula(np.pi) == pytest.approx(0.0, abs=1e-15)
+    assert PAPER.slider_position(0.0) == pytest.approx(0.1)
+    assert PAPER.slider_position(np.pi) == pytest.approx(0.0, abs=1e-15)
 
 
 def test_collisions_off_and_warmstart_off(physics: SliderCrank) -> None:
@@ -95,11 +91,11 @@ def test_motor_dynamics_recover_the_mjcf_parameters(physics: SliderCrank) -> Non
     alpha = ((data.omega[2:] - data.omega[:-2]) / (2 * dt))[same]
     omega, tau, theta = (v[1:-1][same] for v in (data.omega, data.tau, data.theta))
     h = 1e-5
-    x1 = (slider_position_formula(theta + h) - slider_position_formula(theta - h)) / (2 * h)
+    x1 = (PAPER.slider_position(theta + h) - PAPER.slider_position(theta - h)) / (2 * h)
     x2 = (
-        slider_position_formula(theta + h)
-        - 2 * slider_position_formula(theta)
-        + slider_position_formula(theta - h)
+        PAPER.slider_position(theta + h)
+        - 2 * PAPER.slider_position(theta)
+        + PAPER.slider_position(theta - h)
     ) / h**2
     columns = [
         alpha,

@@ -8,13 +8,14 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 import torch
 
 from common.streams import stream
 from control.config import OCPConfig, OCPConfigError, lower_tail
-from control.ocp import NominalOCP, OCPError, slider_position
+from control.ocp import NominalOCP, OCPError
 from control.ocp_file import OCPFileError, read_ocp
 from control.robust import solve_robust
 from control.solve import figure_paths, solve_file
@@ -23,7 +24,7 @@ from ppann.checkpoint import CheckpointError, save
 from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
 from ppann.montecarlo import monte_carlo
 from tests.conftest import crank
-from twin.physics import slider_position_formula
+from twin.geometry import PAPER
 
 SAMPLES = np.array(OCPConfig().constraint_samples) - 1
 
@@ -40,9 +41,17 @@ def ocp(model: PPANN) -> NominalOCP:
     return NominalOCP(model)
 
 
-def test_slider_formula_matches_the_twin() -> None:
+def test_one_kinematics_for_numpy_and_casadi_is_the_papers() -> None:
+    """x(theta) in CasADi equals the NumPy evaluation of the same code, and the paper's form
+    l1 cos(theta) + l2 cos(asin(l1/l2 sin(theta))) + l1 - l2."""
     theta = np.linspace(-7, 7, 301)
-    np.testing.assert_allclose(slider_position(theta), slider_position_formula(theta), atol=1e-15)
+    symbol = ca.SX.sym("theta")
+    casadi = ca.Function("x", [symbol], [PAPER.slider_position(symbol, lib=ca)])
+    via_casadi = np.array([float(casadi(t)) for t in theta])
+    np.testing.assert_allclose(via_casadi, PAPER.slider_position(theta), rtol=0, atol=1e-16)
+    l1, l2 = 0.05, 0.3
+    paper = l1 * np.cos(theta) + l2 * np.cos(np.arcsin(l1 / l2 * np.sin(theta))) + l1 - l2
+    np.testing.assert_allclose(PAPER.slider_position(theta), paper, rtol=0, atol=1e-15)
 
 
 def test_nominal_torque_meets_eq15_in_the_torch_model(model: PPANN, ocp: NominalOCP) -> None:
@@ -62,9 +71,9 @@ def test_nominal_torque_meets_eq15_in_the_torch_model(model: PPANN, ocp: Nominal
     np.testing.assert_allclose(states, solution.states, rtol=0, atol=1e-6)
     assert abs(states[-1, 0] - 3 * math.pi) <= 1e-6
     assert abs(states[-1, 1]) <= 1e-6
-    assert np.all(slider_position(states[SAMPLES, 0]) >= 0.08 - 1e-6)
+    assert np.all(PAPER.slider_position(states[SAMPLES, 0]) >= 0.08 - 1e-6)
     # the constraint is active: without it the optimum would not dwell near top dead centre
-    assert np.any(np.abs(slider_position(states[SAMPLES, 0]) - 0.08) < 1e-6)
+    assert np.any(np.abs(PAPER.slider_position(states[SAMPLES, 0]) - 0.08) < 1e-6)
     # cost as defined in section 3.4.1, recomputed from the torque
     u = solution.tau
     cost = np.sum(u**2) + 1e-4 * np.sum((np.diff(u) / ocp.dt) ** 2)
@@ -110,7 +119,7 @@ def test_quantile_tightening_keeps_the_monte_carlo_quantile(model: PPANN) -> Non
         mode=config.mc_mode,
         seed=stream(config.mc_seed, "monte_carlo"),
     )
-    slider = slider_position(bands.samples[:, :, 0])
+    slider = PAPER.slider_position(bands.samples[:, :, 0])
     for i, k in enumerate(SAMPLES):
         quantile = np.quantile(slider[:, k], lower_tail(3.0))
         assert quantile >= 0.08 - 1.5e-4

@@ -20,7 +20,6 @@ import pytest
 
 from common.streams import stream
 from control.config import OCPConfig
-from control.ocp import slider_position
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, predicted_band, read_ocp
 from ppann.model import constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
@@ -32,8 +31,9 @@ from replay.heldout import heldout_check
 from replay.recording import BAND_LINES, band_lines, check_recording
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import crank
+from twin.geometry import PAPER
 from twin.mcap_dataset import ContractError, read_dataset, read_run, read_truth
-from twin.physics import STATE_SPEC, STROKE_TOP, SliderCrank, slider_position_formula
+from twin.physics import STATE_SPEC, SliderCrank
 from twin.stepping import chunk_time
 from twin.variability import Variability, apply
 
@@ -66,7 +66,7 @@ def _state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
 
 
 def _profile(tau: np.ndarray, states: np.ndarray, sigma: float) -> dict:
-    slider = slider_position_formula(states[:, 0])
+    slider = PAPER.slider_position(states[:, 0])
     return {
         "time": (np.arange(N) / 500).tolist(),
         "tau": tau.tolist(),
@@ -104,6 +104,7 @@ def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> 
         "constraint_samples": [50, 100],
         "config": OCPConfig().as_dict(),
         "model": {"path": "synthetic", "sha256": "", "kind": "ppann"},
+        "geometry": physics.geometry.as_dict(),
     }
     for name, tau, sigma in (("nominal", base, 0.006), ("robust", 1.1 * base, 0.004)):
         payload[name] = _profile(tau, _nominal_twin_trajectory(physics, tau), sigma)
@@ -262,7 +263,7 @@ def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
         for k, entry in result["profiles"][name]["samples"].items():
             x = replay.slider_position[:, int(k) - 1]
             assert entry["observed_sigma"] == float(x.std(ddof=1))
-            predicted = slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
+            predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
             assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-12)
 
 
@@ -363,9 +364,9 @@ def test_rerun_band_is_shaded_between_the_bounds_and_inside_the_stroke() -> None
     profile = SimpleNamespace(
         slider=np.array([0.02, 0.0, 0.1]), sigma_in=lambda mode: np.array([0.003, 0.002, 0.004])
     )
-    lower, upper = predicted_band(profile, "open", 3.0)
+    lower, upper = predicted_band(profile, "open", 3.0, geometry=PAPER)
     assert np.allclose(lower, [0.011, 0.0, 0.088], rtol=0, atol=1e-15)
-    assert np.allclose(upper, [0.029, 0.006, STROKE_TOP], rtol=0, atol=1e-15)
+    assert np.allclose(upper, [0.029, 0.006, PAPER.stroke_top], rtol=0, atol=1e-15)
     lines = band_lines(lower, upper)
     assert lines.shape == (BAND_LINES, 3)
     assert np.array_equal(lines[0], lower) and np.allclose(lines[-1], upper, rtol=0, atol=1e-15)

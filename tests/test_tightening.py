@@ -13,8 +13,8 @@ from scipy import stats
 
 from control.config import OCPConfig, OCPConfigError, lower_tail
 from control.fixed_point import Bracket
-from control.ocp import NominalOCP, slider_position
-from control.robust import STROKE_SHARE, STROKE_TOP, BeyondStrokeError, solve_robust
+from control.ocp import NominalOCP
+from control.robust import STROKE_SHARE, BeyondStrokeError, solve_robust
 from control.tightening import (
     line_allowance,
     population_margin,
@@ -26,6 +26,7 @@ from ppann.confidence import confidence_quantile
 from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
 from ppann.montecarlo import rollout
 from replay.heldout import rate_upper
+from twin.geometry import PAPER
 
 PLAN = 0.095
 
@@ -246,7 +247,7 @@ def test_population_margin_is_the_largest_drop_over_the_confidence_ellipsoid() -
         n_samples=len(delta) + 1,
         factors=np.exp(np.concatenate([np.zeros((1, 3)), delta])),
     )
-    slider = slider_position(paths[:, index, 0])
+    slider = PAPER.slider_position(paths[:, index, 0])
     dense = (slider[0] - slider[1:]).max(axis=0)
     print(f"margin {margin * 1e3} mm, dense {dense * 1e3} mm")
     assert np.all(dense <= 1.01 * margin)
@@ -263,7 +264,7 @@ def test_no_profile_error_carries_its_figures() -> None:
         solve_robust(model, config)
     error = caught.value
     assert error.sample in config.constraint_samples
-    assert error.available == pytest.approx(STROKE_TOP - config.height)
+    assert error.available == pytest.approx(PAPER.stroke_top - config.height)
     assert error.tightening > STROKE_SHARE * error.available
     assert error.line == 0.0
     assert f"({1e3 * error.tightening:.1f} mm;" in str(error)

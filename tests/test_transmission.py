@@ -9,7 +9,7 @@ import pytest
 from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
-from control.ocp import NominalOCP, slider_position
+from control.ocp import NominalOCP
 from control.tightening import slider_uncertainty
 from ppann.model import FusedHeads, constant_ppann
 from ppann.transmission import (
@@ -20,7 +20,7 @@ from ppann.transmission import (
     transmission_angles,
 )
 from tests.conftest import Written
-from twin.physics import CRANK_LENGTH, slider_position_formula
+from twin.geometry import PAPER
 
 
 def test_angles_are_the_twins_backlash_angle(paper_dataset: Written) -> None:
@@ -31,15 +31,15 @@ def test_angles_are_the_twins_backlash_angle(paper_dataset: Written) -> None:
     data, truth = paper_dataset.dataset, paper_dataset.truth
     theta = data.theta
     slope = np.abs(
-        (slider_position_formula(theta + 1e-6) - slider_position_formula(theta - 1e-6)) / 2e-6
+        (PAPER.slider_position(theta + 1e-6) - PAPER.slider_position(theta - 1e-6)) / 2e-6
     )
-    usable = slope >= SLOPE_SHARE * CRANK_LENGTH
-    delta = transmission_angles(theta, data.slider_position)
+    usable = slope >= SLOPE_SHARE * PAPER.crank_length
+    delta = transmission_angles(theta, data.slider_position, geometry=data.geometry)
     assert delta.shape == (int(usable.sum()),) and usable.mean() > 0.4
-    bound = truth.loop_closure_error.max() / (SLOPE_SHARE * CRANK_LENGTH)
+    bound = truth.loop_closure_error.max() / (SLOPE_SHARE * PAPER.crank_length)
     assert bound < 2e-4
     np.testing.assert_allclose(delta, truth.backlash_angle[usable], rtol=0, atol=bound)
-    quantiles = fit_quantiles(theta, data.slider_position)
+    quantiles = fit_quantiles(theta, data.slider_position, geometry=data.geometry)
     assert quantiles[0] >= -0.013 - 1e-5 and quantiles[-1] <= 0.013 + 1e-5  # widest gap 0.026
     assert quantiles[75] - quantiles[25] > 0.005  # the crank does move in the gap
 
@@ -77,7 +77,7 @@ def test_transmission_widens_the_monte_carlo_slider_spread_as_it_should() -> Non
     shaken = slider_uncertainty(heads, solution, config, gains=gains)
     index = np.array(config.constraint_samples) - 1
     theta = solution.states[index, 0]
-    slope = (slider_position(theta + 1e-6) - slider_position(theta - 1e-6)) / 2e-6
+    slope = (PAPER.slider_position(theta + 1e-6) - PAPER.slider_position(theta - 1e-6)) / 2e-6
     expected = bare.std[index] ** 2 + (slope * 0.005) ** 2
     np.testing.assert_allclose(shaken.std[index] ** 2, expected, rtol=0.1)
     assert np.all(shaken.tightening > bare.tightening)

@@ -23,6 +23,7 @@ from common.checks import check_finite, check_seed
 from common.errors import ConfigError
 from common.streams import stream
 from twin.excitation import Excitation
+from twin.geometry import Geometry
 from twin.physics import SAMPLE_RATE, SliderCrank
 from twin.stepping import simulate
 from twin.variability import MachineDraw, Variability
@@ -91,6 +92,11 @@ class Dataset:
 
     def __len__(self) -> int:
         return len(self.t)
+
+    @property
+    def geometry(self) -> Geometry:
+        """The mechanism the data was recorded on (its run record; the paper's if not given)."""
+        return Geometry.from_dict(self.run.get("geometry"), source="the dataset's run record")
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ def run_metadata(
         "physics_timestep": physics.model.opt.timestep,
         "substeps": physics.substeps,
         "torque_limit": physics.torque_limit,
+        "geometry": physics.geometry.as_dict(),
         "config": config.as_dict(),
         "disturbance_distribution": (
             f"uniform on [-{amplitude:g}, {amplitude:g}] N, one draw per sample, "

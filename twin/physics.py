@@ -13,24 +13,10 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import numpy.typing as npt
 
 from common.errors import CrankError
 from twin import MODEL_PATH
-
-CRANK_LENGTH = 0.05
-"""l1, crank length in m (paper section 3.1)."""
-ROD_LENGTH = 0.3
-"""l2, connecting-rod length in m (paper section 3.1)."""
-STROKE_TOP = 2 * CRANK_LENGTH
-"""Highest slider position (top dead centre), m; the lowest is 0 (bottom dead centre)."""
-
-
-def within_stroke(x: npt.ArrayLike) -> np.ndarray:
-    """Slider positions clipped to the stroke [0, STROKE_TOP]: how a predicted or observed
-    mean ∓ kσ is drawn, since no slider can leave it however wide the spread."""
-    return np.clip(x, 0.0, STROKE_TOP)
-
+from twin.geometry import Geometry
 
 SAMPLE_RATE = 500.0
 """Measurement rate in Hz; one sample every 2 ms (paper section 3.2)."""
@@ -53,17 +39,6 @@ ACTUATOR_NAMES = ("motor_torque", "slider_disturbance")
 
 class ModelError(CrankError, ValueError):
     """The MJCF cannot be read, does not compile, or lacks an element the twin needs."""
-
-
-def slider_position_formula(theta: npt.ArrayLike) -> np.ndarray:
-    """Slider position in m for crank angle `theta` (rad), the paper's kinematics.
-
-    x = l1 cos(theta) + l2 cos(phi) + l1 - l2 with phi = asin(l1/l2 sin(theta)):
-    0 at bottom dead centre (theta = pi), 0.1 m at top dead centre (theta = 0).
-    """
-    theta = np.asarray(theta, dtype=float)
-    phi = np.arcsin(CRANK_LENGTH / ROD_LENGTH * np.sin(theta))
-    return CRANK_LENGTH * np.cos(theta) + ROD_LENGTH * np.cos(phi) + CRANK_LENGTH - ROD_LENGTH
 
 
 def load_model(path: str | Path | None = None) -> tuple[mujoco.MjModel, str]:
@@ -160,6 +135,8 @@ class SliderCrank:
     def __init__(self, model: mujoco.MjModel | None = None) -> None:
         self.model = model if model is not None else load_model()[0]
         self.layout = Layout.of(self.model)
+        self.geometry = Geometry.of_model(self.model)
+        """Crank and rod lengths, read from the model's named elements (twin/geometry.py)."""
         steps = 1.0 / (SAMPLE_RATE * self.model.opt.timestep)
         if abs(steps - round(steps)) > 1e-9 or round(steps) < 1:
             raise ModelError(
@@ -183,19 +160,20 @@ class SliderCrank:
     def initial_state(self, theta: float, omega: float = 0.0) -> np.ndarray:
         """Full-physics state (nstate,) with the loop closed at motor angle `theta`, backlash 0.
 
-        The rod and slider are placed by the paper's kinematics; the motor, crank and rod turn
-        together at `omega` and the slider moves at dx/dtheta * omega.
+        The rod and slider are placed by the model's kinematics (`geometry`); the motor, crank
+        and rod turn together at `omega` and the slider moves at dx/dtheta * omega.
         """
         layout = self.layout
         data = mujoco.MjData(self.model)
-        phi = np.arcsin(CRANK_LENGTH / ROD_LENGTH * np.sin(theta))
+        l1, l2 = self.geometry.crank_length, self.geometry.rod_length
+        phi = float(self.geometry.rod_angle(theta))
         # The rod's absolute angle is -phi; its pivot angle is relative to the crank.
         data.qpos[layout.qpos["motor"]] = theta
         data.qpos[layout.qpos["backlash"]] = 0.0
         data.qpos[layout.qpos["rod_pivot"]] = -phi - theta
-        data.qpos[layout.qpos["slider"]] = float(slider_position_formula(theta))
-        dphi = CRANK_LENGTH * np.cos(theta) / (ROD_LENGTH * np.cos(phi))
-        dx = -CRANK_LENGTH * np.sin(theta) - ROD_LENGTH * np.sin(phi) * dphi
+        data.qpos[layout.qpos["slider"]] = float(self.geometry.slider_position(theta))
+        dphi = l1 * np.cos(theta) / (l2 * np.cos(phi))
+        dx = -l1 * np.sin(theta) - l2 * np.sin(phi) * dphi
         data.qvel[layout.dof["motor"]] = omega
         data.qvel[layout.dof["rod_pivot"]] = -(dphi + 1.0) * omega
         data.qvel[layout.dof["slider"]] = dx * omega
