@@ -2,11 +2,23 @@
 
 from __future__ import annotations
 
+import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from control.config import loop_of
-from control.ocp_file import OCPFile, Profile, predicted_band
+from control.ocp_file import OCPFile, Profile
+from twin.geometry import Geometry
+
+
+def predicted_band(
+    profile: Profile, mode: str, k_sigma: float, *, geometry: Geometry
+) -> tuple[np.ndarray, np.ndarray]:
+    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
+    within `geometry`'s stroke; for drawing, not for statistics."""
+    sigma = profile.sigma_in(mode)
+    clip = geometry.within_stroke
+    return clip(profile.slider - k_sigma * sigma), clip(profile.slider + k_sigma * sigma)
 
 
 def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None) -> None:

@@ -9,8 +9,7 @@ Top-level keys (stable; `version` changes if any meaning does):
   constraint_samples         1-based samples of the slider constraint
   config                     the resolved OCPConfig
   model                      {path, sha256, kind} of the checkpoint solved on
-  geometry                   {crank_length, rod_length} (m) of the mechanism, the checkpoint's
-                             (twin/geometry.py); a replay refuses a twin of another
+  geometry                   {crank_length, rod_length}, m: the checkpoint's (twin/geometry.py)
   nominal, robust            profiles (below)
   variability                the training dataset's variability scenario (replays draw from it)
   robust_iterations          one entry per robust solve: margin, tightening, tightening_se (m,
@@ -141,16 +140,6 @@ class OCPFile:
     @property
     def horizon(self) -> int:
         return self.config.horizon
-
-
-def predicted_band(
-    profile: Profile, mode: str, k_sigma: float, *, geometry: Geometry
-) -> tuple[np.ndarray, np.ndarray]:
-    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
-    within `geometry`'s stroke; for drawing, not for statistics."""
-    sigma = profile.sigma_in(mode)
-    clip = geometry.within_stroke
-    return clip(profile.slider - k_sigma * sigma), clip(profile.slider + k_sigma * sigma)
 
 
 def profile_dict(

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from control.figures import constraint_boxes
-from control.ocp_file import OCPFile, predicted_band
+from control.figures import constraint_boxes, predicted_band
+from control.ocp_file import OCPFile
 from replay.campaign import Campaign
 from replay.config import PROFILES
 

@@ -8,7 +8,7 @@ Timelines: `sample` (the OCP's 1-based k) and `time` (t_k = (k − 1) Ts). Entit
   /slider/<loop>/runs            measured slider position of every run (one series per run), m
   /slider/<loop>/band            the PPANN's mean ∓ kσ in that loop, shaded (BAND_LINES series
                                  spread evenly between the bounds: Rerun 0.41 plots no filled
-                                 area), within the stroke (control.ocp_file.predicted_band)
+                                 area), within the stroke (control.figures.predicted_band)
   /slider/<loop>/planned         the plan's slider position
   /slider/<loop>/constraint      the height at the constraint samples (markers)
   /torque/<loop>/runs            torque applied in every run, N·m; /torque/<profile>/planned
@@ -34,7 +34,8 @@ import rerun.blueprint as rrb
 
 from common.atomic import atomic_path
 from common.errors import CrankError
-from control.ocp_file import OCPFile, predicted_band
+from control.figures import predicted_band
+from control.ocp_file import OCPFile
 from replay.campaign import Campaign
 
 APPLICATION_ID = "crank_replay"

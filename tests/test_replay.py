@@ -20,7 +20,8 @@ import pytest
 
 from common.streams import stream
 from control.config import OCPConfig
-from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, predicted_band, read_ocp
+from control.figures import predicted_band
+from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
 from ppann.model import constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
