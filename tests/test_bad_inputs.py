@@ -266,6 +266,8 @@ CASES: list[tuple[str, str]] = [
     ("recover {ds.mcap} o/r.txt", "must end in .mcap"),
     ("recover {ds.mcap} {ds.mcap}", "would overwrite"),
     # --- view ---
+    ("view {dir}/absent.rrd --web --port 80", "--port must be in 1024..65534, got 80"),
+    ("view {dir}/absent.rrd --web --port x", "Invalid value for '--port'"),
     ("view {dir}/absent.rrd", "not found"),
     ("view {text.txt}", "text.txt"),
     ("view {folder}", "folder"),
