@@ -12,7 +12,7 @@ from typing import Any
 from common.atomic import check_writable, writes
 from common.figures import save_figure
 from common.jsonio import recorded_path
-from control.config import OCPConfig
+from control.config import OCPConfig, OCPConfigError
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP
 from control.ocp_file import read_ocp, write_failed, write_ocp
@@ -68,6 +68,12 @@ def solve_file(
         raise CheckpointError(
             f"{model_path}: trained on samples {data_dt:g} s apart but integrates at "
             f"{model.config.dt:g} s"
+        )
+    limit = payload.get("torque_limit")
+    if limit is not None and config.torque_limit > limit + 1e-12:
+        raise OCPConfigError(
+            f"torque_limit {config.torque_limit:g} N·m exceeds the actuator limit {limit:g} N·m "
+            f"of the twin {model_path} was trained on"
         )
     started = time.perf_counter()
     ocp = NominalOCP(model, config)

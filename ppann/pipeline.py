@@ -154,6 +154,8 @@ def train_and_report(
                 "loss_scale": splits.scale.tolist(),
                 "variability": dataset.run["config"]["variability"],
                 "dt": float(dataset.t[1] - dataset.t[0]),
+                # the twin's actuator limit: no plan on this model may ask for more
+                "torque_limit": dataset.run.get("torque_limit"),
             },
         )
     save_figure(figures.network_maps(ppann), sibling(out, "maps.png"))

@@ -121,6 +121,7 @@ def test_a_twin_with_a_longer_crank_runs_end_to_end(long_run: Path) -> None:
     assert dataset.slider_position.max() > 0.11  # it uses the 0.12 m stroke
     model, payload = load(run / "model.pt")
     assert payload["geometry"] == long and model.geometry == Geometry(**long)
+    assert payload["torque_limit"] == 10.0  # the MJCF's ctrlrange, carried for solve's check
     ocp = json.loads((run / "ocp.json").read_text())
     assert ocp["geometry"] == long
     # the plan's slider is the 0.06 m kinematics of its states, and keeps the constraint
@@ -156,3 +157,19 @@ def test_a_checkpoint_from_before_geometry_is_the_papers(tmp_path: Path, long_ru
     torch.save(payload, tmp_path / "old.pt")
     model, _ = load(tmp_path / "old.pt")
     assert model.geometry == PAPER
+
+
+def test_a_plan_asking_more_torque_than_the_models_twin_is_refused(tmp_path: Path) -> None:
+    """The checkpoint carries its twin's actuator limit; solve refuses a larger torque_limit
+    before any work, and takes the twin's own."""
+    from control.config import OCPConfig, OCPConfigError
+    from control.solve import solve_file
+    from ppann.checkpoint import save
+    from ppann.model import constant_ppann
+
+    model = tmp_path / "m.pt"
+    ppann = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    save(model, ppann, kind="ppann", extra={"history": {}, "torque_limit": 8.0})
+    with pytest.raises(OCPConfigError, match=r"torque_limit 10 N·m exceeds the actuator limit 8"):
+        solve_file(model, tmp_path / "ocp.json", config=OCPConfig())
+    assert not (tmp_path / "ocp.json").exists()
