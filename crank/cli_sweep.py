@@ -52,7 +52,7 @@ def sweep_command(
     def started(sweep: dict[str, Any]) -> None:
         typer.echo(
             f"sweep of {len(sweep['leaves'])} leaves ({sweep['steps']}) into {folder} "
-            f"on {executor}",
+            f"on {executor}, about {sweep['disk_estimate_bytes'] / 1e9:.2g} GB of files",
             err=True,
         )
 

@@ -19,10 +19,11 @@ import pytest
 import torch
 
 from common.jsonio import without_wall_clock
+from common.resources import ResourceError
 from crank.chain import RunConfig, run_chain
 from crank.console import HELDOUT_SEED
 from crank.study import run_row
-from crank.sweep import RESULT, execute, leaf_results, run_node, run_sweep
+from crank.sweep import RESULT, disk_estimate, execute, leaf_results, run_node, run_sweep
 from crank.sweep_report import rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
 from tests.test_chain import SHORT
@@ -276,3 +277,22 @@ replay = { runs = 8 }
     assert order == sorted(order, key=("data", "model", "solve", "leaf").index)
     assert by_name["seed=1 case=task"].config.ocp.height == 0.079
     assert by_name["seed=1 case=task"].config.ocp.mc_seed == 1  # the root seed reaches every stage
+
+
+@pytest.fixture
+def tiny_disk(tmp_path: Path):
+    from tests.test_outputs import _tmpfs
+
+    yield from _tmpfs(tmp_path, "rw")
+
+
+def test_a_sweep_that_cannot_fit_on_the_disk_is_refused_before_it_starts(tiny_disk: Path) -> None:
+    """The estimate from measured sizes (a 12 s dataset alone is ~0.86 MB, over 200 KB)."""
+    spec = tiny_disk.parent / "grid.toml"
+    spec.write_text(GRID)
+    nodes = graph(leaves_of(tomllib.loads(GRID), source="grid"))
+    expected = disk_estimate(nodes)
+    assert 5e6 < expected < 20e6  # 2 datasets, 2 models, 4 solves, 4 short campaigns
+    with pytest.raises(ResourceError, match=r"needs about 0.0\d+ GB of disk.* GB free"):
+        run_sweep(spec, tiny_disk / "out", executor="sequential")
+    assert list(tiny_disk.iterdir()) == []
