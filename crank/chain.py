@@ -29,7 +29,7 @@ from control.config import OCPConfig, loop_of
 from control.robust import Iteration
 from crank import stages
 from ppann.train_config import TrainConfig
-from replay.config import ReplayConfig
+from replay.config import ReplayConfig, check_campaign_memory
 from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.excitation import Excitation
@@ -201,6 +201,9 @@ def run_chain(
             **config.as_dict(),
         }
     check_generation_memory(config.generation)
+    horizon = config.ocp.horizon
+    check_campaign_memory(config.replay.runs, modes=len(config.replay.modes), horizon=horizon)
+    check_campaign_memory(config.heldout_runs, modes=1, horizon=horizon, held_out=True)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     stage = hooks.on_stage or (lambda _: None)
     if not resume:

@@ -7,12 +7,30 @@ from dataclasses import asdict, dataclass, field
 
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
+from common.resources import check_memory
 from twin.variability import Variability
 
 PROFILES = ("nominal", "robust")
 MODES = ("open", "closed")
 FEEDBACKS = ("lqr", "pd")
 MAX_RUNS = 100_000
+
+CAMPAIGN_BYTES = (0.4e9, 1750.0)
+"""Peak memory of a campaign: fixed bytes, and bytes per run of one profile and mode per sample
+(measured: 0.62 and 2.97 GB peak for 250 and 2500 runs, 2 profiles x 2 modes x 150 samples)."""
+HELDOUT_BYTES = (0.45e9, 3400.0)
+"""Peak memory of a held-out check: fixed bytes, and bytes per machine of one profile per sample
+(measured: 0.64 and 4.49 GB peak for 200 and 4000 machines, 2 profiles x 150 samples)."""
+
+
+def check_campaign_memory(runs: int, *, modes: int, horizon: int, held_out: bool = False) -> None:
+    """Refuse a campaign (or held-out check) whose replays cannot fit in memory, before any
+    simulation (common.resources.ResourceError, with both figures)."""
+    fixed, per = HELDOUT_BYTES if held_out else CAMPAIGN_BYTES
+    what = f"a held-out check on {runs} machines" if held_out else f"a campaign of {runs} runs"
+    check_memory(fixed + per * runs * 2 * modes * horizon, what=what)
+
+
 """Most runs per profile and mode (100 000 runs of 150 samples hold ~1 GB of arrays)."""
 
 

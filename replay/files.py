@@ -19,7 +19,7 @@ from common.jsonio import recorded_path
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
-from replay.config import ReplayConfig
+from replay.config import ReplayConfig, check_campaign_memory
 from replay.figures import replay_figure
 from replay.recording import write_recording
 from replay.statistics import campaign_statistics, write_statistics
@@ -70,6 +70,7 @@ def replay_file(
     out = Path(out)
     paths = output_paths(out)
     ocp = read_ocp(ocp_path)
+    check_campaign_memory(config.runs, modes=len(config.modes), horizon=ocp.horizon)
     for path in paths.values():
         check_writable(path)
     check_not_partial(out)

@@ -50,7 +50,7 @@ from ppann.modes import MODES
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
 from replay.campaign import draw_machines, play
-from replay.config import PROFILES, ReplayConfig
+from replay.config import PROFILES, ReplayConfig, check_campaign_memory
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
@@ -212,6 +212,7 @@ def heldout_file(
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
     check_writable(out)
+    check_campaign_memory(runs, modes=1, horizon=read_ocp(ocp_path).horizon, held_out=True)
     ppann, payload = load(model)
     if not isinstance(ppann, PPANN):
         raise CheckpointError(
