@@ -296,3 +296,30 @@ def test_a_sweep_that_cannot_fit_on_the_disk_is_refused_before_it_starts(tiny_di
     with pytest.raises(ResourceError, match=r"needs about 0.0\d+ GB of disk.* GB free"):
         run_sweep(spec, tiny_disk / "out", executor="sequential")
     assert list(tiny_disk.iterdir()) == []
+
+
+def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() -> None:
+    from crank.sweep_report import markdown
+
+    def row(seed: int, rate: float, upper: float) -> dict:
+        return {
+            "leaf": f"seed={seed}",
+            "seed": seed,
+            "robust_heldout_rate": rate,
+            "robust_heldout_upper_95": upper,
+            "heldout_runs": 1000,
+            "robust_100": 0,
+            "campaign_runs": 100,
+            "premium": 0.3,
+        }
+
+    sweep = {"axes": ["seed"], "steps": "", "executor": "ray", "wall_s": 1.0, "heldout_seeds": [7]}
+    refused = {"leaf": "seed=2", "seed": 2, "error": "no robust profile", "failed_step": "solve"}
+    text = markdown(sweep, [row(0, 0.001, 0.0047), row(1, 0.003, 0.0077), refused])
+    assert "every robust torque returned (2 of 3 leaves)" in text
+    assert "worst leaf 0.30 % (seed=1), target <= 0.5 %: **met**" in text
+    assert "- 1 of them with a 95 % bound above the target (worst 0.77 %)" in text
+    assert "seed=2: solve step: no robust profile" in text
+    text = markdown(sweep, [row(0, 0.006, 0.011)])
+    assert "worst leaf 0.60 % (seed=0), target <= 0.5 %: **NOT met**" in text
+    assert "| all | 1 | 6/1000 (0.60 %) |" in text
