@@ -203,7 +203,8 @@ def run_chain(
     check_generation_memory(config.generation)
     horizon = config.ocp.horizon
     check_campaign_memory(config.replay.runs, modes=len(config.replay.modes), horizon=horizon)
-    check_campaign_memory(config.heldout_runs, modes=1, horizon=horizon, held_out=True)
+    if config.heldout_runs:
+        check_campaign_memory(config.heldout_runs, modes=1, horizon=horizon, held_out=True)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     stage = hooks.on_stage or (lambda _: None)
     if not resume:
