@@ -142,6 +142,10 @@ class RunConfig:
         except TypeError as exc:  # an unknown key of a stage
             raise ConfigError(f"run configuration: {exc}") from None
 
+    def resolved(self, *, command: str, argv: list[str]) -> dict[str, Any]:
+        """What a run folder's config.json holds: the command that ran, and `as_dict()`."""
+        return {"command": command, "argv": argv, "project_version": __version__} | self.as_dict()
+
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["ocp"] = self.ocp.as_dict()
@@ -194,12 +198,7 @@ def run_chain(
         raise OutputError(f"run folder already exists: {run_dir}")
     else:
         done = {}
-        resolved = {
-            "command": "crank run",
-            "argv": sys.argv[1:] if argv is None else argv,
-            "project_version": __version__,
-            **config.as_dict(),
-        }
+        resolved = config.resolved(command="crank run", argv=sys.argv[1:] if argv is None else argv)
     check_generation_memory(config.generation)
     horizon = config.ocp.horizon
     check_campaign_memory(config.replay.runs, modes=len(config.replay.modes), horizon=horizon)

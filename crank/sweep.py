@@ -28,25 +28,18 @@ from common.atomic import atomic_path
 from common.errors import ConfigError, CrankError
 from common.jsonio import write_json
 from crank import stages
-from crank.chain import Hooks, RunConfig
-from crank.sweep_spec import KINDS, Leaf, Node, graph, node_key
+from crank.chain import Hooks
+from crank.sweep_spec import KINDS, Leaf, Node, graph
 
 RESULT = "result.json"
 SPEC_COPY = "sweep.toml"
 MAX_RETRIES = 3
 EXECUTORS = ("ray", "sequential")
+COMMAND = "crank sweep"
 
 
 def folder(out: Path, kind: str, key: str) -> Path:
     return out / kind / key
-
-
-def resolved_config(config: RunConfig) -> dict[str, Any]:
-    """What a leaf's config.json holds: as `crank run` writes it, with the command."""
-    from twin import __version__
-
-    command = {"command": "crank sweep", "argv": [], "project_version": __version__}
-    return command | config.as_dict()
 
 
 def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[str, Any]:
@@ -94,7 +87,7 @@ def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[st
         "torch_threads": _torch_threads(),
         "leaves": list(node.leaves),
     }
-    write_json(partial / "config.json", resolved_config(node.config), indent=2)
+    write_json(partial / "config.json", node.config.resolved(command=COMMAND, argv=[]), indent=2)
     write_json(partial / RESULT, result, indent=2)
     (partial / "worker.pid").unlink()
     os.replace(partial, final)
@@ -112,7 +105,7 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
     if node.kind == "solve":
         return stages.solve(config, made["model"] / stages.MODEL, here, hooks=hooks)
     ocp, model = made["solve"] / stages.OCP, made["model"] / stages.MODEL
-    resolved = resolved_config(config)
+    resolved = config.resolved(command=COMMAND, argv=[])
     data, trained, solved = (a["summary"] for a in ancestors)
     seconds = {
         k: a["seconds"] for k, a in zip(("generate", "train", "solve"), ancestors, strict=True)
@@ -245,8 +238,7 @@ def leaf_results(leaves: list[Leaf], out: Path) -> list[tuple[Leaf, list[dict[st
     out_rows = []
     for leaf in leaves:
         records = []
-        for kind in KINDS:
-            key = node_key(kind, leaf.config)
+        for kind, key in zip(KINDS, leaf.steps, strict=True):
             done, failed = folder(out, kind, key) / RESULT, out / kind / f"{key}.error.json"
             if done.is_file():
                 records.append(json.loads(done.read_text()))
@@ -363,7 +355,7 @@ def run_sweep(
             {
                 "name": leaf.name,
                 "options": leaf.options,
-                "steps": {kind: node_key(kind, leaf.config) for kind in KINDS},
+                "steps": dict(zip(KINDS, leaf.steps, strict=True)),
                 "config": leaf.config.as_dict(),
             }
             for leaf in leaves

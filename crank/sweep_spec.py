@@ -49,11 +49,13 @@ SECTIONS = ("base", "grid", "cases")
 
 @dataclass(frozen=True)
 class Leaf:
-    """One chain of the sweep: its options (axis → value, and the case's name) and config."""
+    """One chain of the sweep: its options (axis → value, and the case's name), config, and
+    the keys of its steps in KINDS order (`node_key`)."""
 
     name: str
     options: dict[str, Any]
     config: RunConfig
+    steps: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -134,11 +136,13 @@ def leaves_of(spec: dict[str, Any], *, source: str) -> list[Leaf]:
             label = " ".join(f"{k}={_label(v)}" for k, v in options.items())
             leaf_values = merge(with_point, case, source=f"{source} case {name!r}")
             config = build(leaf_values, source=f"{source}: leaf {label}")
-            key = node_key("leaf", config)
-            if key in seen:
-                raise ConfigError(f"{source}: leaves {seen[key]} and {label} are the same run")
-            seen[key] = label
-            leaves.append(Leaf(name=label, options=options, config=config))
+            steps = tuple(node_key(kind, config) for kind in KINDS)
+            if steps[-1] in seen:
+                raise ConfigError(
+                    f"{source}: leaves {seen[steps[-1]]} and {label} are the same run"
+                )
+            seen[steps[-1]] = label
+            leaves.append(Leaf(name=label, options=options, config=config, steps=steps))
     return leaves
 
 
@@ -191,7 +195,7 @@ def graph(leaves: list[Leaf]) -> list[Node]:
     """The steps of `leaves`, each once, in an order where a step comes after its ancestors."""
     nodes: dict[str, Node] = {}
     for leaf in leaves:
-        keys = [node_key(kind, leaf.config) for kind in KINDS]
+        keys = leaf.steps
         for depth, kind in enumerate(KINDS):
             node_id = f"{kind}/{keys[depth]}"
             known = nodes.get(node_id)
