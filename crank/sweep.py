@@ -38,6 +38,12 @@ EXECUTORS = ("ray", "sequential")
 COMMAND = "crank sweep"
 
 
+def check_executor(executor: str) -> None:
+    """Refuse an executor that is not one of EXECUTORS (ConfigError)."""
+    if executor not in EXECUTORS:
+        raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+
+
 def folder(out: Path, kind: str, key: str) -> Path:
     return out / kind / key
 
@@ -162,8 +168,7 @@ def execute(
     on_done: Progress | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run `nodes` (ancestors first, as `graph` orders them) and return each node's result."""
-    if executor not in EXECUTORS:
-        raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    check_executor(executor)
     report = on_done or (lambda *_: None)
     results: dict[str, dict[str, Any]] = {}
     if executor == "sequential":
@@ -318,8 +323,7 @@ def run_sweep(
     from crank.sweep_spec import read_spec
 
     out = Path(out).absolute()  # Ray's workers run in folders of their own
-    if executor not in EXECUTORS:
-        raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    check_executor(executor)
     if resume:
         if spec is not None:
             raise ConfigError("a resumed sweep runs its folder's own sweep.toml; give no spec")
