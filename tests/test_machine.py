@@ -39,9 +39,9 @@ def test_mixed_with_zero_white_sigma_equals_per_trajectory_machines() -> None:
     simulated here one by one with that machine's factors."""
     model = _model((0.1, 0.2, 0.15))
     heads = FusedHeads(model)
-    for w in heads.w_out[3:]:
-        w[:] = 0.0
-    heads.b_out[3:] = -np.inf  # softplus(-inf) = 0
+    heads.table[:, 2:] = 0.0  # the sigma networks of z_J and z_K, tabulated
+    heads.w_out[1][:] = 0.0  # z_B's sigma network
+    heads.b_out[1] = -np.inf  # softplus(-inf) = 0
     heads.sigma_floor = 0.0
     mixed = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="mixed", seed=9)
     machine = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="machine", seed=9)

@@ -147,10 +147,21 @@ def test_fused_heads_equal_the_networks() -> None:
     model = PPANN()
     rng = np.random.default_rng(0)
     theta, omega = rng.uniform(-10, 10, 200), rng.uniform(-80, 80, 200)
+    # the ends of the angle table's turn, and turns far from the first
+    theta[:6] = [0.0, 2 * math.pi, -2 * math.pi, 2 * math.pi - 1e-12, 1e-12, 1e4 + 0.3]
     mean, sigma = FusedHeads(model)(theta, omega)
     t, w = torch.from_numpy(theta), torch.from_numpy(omega)
     np.testing.assert_allclose(mean, model.z_mean(t, w).detach().numpy(), rtol=0, atol=1e-6)
     np.testing.assert_allclose(sigma, model.z_sigma(t, w).detach().numpy(), rtol=0, atol=1e-6)
+
+
+def test_fused_heads_give_nan_for_a_diverged_state() -> None:
+    torch.manual_seed(2)
+    heads = FusedHeads(PPANN())
+    with np.errstate(invalid="ignore"):
+        mean, sigma = heads(np.array([np.inf, np.nan, 1.0]), np.array([0.0, 0.0, 0.0]))
+    assert np.isnan(mean[:2]).all() and np.isnan(sigma[:2]).all()
+    assert np.isfinite(mean[2]).all() and np.isfinite(sigma[2]).all()
 
 
 def test_monte_carlo_is_seeded() -> None:
