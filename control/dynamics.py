@@ -55,8 +55,12 @@ class CasadiPPANN:
             mean = ca.vertcat(*(mlp(model.mean_nets[n], features[n]) for n in Z_NAMES))
         else:
             mean = ca.SX.zeros(3)
+        sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else features
         sigma = ca.vertcat(
-            *(softplus(mlp(model.sigma_nets[n], features[n])) + c.sigma_floor for n in Z_NAMES)
+            *(
+                softplus(mlp(model.sigma_nets[n], sigma_features[n])) + c.sigma_floor
+                for n in Z_NAMES
+            )
         )
         turn = ca.SX.sym("turn")
 

@@ -78,7 +78,10 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     if payload.get("kind") not in KINDS:
         raise CheckpointError(f"{path}: unknown model kind {payload.get('kind')!r}")
     try:
-        model = MODEL_KINDS[payload["kind"]].build(payload["config"])
+        config = dict(payload["config"])
+        if payload["kind"] != "blackbox":  # saved before the option: the paper's architecture
+            config.setdefault("sigma_speed", False)
+        model = MODEL_KINDS[payload["kind"]].build(config)
     except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: config does not fit this architecture ({exc})") from None
     for name, tensor in payload["state_dict"].items():

@@ -65,6 +65,10 @@ class PPANNConfig:
     """Train J_m, B_m, K_m along with the mean networks."""
     use_networks: bool = True
     """False gives the physics-only baseline: z = 0, J_m, B_m, K_m fitted."""
+    sigma_speed: bool = False
+    """The sigma networks of z_J and z_K see omega too (beyond the paper, whose z_J and z_K
+    networks see the angle alone): the residual's spread at one angle can depend on the speed.
+    A checkpoint without this key is of the paper's architecture (False)."""
 
     def __post_init__(self) -> None:
         for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
@@ -108,11 +112,12 @@ class PPANN(nn.Module):
         self.mean_nets = nn.ModuleDict(
             {"J": _mlp(2, c.mean_hidden), "B": _mlp(3, c.mean_hidden), "K": _mlp(2, c.mean_hidden)}
         )
+        angle_inputs = 3 if c.sigma_speed else 2
         self.sigma_nets = nn.ModuleDict(
             {
-                "J": _mlp(2, c.sigma_hidden),
+                "J": _mlp(angle_inputs, c.sigma_hidden),
                 "B": _mlp(3, c.sigma_hidden),
-                "K": _mlp(2, c.sigma_hidden),
+                "K": _mlp(angle_inputs, c.sigma_hidden),
             }
         )
         # Spread of the per-machine log-factors of inertia, damping and stiffness (phase 2,
@@ -135,10 +140,15 @@ class PPANN(nn.Module):
         """[J_m, B_m, K_m] in use, (3,)."""
         return self.prior * self.physical_factor
 
-    def _features(self, theta: torch.Tensor, omega: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _features(
+        self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False
+    ) -> dict[str, torch.Tensor]:
+        """Each network's input: (sin, cos) or (sin, cos, omega / omega_scale)."""
         s, c = torch.sin(theta), torch.cos(theta)
         angle = torch.stack([s, c], dim=-1)
         speed = torch.stack([s, c, omega / self.config.omega_scale], dim=-1)
+        if sigma and self.config.sigma_speed:
+            angle = speed
         return {"J": angle, "B": speed, "K": angle}
 
     def z_mean(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
@@ -150,7 +160,7 @@ class PPANN(nn.Module):
 
     def z_sigma(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
         """Sigma network outputs, shape (..., 3), each >= sigma_floor."""
-        g = self._features(theta, omega)
+        g = self._features(theta, omega, sigma=True)
         raw = torch.cat([self.sigma_nets[n](g[n]) for n in Z_NAMES], dim=-1)
         return nn.functional.softplus(raw) + self.config.sigma_floor
 
@@ -216,19 +226,20 @@ def rollout(model: nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tens
 class FusedHeads:
     """All six networks in NumPy, for fast simulation.
 
-    The four networks of the angle alone (the mean and sigma networks of z_J and z_K) are a
-    table over theta mod 2 pi, ANGLE_TABLE cells evaluated in float64 once, interpolated
-    linearly: within ~1e-7 of the networks on trained models (h² max|f''| / 8, h = 2 pi / 16384),
-    and a few array operations per step instead of 220 of the 330 hidden tanh per sample (tanh
-    is what the Monte-Carlo spends its time on: ~3 ns an element with NumPy's float32 tanh on an
-    AVX2 machine, which vectorises it only with AVX-512; the rest is computed from exp). The two
-    networks of the speed (z_B's) are one layer pair: the features [sin, cos, omega /
-    omega_scale, 1] (n, 4) times one (4, H) matrix holding both first layers and, in its last
-    row, the biases, in float32 (~1e-7 absolute; tests/test_ppann.py bounds both paths); each
-    network's last layer on its own columns. Each sample is one row, computed by the same
-    kernel: equal states give bit-equal z. The arrays live in a workspace reused across calls of
-    the same n (a fresh array per step cost more in page faults than the arithmetic). A snapshot
-    of the current weights: rebuild after training; not to be shared between threads.
+    The networks of the angle alone (the mean networks of z_J and z_K, and their sigma networks
+    unless `sigma_speed`) are a table over theta mod 2 pi, ANGLE_TABLE cells evaluated in
+    float64 once, interpolated linearly: within ~1e-7 of the networks on trained models
+    (h² max|f''| / 8, h = 2 pi / 16384), and a few array operations per step instead of 220 of
+    the 330 hidden tanh per sample (tanh is what the Monte-Carlo spends its time on: ~3 ns an
+    element with NumPy's float32 tanh on an AVX2 machine, which vectorises it only with
+    AVX-512; the rest is computed from exp). The networks of the speed (z_B's, and with
+    `sigma_speed` the other sigma networks) are one layer pair: the features [sin, cos,
+    omega / omega_scale, 1] (n, 4) times one (4, H) matrix holding their first layers and, in
+    its last row, the biases, in float32 (~1e-7 absolute; tests/test_ppann.py bounds both
+    paths); each network's last layer on its own columns. Each sample is one row, computed by
+    the same kernel: equal states give bit-equal z. The arrays live in a workspace reused across
+    calls of the same n (a fresh array per step cost more in page faults than the arithmetic). A
+    snapshot of the current weights: rebuild after training; not to be shared between threads.
     """
 
     def __init__(self, model: PPANN) -> None:
@@ -242,28 +253,32 @@ class FusedHeads:
         self.machine_profile = model.machine_profile.detach().numpy().copy()
         self.transmission = model.transmission.detach().numpy().copy()
         self.geometry = model.geometry
+        nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
+        # outputs 0-2 the means, 3-5 the sigmas; of the angle alone (a table) or of the state
+        self.angle_outputs = [i for i, net in enumerate(nets) if net[0].in_features == 2]
+        self.speed_outputs = [i for i, net in enumerate(nets) if net[0].in_features == 3]
         with torch.no_grad():
             grid = torch.arange(ANGLE_TABLE + 1, dtype=torch.float64) * (2 * math.pi / ANGLE_TABLE)
-            mean = model.z_mean(grid, torch.zeros_like(grid))
-            sigma = model.z_sigma(grid, torch.zeros_like(grid))
-        # columns: mean J, mean K, sigma J, sigma K; row ANGLE_TABLE is 2 pi (= row 0)
-        self.table = torch.cat([mean[:, 0::2], sigma[:, 0::2]], dim=1).numpy().copy()
+            both = torch.cat(
+                [model.z_mean(grid, torch.zeros_like(grid)), model.z_sigma(grid, grid * 0)], dim=1
+            )
+        # row ANGLE_TABLE is 2 pi (= row 0)
+        self.table = both[:, self.angle_outputs].numpy().copy()
         self.cell = ANGLE_TABLE / (2 * math.pi)
-        nets = (model.mean_nets["B"], model.sigma_nets["B"])
-        hidden = sum(net[0].out_features for net in nets)
+        hidden = sum(nets[i][0].out_features for i in self.speed_outputs)
         self.w_in = np.zeros((4, hidden), dtype=np.float32)  # row 3: the biases
         self.w_out: list[np.ndarray] = []
         self.rows: list[slice] = []
-        self.b_out = np.zeros((2, 1))
+        self.b_out = np.zeros((len(self.speed_outputs), 1))
         row = 0
-        for i, net in enumerate(nets):
-            first, last = net[0], net[2]
+        for j, i in enumerate(self.speed_outputs):
+            first, last = nets[i][0], nets[i][2]
             width = first.out_features
             self.w_in[:3, row : row + width] = first.weight.detach().numpy().T
             self.w_in[3, row : row + width] = first.bias.detach().numpy()
             self.w_out.append(last.weight.detach().numpy()[0].astype(np.float32))
             self.rows.append(slice(row, row + width))
-            self.b_out[i] = float(last.bias.detach()[0])
+            self.b_out[j] = float(last.bias.detach()[0])
             row += width
         self._workspace: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -275,7 +290,7 @@ class FusedHeads:
             self._workspace[n] = (
                 np.ones((n, 4), dtype=np.float32),  # column 3 stays 1: the biases' feature
                 np.empty((n, self.w_in.shape[1]), dtype=np.float32),
-                np.empty((2, n), dtype=np.float32),
+                np.empty((len(self.speed_outputs), n), dtype=np.float32),
             )
         g, hidden, raw = self._workspace[n]
         g[:, 0], g[:, 1], g[:, 2] = np.sin(theta), np.cos(theta), omega / self.omega_scale
@@ -289,26 +304,25 @@ class FusedHeads:
         np.add(hidden, 1, out=hidden)
         np.divide(2, hidden, out=hidden)
         np.subtract(1, hidden, out=hidden)
-        for i, (w, rows) in enumerate(zip(self.w_out, self.rows, strict=True)):
-            np.matmul(hidden[:, rows], w, out=raw[i])
-        speed = raw + self.b_out  # float64 (2, n): mean B, raw sigma B
+        for j, (w, rows) in enumerate(zip(self.w_out, self.rows, strict=True)):
+            np.matmul(hidden[:, rows], w, out=raw[j])
+        out = np.empty((6, n))
+        out[self.speed_outputs] = raw + self.b_out
+        for i in self.speed_outputs:
+            if i >= 3:  # a sigma network: softplus, floor
+                out[i] = np.logaddexp(0.0, out[i]) + self.sigma_floor
         at = np.remainder(theta, 2 * math.pi) * self.cell
         finite = np.isfinite(at)
         if not finite.all():
             at = np.where(finite, at, 0.0)
         cell = np.minimum(at.astype(np.intp), ANGLE_TABLE - 1)
         frac = (at - cell)[:, None]
-        angle = self.table[cell] * (1 - frac) + self.table[cell + 1] * frac  # (n, 4)
+        angle = self.table[cell] * (1 - frac) + self.table[cell + 1] * frac  # (n, columns)
         if not finite.all():
             angle[~finite] = np.nan
-        sigma = np.empty((n, 3))
-        sigma[:, 0], sigma[:, 2] = angle[:, 2], angle[:, 3]
-        sigma[:, 1] = np.logaddexp(0.0, speed[1]) + self.sigma_floor  # softplus
-        if not self.use_networks:
-            return np.zeros((n, 3)), sigma
-        mean = np.empty((n, 3))
-        mean[:, 0], mean[:, 1], mean[:, 2] = angle[:, 0], speed[0], angle[:, 1]
-        return mean, sigma
+        out[self.angle_outputs] = angle.T
+        mean = out[:3].T if self.use_networks else np.zeros((n, 3))
+        return mean, out[3:].T
 
     def acceleration(
         self,

@@ -22,7 +22,9 @@ def _trained_like(seed: int, **config) -> PPANN:
     return model
 
 
-@pytest.mark.parametrize("config", [{}, {"trainable_physics": True}, {"use_networks": False}])
+@pytest.mark.parametrize(
+    "config", [{}, {"trainable_physics": True}, {"use_networks": False}, {"sigma_speed": True}]
+)
 def test_networks_and_dynamics_equal_torch(config: dict) -> None:
     model = _trained_like(0, **config)
     exported = CasadiPPANN(model)

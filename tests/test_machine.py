@@ -37,12 +37,12 @@ def test_mixed_with_zero_machine_sigma_equals_step_exactly() -> None:
 def test_mixed_with_zero_white_sigma_equals_per_trajectory_machines() -> None:
     """White σ exactly zero: each mixed trajectory is the mean model of one drawn machine,
     simulated here one by one with that machine's factors."""
-    model = _model((0.1, 0.2, 0.15))
-    heads = FusedHeads(model)
-    heads.table[:, 2:] = 0.0  # the sigma networks of z_J and z_K, tabulated
-    heads.w_out[1][:] = 0.0  # z_B's sigma network
-    heads.b_out[1] = -np.inf  # softplus(-inf) = 0
-    heads.sigma_floor = 0.0
+    model = constant_ppann(
+        z_mean=(0.1, -0.2, -0.9), z_sigma=(1e-300,) * 3, config=PPANNConfig(sigma_floor=1e-301)
+    )
+    with torch.no_grad():
+        model.machine_sigma.copy_(torch.tensor((0.1, 0.2, 0.15), dtype=torch.float64))
+    heads = FusedHeads(model)  # z + sigma eps == z to the last bit: no white noise
     mixed = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="mixed", seed=9)
     machine = monte_carlo(heads, [math.pi, 0.0], TAU, n_samples=16, mode="machine", seed=9)
     assert np.array_equal(mixed.samples, machine.samples)

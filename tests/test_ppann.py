@@ -142,9 +142,10 @@ def test_monte_carlo_collapses_to_the_mean_at_the_sigma_floor() -> None:
         np.testing.assert_allclose(bands.mean, mean, rtol=0, atol=1e-5)
 
 
-def test_fused_heads_equal_the_networks() -> None:
+@pytest.mark.parametrize("sigma_speed", [False, True])
+def test_fused_heads_equal_the_networks(sigma_speed: bool) -> None:
     torch.manual_seed(2)
-    model = PPANN()
+    model = PPANN(PPANNConfig(sigma_speed=sigma_speed))
     rng = np.random.default_rng(0)
     theta, omega = rng.uniform(-10, 10, 200), rng.uniform(-80, 80, 200)
     # the ends of the angle table's turn, and turns far from the first
@@ -202,6 +203,15 @@ def test_checkpoint_round_trip_and_rejections(tmp_path) -> None:
         assert torch.equal(value, loaded.state_dict()[key])
     assert payload["history"] == {"train": [1.0]}
     assert torch.load(path, weights_only=True)["kind"] == "ppann"
+
+    # a checkpoint saved before `sigma_speed` existed is of the paper's architecture
+    old = torch.load(path, weights_only=True)
+    del old["config"]["sigma_speed"]
+    torch.save(old, tmp_path / "old.pt")
+    assert load(tmp_path / "old.pt")[0].config.sigma_speed is False
+    wide = PPANN(PPANNConfig(mean_hidden=20, sigma_speed=True))
+    save(tmp_path / "wide.pt", wide, kind="ppann", extra={"history": {}})
+    assert load(tmp_path / "wide.pt")[0].sigma_nets["K"][0].in_features == 3
 
     other = torch.load(path, weights_only=True)
     other["config"]["mean_hidden"] = 30
