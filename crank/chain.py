@@ -28,6 +28,7 @@ from common.jsonio import write_json
 from control.config import OCPConfig, loop_of
 from control.robust import Iteration
 from crank import stages
+from crank.estimate import Span, run_time
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig, check_campaign_memory
 from twin import MODEL_PATH, __version__
@@ -166,6 +167,8 @@ class Hooks:
     on_epoch: Callable[[str, str, int, float], None] | None = None
     on_iteration: Callable[[Iteration], None] | None = None
     on_run: Callable[[int], None] | None = None
+    on_estimate: Callable[[dict[str, Span]], None] | None = None
+    """The estimated time of each stage (and "total"), once the inputs are checked."""
 
 
 STAGES_FILE = "stages.json"
@@ -205,6 +208,9 @@ def run_chain(
     if config.heldout_runs:
         check_campaign_memory(config.heldout_runs, modes=1, horizon=horizon, held_out=True)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
+    estimate = run_time(config)
+    if hooks.on_estimate is not None:
+        hooks.on_estimate(estimate)
     stage = hooks.on_stage or (lambda _: None)
     if not resume:
         check_writable(run_dir / "config.json")
@@ -263,6 +269,7 @@ def run_chain(
         stats=stats,
         checked=checked,
         seconds=steps,
+        estimated={name: span.as_list() for name, span in estimate.items()},
     )
     (run_dir / STAGES_FILE).unlink(missing_ok=True)
     return report

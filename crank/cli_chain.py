@@ -160,6 +160,7 @@ def config_command(
 def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
     """run_chain with progress bars, stage lines, run.log and the summary tables."""
     from crank.chain import Hooks, run_chain
+    from crank.estimate import describe
     from crank.report import train_summary
 
     with transcript(run_dir / "run.log", append=resume):
@@ -189,6 +190,7 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
                 on_epoch=bars,
                 on_iteration=show_iteration,
                 on_run=on_run,
+                on_estimate=lambda stages: typer.echo(describe(stages), err=True),
             )
             try:
                 report = run_chain(config, run_dir, hooks=hooks, resume=resume)
@@ -244,6 +246,7 @@ def study_command(
     """The chain once per seed, each robust torque checked on held-out machines: study.md,
     study.csv, study.json and study.png (violation rate and premium against seed)."""
     from crank.chain import Hooks, RunConfig
+    from crank.estimate import Span, describe
     from crank.study import parse_seeds, run_study
 
     chosen = parse_seeds(seeds)
@@ -281,5 +284,10 @@ def study_command(
                 f"premium {100 * row['premium']:.1f} %"
             )
 
-    study = run_study(base, chosen, out, resume=resume, hooks=hooks, on_row=show)
+    def estimate(times: dict[str, Span], left: int) -> None:
+        typer.echo(f"{left} of {len(chosen)} seeds to run; {describe(times, times=left)}", err=True)
+
+    study = run_study(
+        base, chosen, out, resume=resume, hooks=hooks, on_row=show, on_estimate=estimate
+    )
     typer.echo(f"wrote {out / 'study.md'} ({study['wall_s'] / 60:.1f} min)")

@@ -44,15 +44,18 @@ def sweep_command(
     """Run every leaf of a sweep spec as a graph of shared steps (one dataset per seed, one model
     per dataset, one solve per task, one leaf per replay config) and write sweep.md, sweep.csv,
     sweep.json and sweep.png into the sweep folder."""
+    from crank.estimate import Span
     from crank.sweep import run_sweep
 
     if workers is not None and workers < 1:
         raise typer.BadParameter(f"--workers must be >= 1, got {workers}")
 
     def started(sweep: dict[str, Any]) -> None:
+        work = Span(*sweep["serial_seconds_estimate"])
         typer.echo(
             f"sweep of {len(sweep['leaves'])} leaves ({sweep['steps']}) into {folder} "
-            f"on {executor}, about {sweep['disk_estimate_bytes'] / 1e9:.2g} GB of files",
+            f"on {executor}, about {sweep['disk_estimate_bytes'] / 1e9:.2g} GB of files and "
+            f"{work} of work one step after another on an idle 2-core machine (steps left)",
             err=True,
         )
 

@@ -135,8 +135,9 @@ def transcript(path: Path, *, append: bool = False) -> Iterator[None]:
 
 class LineBar:
     """tqdm's update/set_postfix/close for a stderr that is not a terminal (a pipe, a log file):
-    a plain line at most every `interval` seconds and one when done, never carriage-return
-    frames; nothing at all for work done within `delay` seconds (as tqdm's delay)."""
+    a plain line at most every `interval` seconds (done, total, time left at the rate so far) and
+    one when done, never carriage-return frames; nothing at all for work done within `delay`
+    seconds (as tqdm's delay)."""
 
     def __init__(
         self, *, total: int, desc: str, unit: str, delay: float = 0.0, interval: float = 10.0
@@ -151,7 +152,8 @@ class LineBar:
         now = time.monotonic()
         if now - self.shown >= self.interval and self.n < self.total:
             self.shown = now
-            self._line(f"{self.n}/{self.total} {self.unit}s")
+            left = (now - self.started) / self.n * (self.total - self.n)
+            self._line(f"{self.n}/{self.total} {self.unit}s, {left:.0f} s left at this rate")
 
     def set_postfix(self, **values: str) -> None:
         self.postfix = ", ".join(f"{k}={v}" for k, v in values.items())

@@ -118,7 +118,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         *_rows("Dataset", report["dataset"]),
         *_rows("PPANN", train_summary(report["ppann"])),
         *_rows("OCP", report["ocp"]),
-        *_rows("Wall time [s]", {k: f"{v:.1f}" for k, v in report["wall_seconds"].items()}),
+        *_rows("Wall time [s] (estimated beforehand)", _wall(report)),
         "## Figures",
         "",
     ]
@@ -196,3 +196,17 @@ def write_markdown(path: str | Path, report: dict[str, Any], *, stats: dict[str,
     text = markdown(report, stats=stats, run_dir=path.parent)
     with atomic_path(path) as tmp:
         Path(tmp).write_text(text)
+
+
+def _wall(report: dict[str, Any]) -> dict[str, str]:
+    """Each stage's measured seconds beside the range estimated before it ran."""
+    estimated = report["estimated_seconds"]
+    out = {}
+    for stage, seconds in report["wall_seconds"].items():
+        low, high = estimated.get(stage, (None, None))
+        if low is None:
+            out[stage] = f"{seconds:.1f}"
+        else:
+            span = f"{low:.0f}" if low == high else f"{low:.0f}-{high:.0f}"
+            out[stage] = f"{seconds:.1f} ({span})"
+    return out

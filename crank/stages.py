@@ -104,6 +104,7 @@ def write_report(
     stats: dict[str, Any],
     checked: dict[str, Any] | None,
     seconds: dict[str, float],
+    estimated: dict[str, list[float]],
 ) -> dict[str, Any]:
     """`out`/report.json and report.md from what the stages returned; returns report.json's
     content. report.md is written last: a folder with it is finished."""
@@ -120,6 +121,7 @@ def write_report(
         },
         "heldout": checked,
         "wall_seconds": seconds,
+        "estimated_seconds": estimated,
     }
     write_json(out / "report.json", report, indent=2)
     write_markdown(out / "report.md", report, stats=stats)

@@ -32,6 +32,7 @@ from common.jsonio import write_json
 from control.config import loop_of
 from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
+from crank.estimate import Span, run_time
 
 TARGET_HELDOUT_RATE = 0.005
 MAX_SEEDS = 1000
@@ -112,11 +113,18 @@ def run_study(
     resume: bool = False,
     hooks: Callable[[int], Hooks] | None = None,
     on_row: Callable[[dict[str, Any]], None] | None = None,
+    on_estimate: Callable[[dict[str, Span], int], None] | None = None,
 ) -> dict[str, Any]:
-    """Run the chain per seed into `out`/seed-<s>/ and write the study files; return study.json."""
+    """Run the chain per seed into `out`/seed-<s>/ and write the study files; return study.json.
+
+    `on_estimate` gets one run's estimated time per stage and the number of seeds left to run,
+    once the inputs are checked."""
     out = Path(out)
     if out.exists() and not resume:
         raise ConfigError(f"study folder already exists: {out} (use --resume to continue it)")
+    left = [s for s in seeds if not (out / f"seed-{s}" / "report.md").is_file()]
+    if on_estimate:
+        on_estimate(run_time(base), len(left))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     started = time.perf_counter()
@@ -156,6 +164,7 @@ def run_study(
         "seeds": list(seeds),
         "config": base.as_dict(),
         "target_heldout_rate": TARGET_HELDOUT_RATE,
+        "estimated_seconds": (run_time(base)["total"] * len(seeds)).as_list(),
         "rows": rows,
         "wall_s": time.perf_counter() - started,
     }

@@ -29,6 +29,7 @@ from common.errors import ConfigError, CrankError
 from common.jsonio import write_json
 from crank import stages
 from crank.chain import Hooks
+from crank.estimate import Span, run_time
 from crank.sweep_spec import KINDS, Leaf, Node, graph
 
 RESULT = "result.json"
@@ -134,6 +135,7 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
         stats=stats,
         checked=checked,
         seconds=seconds,
+        estimated={name: span.as_list() for name, span in run_time(config).items()},
     )
     return {"report": "report.json", "claim": report["replay"]["claim"]}
 
@@ -277,6 +279,18 @@ def disk_estimate(nodes: list[Node]) -> float:
     return total
 
 
+def time_estimate(nodes: list[Node]) -> Span:
+    """Seconds the steps of `nodes` take one after another on an idle machine (crank.estimate:
+    a data step is a run's generate stage, a model step its train stage, and so on)."""
+    stage_of = {"data": ("generate",), "model": ("train",), "solve": ("solve",)}
+    total = Span(0.0, 0.0)
+    for node in nodes:
+        times = run_time(node.config)
+        for stage in stage_of.get(node.kind, ("replay", "heldout")):
+            total = total + times.get(stage, Span(0.0, 0.0))
+    return total
+
+
 def check_disk(nodes: list[Node], out: Path) -> float:
     """Refuse a sweep whose files (of the steps not made yet) cannot fit on `out`'s filesystem;
     return the estimate.
@@ -339,6 +353,7 @@ def run_sweep(
     if executor == "ray":
         _ray()  # the extra is installed, before anything is written
     disk = check_disk(nodes, out)
+    todo = [n for n in nodes if not (folder(out, n.kind, n.key) / RESULT).is_file()]
     if not resume:
         check_writable(out / SPEC_COPY)
         with atomic_path(out / SPEC_COPY) as tmp:
@@ -354,6 +369,7 @@ def run_sweep(
         "steps": ", ".join(f"{n} {kind}" for kind, n in counts.items()),
         "step_counts": counts,
         "disk_estimate_bytes": disk,
+        "serial_seconds_estimate": time_estimate(todo).as_list(),
         "heldout_seeds": sorted({leaf.config.heldout_seed for leaf in leaves}),
         "leaves": [
             {

@@ -61,7 +61,8 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     lines = [
         f"# Sweep: {len(rows)} leaves over {', '.join(axes) or 'one configuration'}",
         "",
-        f"Steps: {sweep['steps']} ({sweep['executor']}; {sweep['wall_s']:.0f} s wall). "
+        f"Steps: {sweep['steps']} ({sweep['executor']}; {sweep['wall_s']:.0f} s wall; "
+        f"{_estimate(sweep)}). "
         f"Held-out seed {sweep['heldout_seeds']}. Spec: `sweep.toml`; one row per leaf: "
         "`sweep.csv`.",
         "",
@@ -176,3 +177,11 @@ def write_results(out: Path, sweep: dict[str, Any], records: Records) -> list[di
     with atomic_path(out / "sweep.md") as tmp:
         tmp.write_text(markdown(sweep, rows))
     return rows
+
+
+def _estimate(sweep: dict[str, Any]) -> str:
+    """The work estimated before the start (sweeps made before it was recorded have none)."""
+    if "serial_seconds_estimate" not in sweep:
+        return "no estimate recorded"
+    low, high = sweep["serial_seconds_estimate"]
+    return f"estimated {low:.0f}-{high:.0f} s of work one step after another"

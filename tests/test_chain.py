@@ -122,6 +122,10 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
             "mixed",
         }
     assert report["heldout"]["runs"] == 20
+    estimated = report["estimated_seconds"]  # said before, beside what it took
+    assert set(estimated) == set(report["wall_seconds"])
+    assert all(0 < low <= high for low, high in estimated.values())
+    assert "Wall time [s] (estimated beforehand)" in (a / "report.md").read_text()
     ocp = json.loads((a / "ocp.json").read_text())
     assert ocp["variability"]["name"] == "paper"
     assert ocp["config"]["mc_mode"] == "mixed"

@@ -1,0 +1,131 @@
+"""How long a request will take, said before the work starts (and kept in the run's report beside
+what it took).
+
+Each stage's time is a sum of unit costs times what the request asks for (dataset seconds, windows
+× epochs, runs × samples), with the unit costs measured on an idle 2-core machine of the project's
+kind (`crank run` defaults, 2026-11-23: generate 6.1 s, train 139 s, solve 6.8 s, replay 8.0 s,
+held-out check 26.5 s). A busy machine takes longer: two chains side by side took 1.5-2.5× as
+long. Phase 1 of training stops early at a number of epochs nobody knows in advance (40-122 on
+the seed study's ten seeds), so the training estimate is a range: its low end at EARLY_EPOCHS, its
+high end at the epoch cap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from crank.chain import RunConfig
+    from ppann.train_config import TrainConfig
+    from twin.dataset import GenerationConfig
+
+GENERATE_PER_SECOND = 0.068
+"""Seconds of generation (simulation and MCAP) per second of dataset."""
+WINDOW_STEP_EPOCH = {"ppann": 2.92e-6, "physics": 0.15e-6, "blackbox": 2.1e-6}
+"""Phase-1 seconds per training window, window step and epoch, per model kind."""
+SIGMA_SAMPLE_EPOCH = 0.48e-6
+"""Phase-2 seconds per training sample and epoch."""
+VALIDATION = 20.0
+"""Validation, Monte-Carlo bands and the 100-run twin calibration of the default dataset, s."""
+EARLY_EPOCHS = 40
+"""The fewest phase-1 epochs seen before early stopping (the seed study, seeds 0-9)."""
+SOLVE = 6.8
+"""The nominal and robust OCP at the default horizon (150) and Monte-Carlo (1000), s."""
+REPLAY_FIXED, REPLAY_PER_SAMPLE = 2.0, 100e-6
+"""A campaign: fixed seconds (figures, Rerun) and seconds per run, profile, mode and sample."""
+HELDOUT_PER_SAMPLE = 88e-6
+"""The held-out check: seconds per machine, profile and sample (with its Monte-Carlo)."""
+
+
+@dataclass(frozen=True)
+class Span:
+    """A time estimate from `low` to `high` seconds."""
+
+    low: float
+    high: float
+
+    def __add__(self, other: Span) -> Span:
+        return Span(self.low + other.low, self.high + other.high)
+
+    def __mul__(self, factor: float) -> Span:
+        return Span(self.low * factor, self.high * factor)
+
+    def __str__(self) -> str:
+        low, high = _duration(self.low), _duration(self.high)
+        if low == high:
+            return low
+        low_value, low_unit = low.split(" ")
+        high_unit = high.split(" ")[1]
+        return f"{low_value}-{high}" if low_unit == high_unit else f"{low}-{high}"
+
+    def as_list(self) -> list[float]:
+        return [round(self.low, 1), round(self.high, 1)]
+
+
+def generate_time(config: GenerationConfig) -> Span:
+    seconds = GENERATE_PER_SECOND * config.seconds
+    return Span(seconds, seconds)
+
+
+def train_time(config: TrainConfig, generation: GenerationConfig, *, baselines: bool) -> Span:
+    """Phase 1 of each model kind at EARLY_EPOCHS to the cap, phase 2, and the validation."""
+    windows = generation.n_samples * (1 - config.validation_fraction)
+    kinds = ("ppann", "physics", "blackbox") if baselines else ("ppann",)
+    per_epoch = sum(WINDOW_STEP_EPOCH[k] for k in kinds) * windows * config.horizon
+    phase1 = Span(per_epoch * min(EARLY_EPOCHS, config.max_epochs), per_epoch * config.max_epochs)
+    phase2 = SIGMA_SAMPLE_EPOCH * windows * config.sigma_epochs
+    return phase1 + Span(phase2 + VALIDATION, phase2 + VALIDATION)
+
+
+def solve_time(*, horizon: int, mc_samples: int) -> Span:
+    seconds = SOLVE * horizon / 150 * (0.8 + 0.2 * mc_samples / 1000)
+    return Span(seconds, seconds)
+
+
+def replay_time(*, runs: int, modes: int, horizon: int) -> Span:
+    seconds = REPLAY_FIXED + REPLAY_PER_SAMPLE * runs * 2 * modes * horizon
+    return Span(seconds, seconds)
+
+
+def heldout_time(*, runs: int, horizon: int) -> Span:
+    seconds = HELDOUT_PER_SAMPLE * runs * 2 * horizon
+    return Span(seconds, seconds)
+
+
+def run_time(config: RunConfig) -> dict[str, Span]:
+    """Per stage of `crank run`, and "total"."""
+    horizon = config.ocp.horizon
+    stages = {
+        "generate": generate_time(config.generation),
+        "train": train_time(config.train, config.generation, baselines=config.baselines),
+        "solve": solve_time(horizon=horizon, mc_samples=config.ocp.mc_samples),
+        "replay": replay_time(
+            runs=config.replay.runs, modes=len(config.replay.modes), horizon=horizon
+        ),
+    }
+    if config.heldout_runs:
+        stages["heldout"] = heldout_time(runs=config.heldout_runs, horizon=horizon)
+    total = Span(0.0, 0.0)
+    for span in stages.values():
+        total = total + span
+    return stages | {"total": total}
+
+
+def describe(stages: dict[str, Span], *, times: int = 1) -> str:
+    """One line: the total (of `times` such runs) and its parts."""
+    parts = ", ".join(f"{name} {span}" for name, span in stages.items() if name != "total")
+    total = stages["total"] * times
+    each = f"; each run: {parts}" if times > 1 else f" ({parts})"
+    return (
+        f"estimated time on an idle 2-core machine: {total}{each}; training stops early, the "
+        f"upper end is its epoch cap"
+    )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"

@@ -1,0 +1,74 @@
+"""crank.estimate: the time said before a run scales with what the run asks for, and its parts
+add up to its total."""
+
+from __future__ import annotations
+
+import pytest
+
+from crank.chain import RunConfig
+from crank.estimate import (
+    EARLY_EPOCHS,
+    GENERATE_PER_SECOND,
+    REPLAY_FIXED,
+    Span,
+    describe,
+    run_time,
+    solve_time,
+    train_time,
+)
+
+
+def test_stages_add_up_to_the_total() -> None:
+    times = run_time(RunConfig(heldout_runs=1000))
+    assert list(times) == ["generate", "train", "solve", "replay", "heldout", "total"]
+    parts = [span for name, span in times.items() if name != "total"]
+    assert times["total"].low == pytest.approx(sum(s.low for s in parts))
+    assert times["total"].high == pytest.approx(sum(s.high for s in parts))
+    assert "heldout" not in run_time(RunConfig())
+
+
+def test_default_run_is_the_measured_few_minutes() -> None:
+    """The unit costs were measured on the default run (186 s, phase 1 stopping at 40 epochs)."""
+    times = run_time(RunConfig.for_seed(0, heldout_runs=1000))
+    assert times["generate"].low == pytest.approx(GENERATE_PER_SECOND * 90)
+    assert 120 < times["total"].low < 240 < times["total"].high
+
+
+def test_each_stage_scales_with_its_request() -> None:
+    base = RunConfig.for_seed(0, heldout_runs=1000)
+    longer = RunConfig.for_seed(0, generation={"seconds": 180.0}, heldout_runs=1000)
+    assert run_time(longer)["generate"].low == pytest.approx(2 * run_time(base)["generate"].low)
+    assert run_time(longer)["train"].low > 1.9 * (run_time(base)["train"].low - 20)
+    more = RunConfig.for_seed(0, replay={"runs": 200}, heldout_runs=2000)
+    for stage, fixed in (("replay", REPLAY_FIXED), ("heldout", 0.0)):
+        assert run_time(more)[stage].low - fixed == pytest.approx(
+            2 * (run_time(base)[stage].low - fixed)
+        )
+    assert solve_time(horizon=300, mc_samples=1000).low == pytest.approx(
+        2 * solve_time(horizon=150, mc_samples=1000).low
+    )
+    fewer = solve_time(horizon=150, mc_samples=100)
+    assert fewer.low < solve_time(horizon=150, mc_samples=1000).low
+
+
+def test_training_range_runs_from_early_stopping_to_the_epoch_cap() -> None:
+    config = RunConfig.for_seed(0, train={"sigma_epochs": 1}, baselines=False)
+    span = train_time(config.train, config.generation, baselines=False)
+    fixed = train_time(
+        RunConfig.for_seed(0, train={"sigma_epochs": 1, "max_epochs": EARLY_EPOCHS}).train,
+        config.generation,
+        baselines=False,
+    )
+    assert fixed.low == pytest.approx(fixed.high)  # a cap at the fewest epochs: no range
+    phase1 = (span.high - span.low) / (config.train.max_epochs - EARLY_EPOCHS)
+    assert span.low == pytest.approx(fixed.low) and phase1 > 0
+    with_baselines = train_time(config.train, config.generation, baselines=True)
+    assert with_baselines.low > span.low
+
+
+def test_described_in_one_line() -> None:
+    assert str(Span(30, 30)) == "30 s" and str(Span(100, 400)) == "2-7 min"
+    assert str(Span(7200, 9000)) == "2.0-2.5 h"
+    line = describe(run_time(RunConfig()), times=10)
+    assert "\n" not in line and "each run: generate" in line
+    assert line.startswith("estimated time on an idle 2-core machine: ")
