@@ -116,7 +116,10 @@ def inspect_command(
     from twin.mcap_dataset import read_dataset, read_truth
 
     dataset = read_dataset(path)
-    truth = read_truth(path)
+    if dataset.run.get("source") == "import":  # rig data: no truth channel, no seed
+        print_summary(f"{path}: rig data from {dataset.run.get('input')}", summarize(dataset))
+        return
+    truth = read_truth(path)  # the twin's files carry their truth
     print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
 
 
@@ -230,9 +233,11 @@ def main() -> None:
     """The `crank` entry point: the app, with click's usage errors (an unknown option, a value
     that does not parse) as one `error:` line and exit code 2 like every other input error."""
     # register the other commands on the app, in the help's order: replay, heldout, recover,
-    # view (crank/cli_campaign.py), run and study (crank/cli_chain.py), sweep (crank/cli_sweep.py)
+    # view (crank/cli_campaign.py), run and study (crank/cli_chain.py), import
+    # (crank/cli_import.py), sweep (crank/cli_sweep.py)
     import crank.cli_campaign
     import crank.cli_chain
+    import crank.cli_import
     import crank.cli_sweep  # noqa: F401
 
     try:

@@ -36,7 +36,9 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
         rows[f"{kind} 10-step RMSE θ / ω"] = (
             f"{_number(r10['theta'], '.4f')} rad / {_number(r10['omega'], '.3f')} rad/s"
         )
-    for mode in MODES:
+    if report["calibration"] is None:
+        rows["σ predicted/observed"] = "n/a: rig data, no twin to observe"
+    for mode in MODES if report["calibration"] is not None else ():
         c = report["calibration"][mode]
         rows[f"σ predicted/observed ({mode})"] = (
             f"θ {_number(c['theta']['median'], '.2f')}, "

@@ -69,13 +69,12 @@ def _finite(band: Bands) -> bool:
 
 
 def monte_carlo_bands(
-    t: np.ndarray, measured: np.ndarray, bands: dict[str, Bands], replay: TwinReplay
+    t: np.ndarray, measured: np.ndarray, bands: dict[str, Bands], replay: TwinReplay | None
 ) -> Figure:
-    """Measured data, PPANN mean ± 3σ per draw mode, and the twin's observed ± 3σ."""
+    """Measured data, PPANN mean ± 3σ per draw mode, and the twin's observed ± 3σ (none for
+    rig data: no twin)."""
     fig = Figure(figsize=(12, 6), layout="constrained")
     axes = fig.subplots(2, 1, sharex=True)
-    n = replay.theta.shape[1]
-    twin_mean, twin_std = replay.theta.mean(0), replay.theta.std(0, ddof=1)
     for i, label in enumerate(("θ [rad]", "ω [rad/s]")):
         ax = axes[i]
         ax.plot(t, measured[:, i], "k", lw=1.2, label="validation data")
@@ -90,7 +89,9 @@ def monte_carlo_bands(
                 alpha=0.2,
                 label=f"±3σ ({mode})",
             )
-        if i == 0:
+        if i == 0 and replay is not None:
+            n = replay.theta.shape[1]
+            twin_mean, twin_std = replay.theta.mean(0), replay.theta.std(0, ddof=1)
             ax.fill_between(
                 t[:n],
                 twin_mean - 3 * twin_std,

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from common.atomic import check_writable, writes
+from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint, figures
@@ -24,7 +25,7 @@ from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile
 from ppann.fit import Fitted, fit
 from ppann.kinds import KINDS
 from ppann.machine import sigma_upper
-from ppann.model import Z_NAMES
+from ppann.model import Z_NAMES, PPANNConfig
 from ppann.report import (
     bands,
     calibration,
@@ -36,7 +37,8 @@ from ppann.report import (
 )
 from ppann.train import make_splits
 from ppann.train_config import TrainConfig
-from twin.mcap_dataset import read_dataset, read_model_xml
+from twin.dataset import Dataset
+from twin.mcap_dataset import has_model_xml, read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
 
 LINE_Z = confidence_quantile(DEFAULT_CONFIDENCE)
@@ -46,6 +48,20 @@ default confidence 0.95 (ppann/confidence.py)."""
 
 def sibling(out: Path, suffix: str) -> Path:
     return out.with_name(f"{out.stem}.{suffix}")
+
+
+def check_rate(dataset: Dataset, *, source: str) -> None:
+    """Refuse data at another rate than the PPANN's step dt (eq. 4 steps once per sample).
+
+    Raises:
+      ConfigError: the rates in the message.
+    """
+    dt, step = float(dataset.t[1] - dataset.t[0]), PPANNConfig.dt
+    if abs(dt - step) > 1e-6 * step:
+        raise ConfigError(
+            f"{source}: sampled every {1e3 * dt:.4g} ms ({1 / dt:.5g} Hz), the PPANN steps at "
+            f"{1 / step:g} Hz; import the data again with --rate {1 / step:g}"
+        )
 
 
 @writes("out", inputs=("data_path",), suffix=".pt")
@@ -64,6 +80,7 @@ def train_and_report(
     out = Path(out)
     check_writable(out)
     dataset = read_dataset(data_path)
+    check_rate(dataset, source=str(data_path))
     splits = make_splits(dataset, config)
     print_stage = on_stage or (lambda _: None)
     fitted: dict[str, Fitted] = {}
@@ -82,15 +99,20 @@ def train_and_report(
     t = dataset.t[segment.start : segment.stop] - dataset.t[segment.start]
     ppann = fitted["ppann"].model
     mc = bands(ppann, dataset, segment, n=mc_samples, seed=config.seed)
-    print_stage("replaying the validation torque on the twin")
-    # The twin the dataset was generated on: its compiled MJCF travels in the file.
-    physics = SliderCrank(
-        compile_mjcf(read_model_xml(data_path), source=f"{data_path}:model.xml")[0]
-    )
-    physics.geometry.check_same(
-        dataset.geometry, this=f"{data_path}:model.xml", that=f"{data_path}'s run record"
-    )
-    replay = twin_replay(dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed)
+    # The twin the dataset was generated on: its compiled MJCF travels in the file. Rig data
+    # (crank import) has none: no twin to calibrate against.
+    replay, geometry = None, dataset.geometry
+    if has_model_xml(data_path):
+        print_stage("replaying the validation torque on the twin")
+        physics = SliderCrank(
+            compile_mjcf(read_model_xml(data_path), source=f"{data_path}:model.xml")[0]
+        )
+        physics.geometry.check_same(
+            dataset.geometry, this=f"{data_path}:model.xml", that=f"{data_path}'s run record"
+        )
+        replay = twin_replay(
+            dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed
+        )
     fingerprint = checkpoint.fingerprint(dataset)
     report: dict[str, Any] = {
         "dataset": {
@@ -106,13 +128,15 @@ def train_and_report(
             "n_samples": mc_samples,
             **{mode: {"inside_3sigma": inside_3sigma(b, measured)} for mode, b in mc.items()},
         },
-        "calibration": {
+        "calibration": None
+        if replay is None
+        else {
             "n_runs": replay_runs,
             "observed_sigma_final": {
                 "theta": float(replay.theta[:, -1].std(ddof=1)),
                 "slider_position": float(replay.slider_position[:, -1].std(ddof=1)),
             },
-            **{mode: calibration(b, replay, geometry=physics.geometry) for mode, b in mc.items()},
+            **{mode: calibration(b, replay, geometry=geometry) for mode, b in mc.items()},
         },
     }
     for kind, f in fitted.items():
@@ -152,7 +176,7 @@ def train_and_report(
                 # wherever it runs (and the folder can move).
                 "data_path": os.path.relpath(Path(data_path).resolve(), out.resolve().parent),
                 "loss_scale": splits.scale.tolist(),
-                "variability": dataset.run["config"]["variability"],
+                "variability": dataset.run.get("config", {}).get("variability"),
                 "dt": float(dataset.t[1] - dataset.t[0]),
                 # the twin's actuator limit: no plan on this model may ask for more
                 "torque_limit": dataset.run.get("torque_limit"),
@@ -162,6 +186,7 @@ def train_and_report(
     predictions = {k: free_run(f.model, dataset, segment) for k, f in fitted.items()}
     save_figure(figures.validation(t, measured, predictions), sibling(out, "validation.png"))
     save_figure(figures.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
-    save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
+    if replay is not None:
+        save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
     write_json(sibling(out, "report.json"), report, indent=2)
     return report

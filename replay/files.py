@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import check_writable, writes
+from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path
 from control.ocp_file import OCPFileError, read_ocp
@@ -24,6 +25,7 @@ from replay.figures import replay_figure
 from replay.recording import write_recording
 from replay.statistics import campaign_statistics, write_statistics
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
+from twin.rig_import import RIG_SCENARIO
 from twin.variability import Variability
 
 
@@ -40,10 +42,22 @@ def output_paths(out: str | Path) -> dict[str, Path]:
 
 
 def ocp_variability(ocp_path: str | Path) -> Variability:
-    """The variability scenario recorded in an ocp.json (the training dataset's), or the default
-    twin's for files written before it was recorded."""
+    """The variability scenario recorded in an ocp.json (the training dataset's; the default
+    twin's for a model trained on no dataset).
+
+    Raises:
+      ConfigError: the plan's model was trained on rig data (`crank import`): there is no
+        scenario of the twin to replay it on unless the user names one.
+    """
     raw = read_ocp(ocp_path).raw.get("variability")
-    return Variability() if raw is None else Variability.from_dict(raw)
+    if raw is None:  # a model of no dataset (a test's constant PPANN): the default twin
+        return Variability()
+    if raw == RIG_SCENARIO:
+        raise ConfigError(
+            f"{ocp_path} was solved on a model trained on rig data (crank import): the twin is "
+            "not that machine; give --variability (e.g. paper) to replay it on the twin anyway"
+        )
+    return Variability.from_dict(raw)
 
 
 @writes("out", inputs=("ocp_path", "model_path"), suffix=".mcap")

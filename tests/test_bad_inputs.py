@@ -14,6 +14,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from crank.cli import main
@@ -23,6 +24,7 @@ from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reuse
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
+from twin.rig_import import ImportSpec, import_table
 
 RANGES = {
     "swapped": "[motor_damping]\nlow = 0.1\nhigh = 0.05\n",
@@ -50,6 +52,24 @@ RANGES = {
     + ", ".join(str(0.07 + i * 1e-5) for i in range(1001))
     + "]\n",
 }
+
+
+def _rig_csv(t: np.ndarray) -> str:
+    return "time,enc,cmd\n" + "".join(f"{x:.17g},{np.sin(x):.17g},0.5\n" for x in t)
+
+
+_T = np.arange(0, 0.1, 1e-3)
+RIG = "t=time,theta=enc,tau=cmd"
+RIG_TABLES = {
+    "rig": _rig_csv(_T),
+    "gap": _rig_csv(np.r_[_T, 0.2 + _T]),
+    "nan": _rig_csv(_T).replace(",0.5\n", ",nan\n", 7),
+    "back": _rig_csv(np.r_[_T[:50], _T[49:]]),
+    "word": _rig_csv(_T).replace(",0.5\n", ",half\n", 3),
+    "jitter": _rig_csv(np.cumsum(np.where(np.arange(100) % 2, 1e-3, 2e-3))),
+    "few": _rig_csv(_T[:2]),
+}
+"""Rig tables for crank import: a good one, and each with one fault."""
 
 
 @pytest.fixture(scope="module")
@@ -94,6 +114,10 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     (d / "file").write_text("a file where a folder should be\n")
     for name, text in RANGES.items():
         (d / f"{name}.toml").write_text(text)
+    for name, text in RIG_TABLES.items():
+        (d / f"{name}.csv").write_text(text)
+    (d / "text.parquet").write_text("not parquet\n")
+    import_table(d / "rig.csv", d / "rig250.mcap", spec=ImportSpec.parse(columns=RIG, rate_hz=250))
     return {p.name: p for p in d.iterdir()} | {"dir": d}
 
 
@@ -328,6 +352,58 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-1 --runs 0", "runs must be an integer"),
     ("study --out S --seeds 0-1 --feedback pid", "feedback must be one of none, lqr"),
     ("study --out {file}/S --seeds 0-1", "cannot write"),
+    # --- import ---
+    (
+        "import {rig.csv} --map t=time,theta=enc,tau=cmd,omega=speed --out o/r.mcap",
+        "no column 'speed' (columns: time, enc, cmd)",
+    ),
+    ("import {gap.csv} --map " + RIG + " --out o/r.mcap", "a gap of 101 ms at t = 0.099 s"),
+    (
+        "import {nan.csv} --map " + RIG + " --out o/r.mcap",
+        "column 'cmd' (tau) is not finite at 7 row(s)",
+    ),
+    ("import {back.csv} --map " + RIG + " --out o/r.mcap", "time does not increase at data row 51"),
+    (
+        "import {word.csv} --map " + RIG + " --out o/r.mcap",
+        "line 2, column 'cmd': 'half' is not a number",
+    ),
+    ("import {jitter.csv} --map " + RIG + " --out o/r.mcap", "it is not one rate"),
+    ("import {few.csv} --map " + RIG + " --out o/r.mcap", "2 rows; a dataset needs at least 3"),
+    ("import {rig.csv} --map t=time,theta=enc --out o/r.mcap", "--map must name a column for tau"),
+    (
+        "import {rig.csv} --map t=time,theta=enc,tau=cmd,torque=cmd --out o/r.mcap",
+        "unknown field 'torque'",
+    ),
+    ("import {rig.csv} --map t --out o/r.mcap", "--map: 't' is not field=value"),
+    ("import {rig.csv} --map " + RIG + " --units theta=grad --out o/r.mcap", "theta in 'grad'?"),
+    (
+        "import {rig.csv} --map " + RIG + " --flip episode --out o/r.mcap",
+        "the episode column has no sign",
+    ),
+    (
+        "import {rig.csv} --map " + RIG + " --rate 0 --out o/r.mcap",
+        "--rate must be within 1-100000 Hz",
+    ),
+    (
+        "import {rig.csv} --map " + RIG + " --rate nan --out o/r.mcap",
+        "--rate must be within 1-100000 Hz",
+    ),
+    ("import {rig.csv} --map " + RIG + " --max-gap 1 --out o/r.mcap", "--max-gap must be above 1"),
+    (
+        "import {rig.csv} --map " + RIG + " --rate 20 --out o/r.mcap",
+        "too short for two samples at 20 Hz",
+    ),
+    ("import {dir}/absent.csv --map " + RIG + " --out o/r.mcap", "rig data not found"),
+    ("import {text.txt} --map " + RIG + " --out o/r.mcap", "rig data must be .csv or .parquet"),
+    ("import {text.parquet} --map " + RIG + " --out o/r.mcap", "not a Parquet file"),
+    ("import {rig.csv} --map " + RIG + " --out o/r.json", "it must end in .mcap"),
+    ("import {rig.csv} --map " + RIG + " --out {file}/r.mcap", "cannot write"),
+    ("import {rig.csv} --map " + RIG + " --model {garbage.xml} --out o/r.mcap", "invalid MJCF"),
+    ("import {rig.csv} --out o/r.mcap", "Missing option '--map'"),
+    (
+        "train --data {rig250.mcap} --out o/m.pt",
+        "the PPANN steps at 500 Hz; import the data again with --rate 500",
+    ),
     # --- sweep ---
     ("sweep {sw_unknown.toml} --out S", "unknown key 'ocp.heigth'"),
     ("sweep {sw_base_unknown.toml} --out S", "unknown key 'seeds'"),
@@ -391,5 +467,5 @@ def test_bad_input_is_one_line_and_writes_nothing(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study", "config", "sweep"}
+    assert commands >= expected | {"run", "study", "config", "sweep", "import"}
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

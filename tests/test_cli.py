@@ -90,6 +90,9 @@ def _mcap_with(path: Path, topics: list[str], message: dict) -> Path:
     return path
 
 
+_MEASURED = {"t": 0.0, "episode": 0, "theta": 0.0, "omega": 0.0, "tau": 0.0, "slider_position": 0.0}
+
+
 def _assert_one_line_error(result, match: str) -> None:
     assert result.returncode != 0
     assert "Traceback" not in result.stderr
@@ -119,8 +122,8 @@ def test_generate_unwritable_output(tmp_path: Path) -> None:
             lambda d: (d / "text.mcap").write_text("not an mcap") and d / "text.mcap",
             "not an MCAP file",
         ),
-        (
-            lambda d: _mcap_with(d / "one.mcap", [MEASUREMENT_TOPIC], {"t": 0.0}),
+        (  # a learner needs no truth channel (rig data has none); the twin's files carry it
+            lambda d: _mcap_with(d / "one.mcap", [MEASUREMENT_TOPIC], _MEASURED),
             f"missing channel {TRUTH_TOPIC}",
         ),
         (

@@ -9,6 +9,9 @@ Channels (message `log_time` = simulated time in ns, `sequence` = sample index):
 Metadata `run` (written first, so a crash keeps it): every value JSON-encoded; seed, duration, rate,
 the resolved config, each episode's machine draw and initial state, versions and the MJCF's sha256.
 Attachment `model.xml`: the compiled MJCF of the run.
+
+Rig data (`crank import`, twin/rig_import.py) has the measurement channel and the `run` record
+only: no truth channel and no model.xml, which learners do not need.
 """
 
 from __future__ import annotations
@@ -86,30 +89,33 @@ def message_schema(
 def write_dataset(
     path: str | Path,
     dataset: Dataset,
-    truth: GroundTruth,
+    truth: GroundTruth | None,
     *,
     run: dict,
-    model_xml: str,
+    model_xml: str | None,
     on_progress: Callable[[int], None] | None = None,
 ) -> None:
     """Write `dataset` and `truth` to `path` atomically (nothing at `path` unless complete).
 
     Args:
+      truth: the twin's ground truth; None for rig data (no truth channel).
       run: the run's metadata; each value is stored JSON-encoded.
-      model_xml: the compiled MJCF, attached as model.xml.
+      model_xml: the compiled MJCF, attached as model.xml; None for rig data (no twin).
       on_progress: called with the number of samples just written.
     """
-    columns = {
-        MEASUREMENT_TOPIC: {k: v.tolist() for k, v in measurement_arrays(dataset).items()},
-        TRUTH_TOPIC: {k: v.tolist() for k, v in truth_arrays(truth).items()},
-    }
+    columns = {MEASUREMENT_TOPIC: {k: v.tolist() for k, v in measurement_arrays(dataset).items()}}
+    if truth is not None:
+        columns[TRUTH_TOPIC] = {k: v.tolist() for k, v in truth_arrays(truth).items()}
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"crank-twin {__version__}")
         writer.add_metadata(RUN_METADATA, {k: json.dumps(v) for k, v in run.items()})
-        writer.add_attachment(0, 0, MODEL_ATTACHMENT, "application/xml", model_xml.encode())
+        if model_xml is not None:
+            writer.add_attachment(0, 0, MODEL_ATTACHMENT, "application/xml", model_xml.encode())
         channels = {}
         for topic, title, names in CHANNELS:
+            if topic not in columns:
+                continue
             schema_id = writer.register_schema(title, "jsonschema", message_schema(title, names))
             channels[topic] = writer.register_channel(topic, "json", schema_id)
         rows = {topic: list(zip(*cols.values(), strict=True)) for topic, cols in columns.items()}
@@ -167,7 +173,7 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
     with open(path, "rb") as f:
         reader, summary = _open_reader(f, path)
         topics = {c.topic: c for c in summary.channels.values()}
-        for required in (MEASUREMENT_TOPIC, TRUTH_TOPIC):
+        for required in (MEASUREMENT_TOPIC, topic):  # the truth channel only to read it
             if required not in topics:
                 raise ContractError(f"{path}: missing channel {required}")
         if topics[topic].message_encoding != "json":
@@ -217,6 +223,14 @@ def read_run(path: str | Path) -> dict:
                 except json.JSONDecodeError:
                     raise ContractError(f"{path}: metadata {RUN_METADATA!r} is not JSON") from None
     raise ContractError(f"{path}: missing metadata record {RUN_METADATA!r}")
+
+
+def has_model_xml(path: str | Path) -> bool:
+    """Whether a dataset file carries its twin's MJCF (rig data has none)."""
+    path = _check_path(path)
+    with open(path, "rb") as f:
+        _, summary = _open_reader(f, path)
+        return any(a.name == MODEL_ATTACHMENT for a in summary.attachment_indexes)
 
 
 def read_model_xml(path: str | Path) -> str:

@@ -1,0 +1,185 @@
+"""`crank import`: a 1 kHz rig table with its own column names, units (ms, deg, rpm, mm) and a
+flipped torque sign becomes the 500 Hz dataset it was made from, exactly; it trains and solves;
+gaps split episodes only when asked."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.errors import ConfigError
+from twin.dataset import Dataset, GenerationConfig
+from twin.generation import generate_file
+from twin.mcap_dataset import has_model_xml, read_dataset
+from twin.physics import MODEL_PATH, SliderCrank, load_model
+from twin.rig_import import RIG_SCENARIO, ImportSpec, RigDataError, import_table, resample
+
+MAP = "t=time_ms,theta=enc_deg,omega=speed_rpm,tau=cmd,slider_position=x_mm,episode=run"
+UNITS = "t=ms,theta=deg,omega=rpm,slider_position=mm"
+
+
+def rig_table(dataset: Dataset) -> dict[str, np.ndarray]:
+    """The dataset as a 1 kHz rig would log it: a row between every two samples (states
+    midway, the torque held over the interval), in ms, deg, rpm and mm, torque sign flipped."""
+    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "th", "om", "tau", "x", "ep")}
+    for e in np.unique(dataset.episode):
+        k = np.flatnonzero(dataset.episode == e)
+        fine = np.arange(2 * len(k) - 1) / 2.0  # sample index at 1 kHz
+        columns["t"].append(np.interp(fine, np.arange(len(k)), dataset.t[k]))
+        columns["th"].append(np.interp(fine, np.arange(len(k)), dataset.theta[k]))
+        columns["om"].append(np.interp(fine, np.arange(len(k)), dataset.omega[k]))
+        columns["x"].append(np.interp(fine, np.arange(len(k)), dataset.slider_position[k]))
+        columns["tau"].append(dataset.tau[k][np.floor(fine).astype(int)])
+        columns["ep"].append(np.full(len(fine), e))
+    c = {k: np.concatenate(v) for k, v in columns.items()}
+    return {
+        "time_ms": 1e3 * c["t"],
+        "enc_deg": np.degrees(c["th"]),
+        "speed_rpm": c["om"] * 60 / (2 * np.pi),
+        "cmd": -c["tau"],
+        "x_mm": 1e3 * c["x"],
+        "run": c["ep"],
+    }
+
+
+def write_csv(path: Path, table: dict[str, np.ndarray]) -> Path:
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(table)
+        writer.writerows(zip(*(v.tolist() for v in table.values()), strict=True))
+    return path
+
+
+@pytest.fixture(scope="module")
+def twin_data(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Dataset]:
+    out = tmp_path_factory.mktemp("rig") / "twin.mcap"
+    generate_file(GenerationConfig(seconds=12.0, episode_seconds=2.0), out=out, figures=False)
+    return out, read_dataset(out)
+
+
+def test_a_1khz_table_in_its_own_units_imports_to_the_dataset_it_came_from(
+    twin_data, tmp_path: Path
+) -> None:
+    _, dataset = twin_data
+    table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
+    spec = ImportSpec.parse(columns=MAP, units=UNITS, flip="tau")
+    run = import_table(table, tmp_path / "rig.mcap", spec=spec)
+    got = read_dataset(tmp_path / "rig.mcap")
+    assert run["source_rate_hz"] == pytest.approx(1000.0, rel=1e-6)
+    assert run["gaps"] == [] and run["derived"] == [] and run["source_jitter"] < 1e-6
+    # each episode's last sample goes: its torque interval is not in the table
+    keep = np.r_[dataset.episode[1:] == dataset.episode[:-1], False]
+    assert len(got) == keep.sum() and not has_model_xml(tmp_path / "rig.mcap")
+    np.testing.assert_array_equal(got.episode, dataset.episode[keep])
+    for name in ("t", "theta", "omega", "slider_position", "tau"):
+        np.testing.assert_allclose(getattr(got, name), getattr(dataset, name)[keep], atol=1e-9)
+    assert got.geometry == dataset.geometry and got.run["config"]["variability"] == RIG_SCENARIO
+
+
+def test_parquet_imports_as_the_csv_does(twin_data, tmp_path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    _, dataset = twin_data
+    table = rig_table(dataset)
+    pq.write_table(pa.table(table), tmp_path / "rig.parquet")
+    spec = ImportSpec.parse(columns=MAP, units=UNITS, flip="tau")
+    import_table(tmp_path / "rig.parquet", tmp_path / "p.mcap", spec=spec)
+    import_table(write_csv(tmp_path / "rig.csv", table), tmp_path / "c.mcap", spec=spec)
+    p, c = read_dataset(tmp_path / "p.mcap"), read_dataset(tmp_path / "c.mcap")
+    for name in ("t", "episode", "theta", "omega", "tau", "slider_position"):
+        np.testing.assert_array_equal(getattr(p, name), getattr(c, name))
+
+
+def test_omega_and_slider_are_derived_when_not_measured(twin_data) -> None:
+    _, dataset = twin_data
+    table = {k: v for k, v in rig_table(dataset).items() if k not in ("speed_rpm", "x_mm")}
+    spec = ImportSpec.parse(
+        columns="t=time_ms,theta=enc_deg,tau=cmd,episode=run", units="t=ms,theta=deg"
+    )
+    geometry = SliderCrank(load_model(MODEL_PATH)[0]).geometry
+    got = resample(table, spec, geometry=geometry, source="rig")
+    assert got.derived == ["omega", "slider_position"]
+    np.testing.assert_allclose(
+        got.dataset.slider_position, geometry.slider_position(got.dataset.theta), atol=1e-12
+    )
+    # a central difference of the measured angle: the twin's omega to its discretisation
+    keep = np.r_[dataset.episode[1:] == dataset.episode[:-1], False]
+    error = got.dataset.omega - dataset.omega[keep]
+    rms = np.sqrt(np.mean(error**2))
+    assert rms < 0.05 * np.std(dataset.omega), rms
+
+
+def test_gaps_split_episodes_only_when_asked() -> None:
+    t = np.r_[np.arange(0, 1, 1e-3), np.arange(1.5, 2.5, 1e-3)]
+    table = {"t": t, "th": np.sin(t), "u": np.cos(3 * t)}
+    geometry = SliderCrank(load_model(MODEL_PATH)[0]).geometry
+    spec = ImportSpec.parse(columns="t=t,theta=th,tau=u")
+    with pytest.raises(RigDataError, match=r"a gap of 501 ms at t = 0\.999 s"):
+        resample(table, spec, geometry=geometry, source="rig")
+    split = ImportSpec.parse(columns="t=t,theta=th,tau=u", split_on_gaps=True)
+    got = resample(table, split, geometry=geometry, source="rig")
+    assert got.derived == ["omega", "slider_position", "episode"]
+    assert np.bincount(got.dataset.episode).tolist() == [499, 499]
+    assert got.dataset.t[499] == pytest.approx(1.5)
+    # a torque that changes every row: each 2 ms interval gets the mean of its two rows
+    pairs = np.cos(3 * t[:6]).reshape(3, 2).mean(axis=1)
+    np.testing.assert_allclose(got.dataset.tau[:3], pairs, atol=1e-12)
+
+
+def test_the_spec_names_what_is_wrong() -> None:
+    with pytest.raises(ConfigError, match="--map must name a column for tau"):
+        ImportSpec.parse(columns="t=a,theta=b")
+    with pytest.raises(ConfigError, match="unknown field 'torque'"):
+        ImportSpec.parse(columns="t=a,theta=b,tau=c,torque=c")
+    with pytest.raises(ConfigError, match=r"theta in 'grad'\? use one of rad, deg, rev"):
+        ImportSpec.parse(columns="t=a,theta=b,tau=c", units="theta=grad")
+
+
+def test_rig_data_trains_and_solves_and_training_refuses_another_rate(
+    twin_data, tmp_path: Path
+) -> None:
+    """The end-to-end path of a user with a rig: import, inspect, train, solve; no twin
+    calibration in the report (there is no twin)."""
+    _, dataset = twin_data
+    table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
+
+    def crank(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, "-m", "crank", *args], capture_output=True, text=True, check=False
+        )
+
+    common = ["--map", MAP, "--units", UNITS, "--flip", "tau"]
+    done = crank("import", str(table), *common, "--out", str(tmp_path / "rig.mcap"))
+    assert done.returncode == 0, done.stderr
+    assert "source_rate_hz" in done.stdout and "1000" in done.stdout
+    shown = crank("inspect", str(tmp_path / "rig.mcap"))
+    assert shown.returncode == 0 and "rig data from rig.csv" in shown.stdout
+    slow = crank("import", str(table), *common, "--rate", "250", "--out", str(tmp_path / "s.mcap"))
+    assert slow.returncode == 0, slow.stderr
+    refused = crank("train", "--data", str(tmp_path / "s.mcap"), "--out", str(tmp_path / "s.pt"))
+    assert refused.returncode == 2 and "the PPANN steps at 500 Hz" in refused.stderr
+    model = tmp_path / "m.pt"
+    trained = crank(
+        "train", "--data", str(tmp_path / "rig.mcap"), "--out", str(model),
+        "--epochs", "3", "--sigma-epochs", "20",
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    report = json.loads((tmp_path / "m.report.json").read_text())
+    assert report["calibration"] is None and not (tmp_path / "m.calibration.png").exists()
+    assert (tmp_path / "m.bands.png").is_file()
+    solved = crank(
+        "solve", "--model", str(model), "--out", str(tmp_path / "ocp.json"),
+        "--k-sigma", "0.5", "--confidence", "0", "--mc-samples", "200",
+    )  # fmt: skip
+    assert solved.returncode == 0, solved.stderr
+    ocp = json.loads((tmp_path / "ocp.json").read_text())
+    assert ocp["variability"] == RIG_SCENARIO
+    replay = crank("replay", "--ocp", str(tmp_path / "ocp.json"), "--out", str(tmp_path / "r.mcap"))
+    assert replay.returncode == 2 and "trained on rig data" in replay.stderr
