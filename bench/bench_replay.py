@@ -89,6 +89,7 @@ def main() -> None:
                 header={"kind": "bench"},
                 attachments={"model.xml": ("application/xml", xml.encode())},
                 n_samples=ocp.horizon,
+                ocp=ocp,  # with the Foxglove channels, as crank replay writes it
             ) as log:
                 for replay in replays:
                     log.write_replay(replay, machines)

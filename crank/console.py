@@ -291,6 +291,7 @@ def show_iteration(it: Iteration) -> None:
 
 def print_replay(stats: dict[str, Any], out: Path) -> None:
     from replay.files import output_paths
+    from replay.foxglove import FOXGLOVE_LAYOUT
     from replay.statistics import format_table, summary_rows
 
     typer.echo(format_table(summary_rows(stats)))
@@ -304,3 +305,4 @@ def print_replay(stats: dict[str, Any], out: Path) -> None:
         )
     files = ", ".join(str(p) for p in output_paths(out).values())
     typer.echo(f"wrote {files}")
+    typer.echo(f"Foxglove: open {out} and import the layout {FOXGLOVE_LAYOUT}")

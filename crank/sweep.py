@@ -259,8 +259,9 @@ def leaf_results(leaves: list[Leaf], out: Path) -> list[tuple[Leaf, list[dict[st
 
 DATASET_BYTES_PER_SAMPLE = 143
 """dataset.mcap per 500 Hz sample (measured: 6.43 MB for 90 s)."""
-CAMPAIGN_BYTES_PER_RUN_SAMPLE = 151
-"""replay.mcap per replayed run and sample (measured: 9.04 MB for 2 x 2 x 100 runs of 150)."""
+CAMPAIGN_BYTES_PER_RUN_SAMPLE = 340
+"""replay.mcap per replayed run and sample (measured: 20.4 MB for 2 x 2 x 100 runs of 150; 9.04
+MB of it the dataset channels, the rest Foxglove's mechanism, scene and plan)."""
 FIGURES_BYTES = {"data": 0.7e6, "model": 0.9e6, "solve": 0.4e6, "leaf": 1.8e6}
 """Figures, the Rerun recording and small files of a step (measured on a paper run)."""
 

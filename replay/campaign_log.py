@@ -39,6 +39,8 @@ from mcap.writer import CompressionType, Writer
 
 from common.atomic import OutputError, atomic_path, check_writable, register_output, writes
 from common.errors import CrankError
+from control.ocp_file import OCPFile
+from replay import foxglove
 from replay.campaign import Machines, Replay
 from replay.config import ReplayConfig
 from twin import __version__
@@ -85,6 +87,7 @@ class CampaignLog:
         header: dict[str, Any],
         attachments: dict[str, tuple[str, bytes]],
         n_samples: int,
+        ocp: OCPFile | None = None,
     ) -> None:
         self.out = check_writable(out)
         self.partial = partial_path(self.out)
@@ -102,6 +105,13 @@ class CampaignLog:
             schema = message_schema(title, names, extra=TAGS)
             schema_id = self.writer.register_schema(title, "jsonschema", schema)
             self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
+        self.ocp = ocp
+        if ocp is not None:  # the mechanism, the plan and its band for Foxglove
+            for topic, name in foxglove.CHANNELS.items():
+                schema_id = self.writer.register_schema(
+                    name, "jsonschema", foxglove.schema_bytes(name)
+                )
+                self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
         self.writer.flush()
 
     def write_replay(
@@ -143,6 +153,8 @@ class CampaignLog:
                         sequence=t0 + k,
                         data=orjson.dumps(message | tags | {"sample": k + 1}),
                     )
+            if self.ocp is not None:
+                self._write_foxglove(replay, run, episode, t0)
             self.writer.flush()  # the run's chunk reaches the file before its record
             record = {
                 "episode": episode,
@@ -157,6 +169,44 @@ class CampaignLog:
             self.episodes += 1
             if on_run is not None:
                 on_run(self.episodes)
+
+    def _write_foxglove(self, replay: Replay, run: int, episode: int, t0: int) -> None:
+        """The run's mechanism, scene and plan (replay/foxglove.py), on the log's clock."""
+        assert self.ocp is not None
+        n = self.n_samples
+        times = (t0 + np.arange(n)) / SAMPLE_RATE
+        tags = {"episode": episode, "run": run, "profile": replay.profile, "mode": replay.mode}
+        scene = foxglove.scene_update(
+            float(times[0]),
+            geometry=self.ocp.geometry,
+            height=self.ocp.config.height,
+            profile=replay.profile,
+        )
+        streams = {
+            foxglove.SCENE_TOPIC: [(0, scene)],
+            foxglove.TF_TOPIC: enumerate(
+                foxglove.frame_transforms(
+                    times,
+                    replay.crank_angle[run],
+                    replay.slider_position[run],
+                    geometry=self.ocp.geometry,
+                )
+            ),
+            foxglove.PLAN_TOPIC: (
+                (k, {"t": float(times[k]), **tags, "sample": k + 1, **row})
+                for k, row in enumerate(foxglove.plan_rows(self.ocp, replay.profile, replay.mode))
+            ),
+        }
+        for topic, messages in streams.items():
+            for k, message in messages:
+                log_time = round(float(times[k]) * 1e9)
+                self.writer.add_message(
+                    self.channels[topic],
+                    log_time=log_time,
+                    publish_time=log_time,
+                    sequence=t0 + k,
+                    data=orjson.dumps(message),
+                )
 
     def finish(self) -> Path:
         """Write the summary and index, and move the log to `out`."""
@@ -254,7 +304,10 @@ def recover(broken: str | Path, fixed: str | Path) -> Recovery:
     if not any(m.name == RUN_METADATA for m in metadata):
         raise RecoverError(f"{broken}: no `{RUN_METADATA}` metadata record; nothing to recover")
     done = {json.loads(m.metadata["episode"]) for m in metadata if m.name == REPLAY_RUN_METADATA}
-    keep = [m for m in messages if orjson.loads(m.data).get("episode") in done]
+    # Every message of episode e has sequence e * n + k (dataset channels and Foxglove's alike).
+    run = next(m for m in metadata if m.name == RUN_METADATA)
+    n = json.loads(run.metadata["samples_per_run"])
+    keep = [m for m in messages if m.sequence // n in done]
     with atomic_path(fixed) as tmp, open(tmp, "wb") as out:
         writer = Writer(out, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"crank-recover {__version__}")

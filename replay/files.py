@@ -111,7 +111,9 @@ def replay_file(
     }
     machines = draw_machines(config, ocp.horizon)
     header = campaign_header(config, physics=physics, n_samples=ocp.horizon, model_path=model_path)
-    with CampaignLog(out, header=header, attachments=attachments, n_samples=ocp.horizon) as log:
+    with CampaignLog(
+        out, header=header, attachments=attachments, n_samples=ocp.horizon, ocp=ocp
+    ) as log:
 
         def write(replay: Replay) -> None:
             nonlocal logging

@@ -381,8 +381,9 @@ KILLER = textwrap.dedent(
     from replay.config import ReplayConfig
     from replay.files import replay_file
 
-    # SIGKILL in the middle of writing run 7: after half of its 2 x 150 messages
-    limit, written, add_message = 6 * 300 + 150, 0, Writer.add_message
+    # SIGKILL in the middle of writing run 7: a run is 150 messages on each of the two dataset
+    # channels, then 150 transforms, 1 scene and 150 plan rows for Foxglove
+    limit, written, add_message = 6 * 601 + 300, 0, Writer.add_message
 
     def counting(self, *args, **kwargs):
         global written
@@ -453,6 +454,15 @@ def test_recover_keeps_the_complete_runs_before_any_cut(
     np.testing.assert_array_equal(
         recovered.slider_position, reference.slider_position[: result.runs * N]
     )
+    from mcap.reader import make_reader
+
+    from replay.foxglove import TF_TOPIC
+
+    with open(tmp_path / "fixed.mcap", "rb") as f:  # Foxglove's channels keep the same runs
+        summary = make_reader(f).get_summary()
+    counts = {c.topic: summary.statistics.channel_message_counts.get(i, 0)
+              for i, c in summary.channels.items()}  # fmt: skip
+    assert counts[TF_TOPIC] == result.runs * N
 
 
 def _broken_ocp(ocp_path: Path, tmp_path: Path, edit) -> Path:
