@@ -64,9 +64,8 @@ def main() -> None:
 
         imported = _median(one_import, args.repeats)
         alone = _median(lambda: _csv_alone(table), args.repeats)
-        wanted = list(dict.fromkeys(spec.columns.values()))
-        read = _median(lambda: read_table(table, wanted), args.repeats)
-        columns = read_table(table, wanted)
+        read = _median(lambda: read_table(table, spec), args.repeats)
+        columns = read_table(table, spec)
         geometry = SliderCrank(load_model(MODEL_PATH)[0]).geometry
         converted = _median(
             lambda: resample(columns, spec, geometry=geometry, source="rig"), args.repeats

@@ -12,16 +12,20 @@ from twin import MODEL_PATH
 from twin.physics import SAMPLE_RATE
 
 
-@app.command("import", short_help="Rig data (CSV, Parquet) into a dataset MCAP to train on.")
+@app.command("import", short_help="Rig data (CSV, Parquet, MCAP) into a dataset to train on.")
 @one_line_errors
 def import_command(
-    data: Annotated[Path, typer.Argument(help="The rig's table: .csv (header row) or .parquet.")],
+    data: Annotated[
+        Path,
+        typer.Argument(help="The rig's data: .csv (header row), .parquet or .mcap (JSON, ROS 2)."),
+    ],
     columns: Annotated[
         str,
         typer.Option(
             "--map",
             help="field=column pairs: t, theta, tau required; omega, slider_position, episode "
-            "optional (e.g. t=time,theta=enc,tau=cmd).",
+            "optional (e.g. t=time,theta=enc,tau=cmd; in an MCAP columns are TOPIC.FIELD and "
+            "t=log_time).",
         ),
     ],
     out: Annotated[Path, typer.Option(help="Dataset MCAP to write.")] = Path("logs/rig.mcap"),

@@ -394,12 +394,20 @@ CASES: list[tuple[str, str]] = [
         "too short for two samples at 20 Hz",
     ),
     ("import {dir}/absent.csv --map " + RIG + " --out o/r.mcap", "rig data not found"),
-    ("import {text.txt} --map " + RIG + " --out o/r.mcap", "rig data must be .csv or .parquet"),
+    (
+        "import {text.txt} --map " + RIG + " --out o/r.mcap",
+        "rig data must be .csv, .parquet or .mcap",
+    ),
     ("import {text.parquet} --map " + RIG + " --out o/r.mcap", "not a Parquet file"),
     ("import {rig.csv} --map " + RIG + " --out o/r.json", "it must end in .mcap"),
     ("import {rig.csv} --map " + RIG + " --out {file}/r.mcap", "cannot write"),
     ("import {rig.csv} --map " + RIG + " --model {garbage.xml} --out o/r.mcap", "invalid MJCF"),
     ("import {rig.csv} --out o/r.mcap", "Missing option '--map'"),
+    ("import {text.mcap} --map t=log_time,theta=/m.p,tau=/c.t --out o/r.mcap", "not an MCAP file"),
+    (
+        "import {ds.mcap} --map t=log_time,theta=/m.p,tau=/c.t --out o/r.mcap",
+        "no topic /m (topics: ",
+    ),
     (
         "train --data {rig250.mcap} --out o/m.pt",
         "the PPANN steps at 500 Hz; import the data again with --rate 500",

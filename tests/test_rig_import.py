@@ -97,6 +97,98 @@ def test_parquet_imports_as_the_csv_does(twin_data, tmp_path: Path) -> None:
         np.testing.assert_array_equal(getattr(p, name), getattr(c, name))
 
 
+MCAP_MAP = (
+    "t=log_time,theta=/motor.position_deg,omega=/motor.velocity_rpm,tau=/cmd.torque,"
+    "slider_position=/slider.pose.position[2],episode=/motor.run"
+)
+
+
+def _rig_recording(dataset: Dataset, path: Path, *, ros2: bool) -> Path:
+    """The rig table as a recording: /motor at 1 kHz (deg, rpm, run), the torque commands on
+    /cmd at 500 Hz (each held to the next; sign flipped), /slider at 1 kHz in mm."""
+    table = rig_table(dataset)
+    ns = np.round(table["time_ms"] * 1e6).astype(np.int64)
+    start = np.r_[0, np.flatnonzero(np.diff(table["run"])) + 1]  # each episode's first row
+    local = np.arange(len(ns)) - np.repeat(start, np.diff(np.r_[start, len(ns)]))
+    commanded = local % 2 == 0  # the 500 Hz samples
+    motor = [
+        {"position_deg": a, "velocity_rpm": w, "run": int(e)}
+        for a, w, e in zip(table["enc_deg"], table["speed_rpm"], table["run"], strict=True)
+    ]
+    with path.open("wb") as f:
+        if ros2:
+            from mcap_ros2.writer import Writer as Ros2Writer
+
+            writer = Ros2Writer(f)
+            schemas = {
+                "/motor": writer.register_msgdef(
+                    "rig/msg/Motor", "float64 position_deg\nfloat64 velocity_rpm\nint32 run"
+                ),
+                "/cmd": writer.register_msgdef("rig/msg/Command", "float64 torque"),
+                "/slider": writer.register_msgdef("rig/msg/Slider", "float64[3] pose_position"),
+            }
+        else:
+            from mcap.writer import Writer
+
+            writer = Writer(f)
+            writer.start()
+            schema = writer.register_schema("rig", "jsonschema", b"{}")
+            ids = {
+                t: writer.register_channel(t, "json", schema) for t in ("/motor", "/cmd", "/slider")
+            }
+
+        def write(topic: str, t: int, message: dict) -> None:
+            if ros2:
+                if topic == "/slider":
+                    message = {"pose_position": message["pose"]["position"]}
+                writer.write_message(topic, schemas[topic], message, log_time=int(t))
+            else:
+                writer.add_message(
+                    ids[topic],
+                    log_time=int(t),
+                    data=json.dumps(message).encode(),
+                    publish_time=int(t),
+                )
+
+        for k, t in enumerate(ns):
+            write("/motor", t, motor[k])
+            write("/slider", t, {"pose": {"position": [0.0, 0.0, table["x_mm"][k]]}})
+            if commanded[k]:
+                write("/cmd", t, {"torque": table["cmd"][k]})
+        writer.finish()
+    return path
+
+
+@pytest.mark.parametrize("ros2", [False, True], ids=["json", "ros2"])
+def test_a_recording_imports_to_the_dataset_it_came_from(
+    twin_data, tmp_path: Path, ros2: bool
+) -> None:
+    _, dataset = twin_data
+    recording = _rig_recording(dataset, tmp_path / "rig.mcap", ros2=ros2)
+    columns = MCAP_MAP if not ros2 else MCAP_MAP.replace("pose.position[2]", "pose_position[2]")
+    spec = ImportSpec.parse(columns=columns, units=UNITS.replace("t=ms,", ""), flip="tau")
+    import_table(recording, tmp_path / "out.mcap", spec=spec)
+    got = read_dataset(tmp_path / "out.mcap")
+    keep = np.r_[dataset.episode[1:] == dataset.episode[:-1], False]
+    np.testing.assert_array_equal(got.episode, dataset.episode[keep])
+    for name in ("t", "theta", "omega", "slider_position", "tau"):
+        np.testing.assert_allclose(getattr(got, name), getattr(dataset, name)[keep], atol=1e-9)
+
+
+def test_a_recording_names_what_is_missing(twin_data, tmp_path: Path) -> None:
+    _, dataset = twin_data
+    recording = _rig_recording(dataset, tmp_path / "rig.mcap", ros2=False)
+    for columns, match in (
+        (MCAP_MAP.replace("/cmd.torque", "/command.torque"), "no topic /command"),
+        (MCAP_MAP.replace("/cmd.torque", "/cmd.effort"), "no field '/cmd.effort'"),
+        (MCAP_MAP.replace("t=log_time", "t=/motor.stamp"), "map t=log_time"),
+        (MCAP_MAP.replace("/cmd.torque", "/cmd..torque"), "is not a field name"),
+    ):
+        with pytest.raises(RigDataError, match=match):
+            import_table(recording, tmp_path / "o.mcap", spec=ImportSpec.parse(columns=columns))
+    assert not (tmp_path / "o.mcap").exists()
+
+
 def test_omega_and_slider_are_derived_when_not_measured(twin_data) -> None:
     _, dataset = twin_data
     table = {k: v for k, v in rig_table(dataset).items() if k not in ("speed_rpm", "x_mm")}

@@ -1,4 +1,4 @@
-"""Rig data into the dataset contract: a CSV or Parquet table of a real machine's measurements,
+"""Rig data into the dataset contract: a CSV, Parquet or MCAP recording of a real machine,
 with its own column names, units, signs and rate, becomes a dataset MCAP a learner can read.
 
     spec = ImportSpec.parse(columns="t=time,theta=enc,tau=cmd", units="t=ms,theta=deg")
@@ -36,6 +36,7 @@ from twin.dataset import Dataset
 from twin.geometry import Geometry
 from twin.mcap_dataset import write_dataset
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model, model_sha256
+from twin.rig_mcap import LOG_TIME, read_mcap_columns
 
 REQUIRED = ("t", "theta", "tau")
 OPTIONAL = ("omega", "slider_position", "episode")
@@ -128,19 +129,27 @@ def _pairs(text: str, option: str) -> dict[str, str]:
     return out
 
 
-def read_table(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
-    """The `wanted` columns of a CSV (header row, comma-separated) or Parquet file as float
-    arrays.
+def read_table(path: Path, spec: ImportSpec) -> dict[str, np.ndarray]:
+    """The columns `spec` maps, from a CSV (header row, comma-separated), a Parquet file or a
+    foreign MCAP (twin/rig_mcap.py: columns TOPIC.FIELD, `t=log_time`), as float arrays.
 
     Raises:
       RigDataError: the file is missing or unreadable, a column is absent, a cell not a number.
     """
+    wanted = list(dict.fromkeys(spec.columns.values()))
     if not path.is_file():
         raise RigDataError(f"rig data not found: {path}")
-    if path.suffix.lower() == ".parquet":
+    suffix = path.suffix.lower()
+    if suffix == ".mcap":
+        if spec.columns["t"] != LOG_TIME:
+            raise RigDataError(f"{path}: in an MCAP the time is the log time: map t={LOG_TIME}")
+        return read_mcap_columns(
+            path, wanted, theta=spec.columns["theta"], tau=spec.columns["tau"], error=RigDataError
+        )
+    if suffix == ".parquet":
         return _read_parquet(path, wanted)
-    if path.suffix.lower() != ".csv":
-        raise RigDataError(f"{path}: rig data must be .csv or .parquet, got {path.suffix!r}")
+    if suffix != ".csv":
+        raise RigDataError(f"{path}: rig data must be .csv, .parquet or .mcap, got {path.suffix!r}")
     with path.open(newline="") as f:
         header = [h.strip() for h in next(csv.reader(f), [])]
     _check_columns(path, header, wanted)
@@ -328,7 +337,7 @@ def import_table(
     data, out = Path(data), Path(out)
     check_writable(out)
     physics = SliderCrank(load_model(model_path)[0])
-    table = read_table(data, list(dict.fromkeys(spec.columns.values())))
+    table = read_table(data, spec)
     result = resample(table, spec, geometry=physics.geometry, source=str(data))
     dataset = result.dataset
     lengths = np.bincount(dataset.episode).tolist()
