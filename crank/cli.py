@@ -119,6 +119,9 @@ def inspect_command(
     if dataset.run.get("source") == "import":  # rig data: no truth channel, no seed
         print_summary(f"{path}: rig data from {dataset.run.get('input')}", summarize(dataset))
         return
+    if not dataset.run:  # another tool's measurements: what a learner needs, nothing more
+        print_summary(f"{path}: measurements without a run record", summarize(dataset))
+        return
     truth = read_truth(path)  # the twin's files carry their truth
     print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
 

@@ -40,6 +40,7 @@ from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
 from twin.mcap_dataset import has_model_xml, read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
+from twin.rig_import import RIG_SCENARIO
 
 LINE_Z = confidence_quantile(DEFAULT_CONFIDENCE)
 """The report's one-sided bounds on the line (z = 2.13): what the robust OCP allows for at its
@@ -176,7 +177,12 @@ def train_and_report(
                 # wherever it runs (and the folder can move).
                 "data_path": os.path.relpath(Path(data_path).resolve(), out.resolve().parent),
                 "loss_scale": splits.scale.tolist(),
-                "variability": dataset.run.get("config", {}).get("variability"),
+                # a dataset without a twin (rig data, another tool's file) is a real machine
+                "variability": (
+                    dataset.run.get("config", {}).get("variability")
+                    if replay is not None
+                    else RIG_SCENARIO
+                ),
                 "dt": float(dataset.t[1] - dataset.t[0]),
                 # the twin's actuator limit: no plan on this model may ask for more
                 "torque_limit": dataset.run.get("torque_limit"),

@@ -189,6 +189,44 @@ def test_a_recording_names_what_is_missing(twin_data, tmp_path: Path) -> None:
     assert not (tmp_path / "o.mcap").exists()
 
 
+def test_measurements_alone_train(twin_data, tmp_path: Path) -> None:
+    """Another tool's file with only the measurement channel (no run record, no truth, no
+    model.xml) reads with the paper's geometry, inspects and trains, as a real machine's data."""
+    from mcap.writer import Writer
+
+    from ppann.pipeline import train_and_report
+    from ppann.train_config import TrainConfig
+    from twin.dataset import MEASUREMENT_FIELDS, measurement_arrays
+    from twin.mcap_dataset import MEASUREMENT_TOPIC, message_schema
+
+    _, dataset = twin_data
+    path = tmp_path / "bare.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("m", "jsonschema", message_schema("m", MEASUREMENT_FIELDS))
+        channel = writer.register_channel(MEASUREMENT_TOPIC, "json", schema)
+        columns = {k: v.tolist() for k, v in measurement_arrays(dataset).items()}
+        for k, row in enumerate(zip(*columns.values(), strict=True)):
+            time = round(row[0] * 1e9)
+            data = json.dumps(dict(zip(columns, row, strict=True))).encode()
+            writer.add_message(channel, log_time=time, data=data, publish_time=time, sequence=k)
+        writer.finish()
+    bare = read_dataset(path)
+    assert bare.run == {} and bare.geometry == dataset.geometry
+    np.testing.assert_array_equal(bare.theta, dataset.theta)
+    shown = subprocess.run(
+        [sys.executable, "-m", "crank", "inspect", str(path)], capture_output=True, text=True
+    )
+    assert shown.returncode == 0 and "measurements without a run record" in shown.stdout
+    config = TrainConfig(max_epochs=2, sigma_epochs=5)
+    report = train_and_report(path, tmp_path / "m.pt", config=config, baselines=False)
+    assert report["calibration"] is None
+    from ppann import checkpoint
+
+    assert checkpoint.load(tmp_path / "m.pt")[1]["variability"] == RIG_SCENARIO
+
+
 def test_omega_and_slider_are_derived_when_not_measured(twin_data) -> None:
     _, dataset = twin_data
     table = {k: v for k, v in rig_table(dataset).items() if k not in ("speed_rpm", "x_mm")}

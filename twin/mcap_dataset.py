@@ -211,8 +211,9 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
     return out
 
 
-def read_run(path: str | Path) -> dict:
-    """The `run` metadata record of a dataset file, values decoded from JSON."""
+def read_run(path: str | Path, *, required: bool = True) -> dict:
+    """The `run` metadata record of a dataset file, values decoded from JSON; {} for a file
+    without one if not `required` (another tool's measurements)."""
     path = _check_path(path)
     with open(path, "rb") as f:
         reader, _ = _open_reader(f, path)
@@ -222,6 +223,8 @@ def read_run(path: str | Path) -> dict:
                     return {k: json.loads(v) for k, v in record.metadata.items()}
                 except json.JSONDecodeError:
                     raise ContractError(f"{path}: metadata {RUN_METADATA!r} is not JSON") from None
+    if not required:
+        return {}
     raise ContractError(f"{path}: missing metadata record {RUN_METADATA!r}")
 
 
@@ -245,12 +248,14 @@ def read_model_xml(path: str | Path) -> str:
 
 
 def read_dataset(path: str | Path) -> Dataset:
-    """Load the measurement channel and run metadata of a dataset file.
+    """Load the measurement channel and run metadata of a dataset file. A learner needs only the
+    measurement channel: a file without a `run` record reads with `run` = {} (the paper's
+    geometry, no twin).
 
     Raises:
       ContractError: one line naming the file and what is missing or malformed.
     """
-    run = read_run(path)
+    run = read_run(path, required=False)
     columns = _read_topic(path, MEASUREMENT_TOPIC, MEASUREMENT_FIELDS)
     return Dataset(**columns, run=run)
 
