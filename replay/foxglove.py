@@ -114,6 +114,10 @@ def schema_bytes(name: str) -> bytes:
     return json.dumps({"title": name, **SCHEMAS[name]}).encode()
 
 
+UNUSED_PRIMITIVES = ("arrows", "spheres", "cylinders", "lines", "triangles", "texts", "models")
+"""SceneEntity fields Foxglove's schema requires, empty here (the bodies are cubes)."""
+
+
 def slide_base(geometry: Geometry) -> float:
     """World z of the slider pin at position 0 (bottom dead centre: l2 - l1 above the axis)."""
     return geometry.rod_length - geometry.crank_length
@@ -208,7 +212,9 @@ def scene_update(t: float, *, geometry: Geometry, height: float, profile: str) -
                 "id": name,
                 "lifetime": {"sec": 0, "nsec": 0},
                 "frame_locked": True,
+                "metadata": [],
                 "cubes": cubes,
+                **{kind: [] for kind in UNUSED_PRIMITIVES},
             }
             for name, (frame, cubes) in parts.items()
         ],

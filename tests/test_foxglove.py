@@ -103,6 +103,11 @@ def test_campaign_log_carries_the_mechanism_and_the_plan(
     np.testing.assert_array_equal([p["upper"] for p in first], upper)
     assert [p["sample"] for p in first] == list(range(1, N + 1))
     assert {p["height"] for p in plans} == {ocp.config.height}
+    with open(campaign_files["mcap"], "rb") as f:
+        scene = json.loads(next(make_reader(f).iter_messages(topics=[SCENE_TOPIC]))[2].data)
+    required = {"timestamp", "frame_id", "id", "lifetime", "frame_locked", "metadata", "arrows"}
+    required |= {"cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"}
+    assert all(set(e) == required for e in scene["entities"])  # Foxglove's SceneEntity, whole
 
 
 def test_the_shipped_layout_names_only_what_the_log_has(
