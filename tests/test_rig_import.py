@@ -186,6 +186,9 @@ def test_a_recording_names_what_is_missing(twin_data, tmp_path: Path) -> None:
     ):
         with pytest.raises(RigDataError, match=match):
             import_table(recording, tmp_path / "o.mcap", spec=ImportSpec.parse(columns=columns))
+    with pytest.raises(RigDataError, match="in s: map t=log_time, no unit"):
+        spec = ImportSpec.parse(columns=MCAP_MAP, units="t=ms")
+        import_table(recording, tmp_path / "o.mcap", spec=spec)
     assert not (tmp_path / "o.mcap").exists()
 
 

@@ -141,8 +141,10 @@ def read_table(path: Path, spec: ImportSpec) -> dict[str, np.ndarray]:
         raise RigDataError(f"rig data not found: {path}")
     suffix = path.suffix.lower()
     if suffix == ".mcap":
-        if spec.columns["t"] != LOG_TIME:
-            raise RigDataError(f"{path}: in an MCAP the time is the log time: map t={LOG_TIME}")
+        if spec.columns["t"] != LOG_TIME or spec.units.get("t", "s") != "s":
+            raise RigDataError(
+                f"{path}: in an MCAP the time is the log time, in s: map t={LOG_TIME}, no unit"
+            )
         return read_mcap_columns(
             path, wanted, theta=spec.columns["theta"], tau=spec.columns["tau"], error=RigDataError
         )
