@@ -292,18 +292,21 @@ def time_estimate(nodes: list[Node]) -> Span:
     return total
 
 
-def check_disk(nodes: list[Node], out: Path) -> float:
-    """Refuse a sweep whose files (of the steps not made yet) cannot fit on `out`'s filesystem;
-    return the estimate.
+def steps_left(nodes: list[Node], out: Path) -> list[Node]:
+    """The steps of `nodes` that have no result in the sweep folder `out` yet."""
+    return [n for n in nodes if not (folder(out, n.kind, n.key) / RESULT).is_file()]
+
+
+def check_disk(todo: list[Node], out: Path) -> float:
+    """Refuse a sweep whose files (of the steps `todo`, not made yet) cannot fit on `out`'s
+    filesystem; return the estimate.
 
     Raises:
       ResourceError: the estimate exceeds the free space, both in the message.
     """
     from common.resources import ResourceError
 
-    needed = disk_estimate(
-        [n for n in nodes if not (folder(out, n.kind, n.key) / RESULT).is_file()]
-    )
+    needed = disk_estimate(todo)
     existing = next(p for p in (out, *out.parents) if p.exists())
     free = shutil.disk_usage(existing).free
     if needed > free:
@@ -353,8 +356,8 @@ def run_sweep(
     nodes = graph(leaves)
     if executor == "ray":
         _ray()  # the extra is installed, before anything is written
-    disk = check_disk(nodes, out)
-    todo = [n for n in nodes if not (folder(out, n.kind, n.key) / RESULT).is_file()]
+    todo = steps_left(nodes, out)
+    disk = check_disk(todo, out)
     if not resume:
         check_writable(out / SPEC_COPY)
         with atomic_path(out / SPEC_COPY) as tmp:
