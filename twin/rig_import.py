@@ -31,11 +31,11 @@ import numpy as np
 
 from common.atomic import check_writable, writes
 from common.errors import ConfigError, CrankError
-from twin import __version__
 from twin.dataset import Dataset
+from twin.generation import provenance
 from twin.geometry import Geometry
 from twin.mcap_dataset import write_dataset
-from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model, model_sha256
+from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
 from twin.rig_mcap import LOG_TIME, read_mcap_columns
 
 REQUIRED = ("t", "theta", "tau")
@@ -358,9 +358,7 @@ def import_table(
         "geometry": physics.geometry.as_dict(),
         "config": {"variability": RIG_SCENARIO},
         "episodes": [{"index": k, "n_samples": n} for k, n in enumerate(lengths)],
-        "mjcf_path": str(model_path),
-        "mjcf_sha256": model_sha256(model_path),
-        "project_version": __version__,
+        **provenance(model_path),
     }
     write_dataset(out, dataset, None, run=run, model_xml=None)
     return run
