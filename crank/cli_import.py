@@ -53,8 +53,6 @@ def import_command(
     """Resample a rig's table onto the contract's grid, in its units and signs, and write a
     dataset MCAP that `crank train` reads (no truth channel and no twin: training skips the
     twin calibration; replaying a plan on the twin needs --variability)."""
-    from twin.dataset import summarize
-    from twin.mcap_dataset import read_dataset
     from twin.rig_import import ImportSpec, import_table
 
     spec = ImportSpec.parse(
@@ -66,8 +64,7 @@ def import_command(
         split_on_gaps=split_on_gaps,
     )
     run = import_table(data, out, spec=spec, model_path=model)  # ~0.6 s for 90 s at 1 kHz
-    dataset = read_dataset(out)
-    summary = summarize(dataset) | {
+    summary = run["summary"] | {
         "source_rate_hz": round(run["source_rate_hz"], 3),
         "source_jitter_pct": round(100 * run["source_jitter"], 2),
         "gaps": len(run["gaps"]),

@@ -220,7 +220,7 @@ def summarize(dataset: Dataset, truth: GroundTruth | None = None) -> dict[str, f
     bins = np.histogram(np.mod(dataset.theta, 2 * np.pi), bins=12, range=(0, 2 * np.pi))[0]
     summary: dict[str, float | int] = {
         "n_samples": len(dataset),
-        "seconds": float(len(dataset) / SAMPLE_RATE),
+        "seconds": float(len(dataset) / dataset.run.get("rate_hz", SAMPLE_RATE)),
         "episodes": len(np.unique(dataset.episode)),
         "theta_bins_covered_of_12": int(np.count_nonzero(bins)),
         "omega_min": float(dataset.omega.min()),

@@ -23,7 +23,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +31,7 @@ import numpy as np
 
 from common.atomic import check_writable, writes
 from common.errors import ConfigError, CrankError
-from twin.dataset import Dataset
+from twin.dataset import Dataset, summarize
 from twin.generation import provenance
 from twin.geometry import Geometry
 from twin.mcap_dataset import write_dataset
@@ -331,7 +331,8 @@ def import_table(
     spec: ImportSpec,
     model_path: str | Path = MODEL_PATH,
 ) -> dict[str, Any]:
-    """Write the rig table `data` as a dataset MCAP at `out`; return its run record.
+    """Write the rig table `data` as a dataset MCAP at `out`; return its run record (with the
+    dataset's `summary`).
 
     `model_path` is the MJCF of the machine (its geometry and torque limit go into the record;
     the rig's own MJCF if the user has one, else the project's).
@@ -360,5 +361,6 @@ def import_table(
         "episodes": [{"index": k, "n_samples": n} for k, n in enumerate(lengths)],
         **provenance(model_path),
     }
+    run["summary"] = summarize(replace(dataset, run=run))
     write_dataset(out, dataset, None, run=run, model_xml=None)
     return run
