@@ -179,9 +179,7 @@ def train_and_report(
                 "loss_scale": splits.scale.tolist(),
                 # a dataset without a twin (rig data, another tool's file) is a real machine
                 "variability": (
-                    dataset.run.get("config", {}).get("variability")
-                    if replay is not None
-                    else RIG_SCENARIO
+                    dataset.run["config"]["variability"] if replay is not None else RIG_SCENARIO
                 ),
                 "dt": float(dataset.t[1] - dataset.t[0]),
                 # the twin's actuator limit: no plan on this model may ask for more
