@@ -119,6 +119,9 @@ class CampaignLog:
     ) -> None:
         """Append every run of `replay`, each as one episode, flushing after each run."""
         n = self.n_samples
+        plan = (  # the same for every run of the replay's profile and mode
+            None if self.ocp is None else foxglove.plan_rows(self.ocp, replay.profile, replay.mode)
+        )
         for run in range(replay.runs):
             episode = self.episodes
             t0 = episode * n
@@ -153,8 +156,8 @@ class CampaignLog:
                         sequence=t0 + k,
                         data=orjson.dumps(message | tags | {"sample": k + 1}),
                     )
-            if self.ocp is not None:
-                self._write_foxglove(replay, run, episode, t0)
+            if plan is not None:
+                self._write_foxglove(replay, run, episode, t0, plan)
             self.writer.flush()  # the run's chunk reaches the file before its record
             record = {
                 "episode": episode,
@@ -170,8 +173,10 @@ class CampaignLog:
             if on_run is not None:
                 on_run(self.episodes)
 
-    def _write_foxglove(self, replay: Replay, run: int, episode: int, t0: int) -> None:
-        """The run's mechanism, scene and plan (replay/foxglove.py), on the log's clock."""
+    def _write_foxglove(
+        self, replay: Replay, run: int, episode: int, t0: int, plan: list[dict[str, float]]
+    ) -> None:
+        """The run's mechanism, scene and `plan` (replay/foxglove.py), on the log's clock."""
         assert self.ocp is not None
         n = self.n_samples
         times = (t0 + np.arange(n)) / SAMPLE_RATE
@@ -194,7 +199,7 @@ class CampaignLog:
             ),
             foxglove.PLAN_TOPIC: (
                 (k, {"t": float(times[k]), **tags, "sample": k + 1, **row})
-                for k, row in enumerate(foxglove.plan_rows(self.ocp, replay.profile, replay.mode))
+                for k, row in enumerate(plan)
             ),
         }
         for topic, messages in streams.items():
