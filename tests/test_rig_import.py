@@ -184,8 +184,9 @@ def test_a_recording_names_what_is_missing(twin_data, tmp_path: Path) -> None:
         (MCAP_MAP.replace("t=log_time", "t=/motor.stamp"), "map t=log_time"),
         (MCAP_MAP.replace("/cmd.torque", "/cmd..torque"), "is not a field name"),
     ):
-        with pytest.raises(RigDataError, match=match):
+        with pytest.raises(RigDataError, match=match) as raised:
             import_table(recording, tmp_path / "o.mcap", spec=ImportSpec.parse(columns=columns))
+        assert "corrupt" not in str(raised.value)
     with pytest.raises(RigDataError, match="in s: map t=log_time, no unit"):
         spec = ImportSpec.parse(columns=MCAP_MAP, units="t=ms")
         import_table(recording, tmp_path / "o.mcap", spec=spec)

@@ -115,7 +115,9 @@ def read_mcap_columns(
                         raise error(f"{path}: {column!r} is not a number") from None
                     series[column][0].append(t)
                     series[column][1].append(value)
-        except (McapError, ValueError, EOFError, orjson.JSONDecodeError) as exc:
+        except error:  # a missing field or a word, named above (error is a ValueError too)
+            raise
+        except (McapError, ValueError, EOFError) as exc:  # orjson's errors are ValueErrors
             raise error(f"{path}: corrupt MCAP data ({' '.join(str(exc).split())[:120]})") from None
     base = np.array(series[theta][0])
     if base.size == 0:
