@@ -141,7 +141,9 @@ def write_dataset(
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def _open_reader(f, path: Path):
+def open_reader(f, path: Path):
+    """An MCAP reader and its summary for the open file `f`; ContractError naming `path` if it is
+    not an MCAP, was cut short or has no summary."""
     head = f.read(len(MCAP_MAGIC))
     if head != MCAP_MAGIC:
         raise ContractError(f"{path}: not an MCAP file (no MCAP magic at its start)")
@@ -171,7 +173,7 @@ def _check_path(path: str | Path) -> Path:
 def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     path = _check_path(path)
     with open(path, "rb") as f:
-        reader, summary = _open_reader(f, path)
+        reader, summary = open_reader(f, path)
         topics = {c.topic: c for c in summary.channels.values()}
         for required in (MEASUREMENT_TOPIC, topic):  # the truth channel only to read it
             if required not in topics:
@@ -216,7 +218,7 @@ def read_run(path: str | Path, *, required: bool = True) -> dict:
     without one if not `required` (another tool's measurements)."""
     path = _check_path(path)
     with open(path, "rb") as f:
-        reader, _ = _open_reader(f, path)
+        reader, _ = open_reader(f, path)
         for record in reader.iter_metadata():
             if record.name == RUN_METADATA:
                 try:
@@ -232,7 +234,7 @@ def has_model_xml(path: str | Path) -> bool:
     """Whether a dataset file carries its twin's MJCF (rig data has none)."""
     path = _check_path(path)
     with open(path, "rb") as f:
-        _, summary = _open_reader(f, path)
+        _, summary = open_reader(f, path)
         return any(a.name == MODEL_ATTACHMENT for a in summary.attachment_indexes)
 
 
@@ -240,7 +242,7 @@ def read_model_xml(path: str | Path) -> str:
     """The MJCF attached to a dataset file as model.xml."""
     path = _check_path(path)
     with open(path, "rb") as f:
-        reader, _ = _open_reader(f, path)
+        reader, _ = open_reader(f, path)
         for attachment in reader.iter_attachments():
             if attachment.name == MODEL_ATTACHMENT:
                 return attachment.data.decode()

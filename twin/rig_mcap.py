@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from twin.mcap_dataset import MCAP_MAGIC
+from twin.mcap_dataset import open_reader
 
 LOG_TIME = "log_time"
 _COLUMN = re.compile(r"^(/[^.]*)\.(.+)$")
@@ -58,24 +58,15 @@ def read_mcap_columns(
     """The `columns` of a foreign MCAP on the time base of the `theta` column (module docstring).
 
     Raises:
-      error: not an MCAP, a topic or field that is not there, an encoding that cannot be read,
-        a value that is not a number.
+      ContractError: not an MCAP, or one cut short.
+      error: a topic or field that is not there, an encoding that cannot be read, a value that
+        is not a number.
     """
     from mcap.exceptions import McapError
-    from mcap.reader import make_reader
 
     with path.open("rb") as f:
-        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise error(f"{path}: not an MCAP file (no MCAP magic at its start)")
-        f.seek(0)
+        reader, summary = open_reader(f, path)  # ContractError if not a whole MCAP
         factories = _decoders()
-        reader = make_reader(f)
-        try:
-            summary = reader.get_summary()
-        except (McapError, ValueError, EOFError) as exc:
-            raise error(f"{path}: not a readable MCAP ({exc})") from None
-        if summary is None:
-            raise error(f"{path}: MCAP has no summary (was its writer interrupted?)")
         channels = {c.topic: c for c in summary.channels.values()}
         wanted: dict[str, list[tuple[str, list[str | int]]]] = {}
         for column in columns:
