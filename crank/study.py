@@ -123,8 +123,9 @@ def run_study(
     if out.exists() and not resume:
         raise ConfigError(f"study folder already exists: {out} (use --resume to continue it)")
     left = [s for s in seeds if not (out / f"seed-{s}" / "report.md").is_file()]
+    estimate = run_time(base)
     if on_estimate:
-        on_estimate(run_time(base), len(left))
+        on_estimate(estimate, len(left))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     started = time.perf_counter()
@@ -164,7 +165,7 @@ def run_study(
         "seeds": list(seeds),
         "config": base.as_dict(),
         "target_heldout_rate": TARGET_HELDOUT_RATE,
-        "estimated_seconds": (run_time(base)["total"] * len(seeds)).as_list(),
+        "estimated_seconds": (estimate["total"] * len(seeds)).as_list(),
         "rows": rows,
         "wall_s": time.perf_counter() - started,
     }
