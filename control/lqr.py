@@ -63,18 +63,26 @@ def linearise(
     return a, np.asarray(b.full()).T  # (steps, 2)
 
 
-def riccati_gains(a: np.ndarray, b: np.ndarray, weights: LQRWeights) -> np.ndarray:
-    """K_k (T, 2) of the finite-horizon recursion (module docstring) for A (T, 2, 2), B (T, 2)."""
+def riccati(a: np.ndarray, b: np.ndarray, weights: LQRWeights) -> tuple[np.ndarray, np.ndarray]:
+    """K_k (T, 2) and the cost-to-go P_k (T + 1, 2, 2), P_T = Q, of the finite-horizon recursion
+    (module docstring) for A (T, 2, 2), B (T, 2). The MPC (control/mpc.py) ends its horizon on
+    P, so that without active bounds it is this LQR on a linear system."""
     q = np.diag([weights.q_theta, weights.q_omega])
-    p = q.copy()
+    costs = np.empty((a.shape[0] + 1, 2, 2))
+    costs[-1] = p = q.copy()
     gains = np.empty((a.shape[0], 2))
     for k in range(a.shape[0] - 1, -1, -1):
         ak, bk = a[k], b[k]
         pb = p @ bk
         gains[k] = (pb @ ak) / (weights.r + bk @ pb)
         p = q + ak.T @ p @ (ak - np.outer(bk, gains[k]))
-        p = 0.5 * (p + p.T)
-    return gains
+        costs[k] = p = 0.5 * (p + p.T)
+    return gains, costs
+
+
+def riccati_gains(a: np.ndarray, b: np.ndarray, weights: LQRWeights) -> np.ndarray:
+    """K_k (T, 2) of the finite-horizon recursion (module docstring) for A (T, 2, 2), B (T, 2)."""
+    return riccati(a, b, weights)[0]
 
 
 def tracking_gains(

@@ -124,8 +124,10 @@ class Profile:
     wall_time_s: float
 
     def sigma_in(self, mode: str) -> np.ndarray:
-        """Monte-Carlo slider std of the plan played in `mode` (open or closed loop), (N,), m."""
-        return self.slider_sigma_closed if mode == "closed" else self.slider_sigma_open
+        """Monte-Carlo slider std of the plan played in `mode`, (N,), m: open loop, or closed
+        loop under the LQR gains ("closed"; also the prediction shown for "mpc", whose
+        unsaturated law is that LQR's: control/mpc.py)."""
+        return self.slider_sigma_closed if mode in ("closed", "mpc") else self.slider_sigma_open
 
 
 @dataclass(frozen=True)

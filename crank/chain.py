@@ -26,6 +26,7 @@ from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
 from control.config import OCPConfig, loop_of
+from control.mpc_config import MPCConfig
 from control.robust import Iteration
 from crank import stages
 from crank.estimate import Span, run_time
@@ -129,6 +130,7 @@ class RunConfig:
             gen["excitation"] = Excitation(**gen["excitation"])
             rep["variability"] = Variability.from_dict(rep["variability"])
             rep["modes"] = tuple(rep["modes"])
+            rep["mpc"] = MPCConfig(**rep.get("mpc", {}))  # runs of before the MPC: defaults
             options = {k: values[k] for k in ("seed", "heldout_runs", "heldout_seed")}
             options |= {k: values[k] for k in ("model_path", "baselines")}
             return cls(

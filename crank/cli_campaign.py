@@ -17,6 +17,7 @@ import typer
 
 from common.atomic import OutputError, check_suffix
 from common.errors import ConfigError
+from control.mpc_config import MPCConfig, MPCConfigError
 from crank.console import (
     HELDOUT_SEED,
     ModelPath,
@@ -26,7 +27,7 @@ from crank.console import (
     print_heldout,
     print_replay,
 )
-from replay.config import PROFILES, ReplayConfig, ReplayConfigError
+from replay.config import MODES, PROFILES, ReplayConfig, ReplayConfigError
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -36,8 +37,52 @@ def _modes(text: str) -> tuple[str, ...]:
     return tuple(part.strip() for part in text.split(",") if part.strip())
 
 
+MPCHorizon = Annotated[
+    int, typer.Option("--mpc-horizon", help="mpc mode: samples predicted at each step.")
+]
+MPCWeights = Annotated[
+    str,
+    typer.Option(
+        "--mpc-weights",
+        help="mpc mode: q_theta,q_omega,r of the tracking cost (default: the LQR's, Bryson's "
+        "rule on 20 mrad, 1 rad/s, 1 N·m).",
+    ),
+]
+MPCDeadline = Annotated[
+    float, typer.Option("--mpc-deadline-ms", help="mpc mode: compute time allowed per step.")
+]
+PPANNPath = Annotated[
+    Path | None,
+    typer.Option(
+        "--ppann", help="mpc mode: the PPANN checkpoint (default: the one ocp.json names)."
+    ),
+]
+_MPC = MPCConfig()
+DEFAULT_WEIGHTS = f"{_MPC.q_theta:g},{_MPC.q_omega:g},{_MPC.r:g}"
+
+
+def mpc_config(*, horizon: int, weights: str, deadline_ms: float) -> MPCConfig:
+    """The MPC settings of --mpc-horizon, --mpc-weights and --mpc-deadline-ms."""
+    parts = [p.strip() for p in weights.split(",")]
+    try:
+        q_theta, q_omega, r = (float(p) for p in parts)
+    except ValueError:
+        raise MPCConfigError(
+            f"--mpc-weights must be three numbers q_theta,q_omega,r, got {weights!r}"
+        ) from None
+    return MPCConfig(
+        horizon=horizon, q_theta=q_theta, q_omega=q_omega, r=r, deadline=deadline_ms / 1e3
+    )
+
+
 def replay_campaign(
-    *, ocp: Path, out: Path, config: ReplayConfig, model: Path, resolved: dict[str, Any]
+    *,
+    ocp: Path,
+    out: Path,
+    config: ReplayConfig,
+    model: Path,
+    ppann: Path | None,
+    resolved: dict[str, Any],
 ) -> dict[str, Any]:
     """`replay_file` with a progress bar over the runs."""
     from replay.files import replay_file
@@ -52,7 +97,13 @@ def replay_campaign(
             done = n
 
         return replay_file(
-            ocp, out, config=config, model_path=model, resolved=resolved, on_run=on_run
+            ocp,
+            out,
+            config=config,
+            model_path=model,
+            resolved=resolved,
+            on_run=on_run,
+            ppann=ppann,
         )
 
 
@@ -67,7 +118,12 @@ def replay_command(
     out: Annotated[Path, typer.Option(help="Campaign log MCAP to write.")] = Path(
         "logs/replay.mcap"
     ),
-    modes: Annotated[str, typer.Option(help="open, closed or open,closed.")] = "open,closed",
+    modes: Annotated[
+        str,
+        typer.Option(
+            help="Any of open, closed and mpc (the online MPC on the PPANN), comma-separated."
+        ),
+    ] = "open,closed",
     feedback: Annotated[
         str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
     ] = ReplayConfig.feedback,
@@ -86,12 +142,18 @@ def replay_command(
         ),
     ] = None,
     model: ModelPath = MODEL_PATH,
+    ppann: PPANNPath = None,
+    mpc_horizon: MPCHorizon = _MPC.horizon,
+    mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
+    mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
 ) -> None:
-    """Play the nominal and robust torque on freshly drawn twins, open and closed loop: the
-    campaign MCAP, <stem>.stats.json, <stem>.png (Fig. 12) and <stem>.rrd (Rerun)."""
+    """Play the nominal and robust torque on freshly drawn twins, open and closed loop (and
+    under the online MPC with --modes …,mpc): the campaign MCAP, <stem>.stats.json, <stem>.png
+    (Fig. 12) and <stem>.rrd (Rerun)."""
     from replay.files import ocp_variability
 
     check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
+    mpc = mpc_config(horizon=mpc_horizon, weights=mpc_weights, deadline_ms=mpc_deadline_ms)
     config = ReplayConfig(
         runs=runs,
         seed=seed,
@@ -103,6 +165,7 @@ def replay_command(
         variability=(
             ocp_variability(ocp) if variability is None else Variability.resolve(variability)
         ),
+        mpc=mpc,
     )
     resolved = {
         "command": "crank replay",
@@ -110,9 +173,12 @@ def replay_command(
         "ocp": str(ocp),
         "replay": config.as_dict(),
         "model": str(model),
+        "ppann": None if ppann is None else str(ppann),
         "project_version": __version__,
     }
-    stats = replay_campaign(ocp=ocp, out=out, config=config, model=model, resolved=resolved)
+    stats = replay_campaign(
+        ocp=ocp, out=out, config=config, model=model, ppann=ppann, resolved=resolved
+    )
     print_replay(stats, out)
 
 
@@ -131,9 +197,16 @@ def heldout_command(
         typer.Option(help="Scenario or range file (default: the one in ocp.json)."),
     ] = None,
     mode: Annotated[
-        str, typer.Option(help="open, or closed (each profile's LQR gains from ocp.json).")
+        str,
+        typer.Option(
+            help="open, closed (each profile's LQR gains from ocp.json) or mpc (the online MPC "
+            "on --model)."
+        ),
     ] = "open",
     mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
+    mpc_horizon: MPCHorizon = _MPC.horizon,
+    mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
+    mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
 ) -> None:
     """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
     with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
@@ -141,8 +214,9 @@ def heldout_command(
     from replay.heldout import heldout_file
 
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
-    if mode not in ("open", "closed"):
-        raise ReplayConfigError(f"mode must be open or closed, got {mode!r}")
+    if mode not in MODES:
+        raise ReplayConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    mpc = mpc_config(horizon=mpc_horizon, weights=mpc_weights, deadline_ms=mpc_deadline_ms)
     ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
@@ -154,6 +228,7 @@ def heldout_command(
         variability=chosen,
         mode=mode,
         model_path=mjcf,
+        mpc=mpc,
     )
     print_heldout(result)
     typer.echo(f"wrote {out}")

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from common.errors import ConfigError, CrankError
 from control.config import OCPConfig
+from control.mpc_config import MPCConfig
 from crank.console import HELDOUT_RUNS, HELDOUT_SEED
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig
@@ -60,7 +61,10 @@ def defaults() -> dict[str, Any]:
         },
         "train": _field_defaults(TrainConfig, skip=(SEEDED["train"],)),
         "ocp": _field_defaults(OCPConfig, skip=(SEEDED["ocp"],)),
-        "replay": _field_defaults(ReplayConfig, skip=(SEEDED["replay"], "variability")),
+        "replay": {
+            **_field_defaults(ReplayConfig, skip=(SEEDED["replay"], "variability")),
+            "mpc": _field_defaults(MPCConfig),
+        },
     }
 
 
@@ -142,6 +146,7 @@ def build(values: dict[str, Any], *, source: str = "config") -> RunConfig:
         excitation = Excitation(**gen.pop("excitation"))
         replay = dict(values["replay"])
         replay["modes"] = tuple(replay["modes"])
+        replay["mpc"] = MPCConfig(**replay["mpc"])
         return RunConfig.for_seed(
             values["seed"],
             generation={**gen, "variability": variability, "excitation": excitation},

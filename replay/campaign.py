@@ -14,6 +14,10 @@ Modes:
           torque limit, computed at every 2 ms sample from the state at t_k only. K_k are the
           profile's LQR gains from ocp.json (`feedback="lqr"`, the default; control/lqr.py),
           or a fixed PD (`feedback="pd"`: K_p, K_d).
+  mpc     an online MPC on the PPANN mean tracking the profile (control/mpc.py): one
+          real-time iteration per machine per 2 ms sample, inside the twin's stepping loop,
+          from the measured (θ, ω); each step's compute time is recorded (`MPCRecord`), and a
+          step over the deadline applies the shifted previous solution.
 
 Random streams (common/streams.py): replay_machines spawns one child per run (machine, start
 time), replay_noise one per run (disturbance); changing the number of runs leaves the first runs
@@ -25,15 +29,20 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from common.streams import stream
+from control.mpc_config import MPCConfigError
 from control.ocp_file import OCPFile, Profile
 from replay.config import PROFILES, ReplayConfig
 from twin.physics import SliderCrank
 from twin.stepping import simulate
 from twin.variability import MachineDraw
+
+if TYPE_CHECKING:
+    from ppann.model import PPANN
 
 
 @dataclass(frozen=True)
@@ -45,6 +54,20 @@ class Machines:
     """Seconds each machine has run before its replay, (runs,)."""
     disturbance: np.ndarray
     """Slider force per sample, (runs, n_samples)."""
+
+
+@dataclass(frozen=True)
+class MPCRecord:
+    """Every MPC step of a replay, (runs, n_samples): one per machine per sample, but none at
+    the last sample (no state of the plan is left to predict; the plan's torque is applied)."""
+
+    seconds: np.ndarray
+    """Compute time of the step, s (NaN where there was no step)."""
+    missed: np.ndarray
+    """The step overran the deadline and the shifted previous solution was applied."""
+    qp_iterations: np.ndarray
+    horizon: int
+    deadline: float
 
 
 @dataclass(frozen=True)
@@ -64,6 +87,8 @@ class Replay:
     loop_closure_error: np.ndarray
     disturbance: np.ndarray
     friction: dict[str, np.ndarray]
+    mpc: MPCRecord | None = None
+    """What the MPC's steps took (mpc mode only)."""
 
     @property
     def runs(self) -> int:
@@ -118,6 +143,48 @@ def tracking_law(
     return law
 
 
+def mpc_law(
+    physics: SliderCrank, ocp: OCPFile, profile: Profile, model: PPANN, config: ReplayConfig
+) -> tuple[Callable[[int, np.ndarray], np.ndarray], MPCRecord]:
+    """One online MPC per machine, tracking `profile` on the PPANN mean, and the record its
+    steps fill in as the twin calls the law (control/mpc.py)."""
+    from control.dynamics import CasadiPPANN  # CasADi: only when an MPC is played
+    from control.mpc import TrackingMPC
+
+    controller = TrackingMPC(
+        CasadiPPANN(model).step,
+        states=np.stack([profile.theta, profile.omega], axis=-1),
+        tau=profile.tau,
+        torque_limit=ocp.config.torque_limit,
+        config=config.mpc,
+    )
+    shape = (config.runs, ocp.horizon)
+    record = MPCRecord(
+        seconds=np.full(shape, np.nan),
+        missed=np.zeros(shape, dtype=bool),
+        qp_iterations=np.zeros(shape, dtype=int),
+        horizon=config.mpc.horizon,
+        deadline=config.mpc.deadline,
+    )
+    guesses = np.tile(controller.start(), (config.runs, 1))
+
+    def law(k: int, states: np.ndarray) -> np.ndarray:
+        theta = physics.qpos(states, "motor")
+        omega = physics.qvel(states, "motor")
+        out = np.zeros(config.runs)
+        if k >= ocp.horizon - 1:
+            return out  # after the last state of the plan: its last torque
+        for i in range(config.runs):
+            step, guesses[i] = controller.step(k, np.array([theta[i], omega[i]]), guesses[i])
+            out[i] = step.torque - profile.tau[k]
+            record.seconds[i, k] = step.seconds
+            record.missed[i, k] = step.missed
+            record.qp_iterations[i, k] = step.qp_iterations
+        return out
+
+    return law, record
+
+
 def play(
     physics: SliderCrank,
     ocp: OCPFile,
@@ -127,8 +194,10 @@ def play(
     machines: Machines,
     config: ReplayConfig,
     nthread: int | None = None,
+    model: PPANN | None = None,
 ) -> Replay:
-    """Play one profile of `ocp` on every machine, open or closed loop, in one native batch.
+    """Play one profile of `ocp` on every machine, open or closed loop or under the MPC, in one
+    native batch (`model`: the PPANN the MPC predicts with, needed in mpc mode only).
 
     Each machine's friction is evaluated once, at the middle of its replay (the warm-up time
     constant, 20 s, is 70× the 0.3 s replay).
@@ -136,9 +205,13 @@ def play(
     chosen: Profile = getattr(ocp, profile)
     n_runs, n_samples = config.runs, ocp.horizon
     state0 = physics.initial_state(ocp.config.theta_start, ocp.config.omega_start)
-    feedback = None
+    feedback, record = None, None
     if mode == "closed":
         feedback = tracking_law(physics, chosen, config)
+    elif mode == "mpc":
+        if model is None:
+            raise MPCConfigError("the mpc mode needs the PPANN the plan was solved on")
+        feedback, record = mpc_law(physics, ocp, chosen, model, config)
     runs = simulate(
         physics,
         config.variability,
@@ -166,6 +239,7 @@ def play(
         loop_closure_error=physics.loop_closure_error(sd),
         disturbance=runs.disturbance,
         friction=runs.friction,
+        mpc=record,
     )
 
 
@@ -177,6 +251,7 @@ def run_campaign(
     machines: Machines | None = None,
     nthread: int | None = None,
     on_replay: Callable[[Replay], None] | None = None,
+    model: PPANN | None = None,
 ) -> Campaign:
     """Play both profiles in every configured mode on the same machines (default: drawn from
     the config's seed); `on_replay` sees each (profile, mode) as soon as it is simulated (the
@@ -195,6 +270,7 @@ def run_campaign(
                 machines=machines,
                 config=config,
                 nthread=nthread,
+                model=model,
             )
             simulating += time.perf_counter() - started
             replays[profile, mode] = replay

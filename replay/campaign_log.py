@@ -6,8 +6,11 @@ across episodes, a `run` metadata record and `model.xml`, so `read_dataset` load
 
   run       index of the machine (0..runs-1), the same machine in every profile and mode
   profile   "nominal" or "robust"
-  mode      "open" or "closed"
+  mode      "open", "closed" or "mpc"
   sample    the OCP's 1-based sample k (t within the run = (k - 1) Ts)
+
+An mpc replay adds the channel `/slider_crank/mpc` (MPC_TOPIC): per sample, the MPC step's
+compute time, whether it missed its deadline, and its QP's active-set steps.
 
 Records: metadata `run` (the campaign: seed, config, versions; written and flushed first), one
 metadata `replay_run` per completed run (episode, run, profile, mode, machine draw, start time),
@@ -56,12 +59,22 @@ from twin.mcap_dataset import (
 from twin.physics import SAMPLE_RATE, SliderCrank
 
 REPLAY_RUN_METADATA = "replay_run"
+MPC_TOPIC = "/slider_crank/mpc"
+"""The online MPC's steps (mpc mode): per sample its compute time, deadline miss, QP steps."""
+MPC_FIELDS = {
+    "step_ms": {"type": "number", "description": "compute time of the MPC step, ms"},
+    "missed": {
+        "type": "boolean",
+        "description": "over the deadline: the shifted previous solution was applied",
+    },
+    "qp_iterations": {"type": "integer", "description": "active-set steps of the box QP"},
+}
 OCP_ATTACHMENT = "ocp.json"
 CONFIG_ATTACHMENT = "config.json"
 TAGS = {
     "run": {"type": "integer", "description": "machine index, shared by all profiles and modes"},
     "profile": {"type": "string", "description": "torque profile: nominal or robust"},
-    "mode": {"type": "string", "description": "open loop or closed loop (feedforward + PD)"},
+    "mode": {"type": "string", "description": "open, closed (plan + LQR or PD) or mpc"},
     "sample": {"type": "integer", "description": "the OCP's 1-based sample k, t_k = (k - 1) Ts"},
 }
 
@@ -158,6 +171,8 @@ class CampaignLog:
                     )
             if plan is not None:
                 self._write_foxglove(replay, run, episode, t0, plan)
+            if replay.mpc is not None:
+                self._write_mpc(replay, run, {"episode": episode, **tags}, t0)
             self.writer.flush()  # the run's chunk reaches the file before its record
             record = {
                 "episode": episode,
@@ -172,6 +187,36 @@ class CampaignLog:
             self.episodes += 1
             if on_run is not None:
                 on_run(self.episodes)
+
+    def _write_mpc(self, replay: Replay, run: int, tags: dict[str, Any], t0: int) -> None:
+        """The run's MPC steps on MPC_TOPIC (the channel is registered on first use)."""
+        assert replay.mpc is not None
+        if MPC_TOPIC not in self.channels:
+            schema = message_schema("MPCStep", ("t", "episode"), extra=TAGS | MPC_FIELDS)
+            schema_id = self.writer.register_schema("MPCStep", "jsonschema", schema)
+            self.channels[MPC_TOPIC] = self.writer.register_channel(MPC_TOPIC, "json", schema_id)
+        record = replay.mpc
+        seconds, missed, iterations = (
+            a[run].tolist() for a in (record.seconds, record.missed, record.qp_iterations)
+        )
+        for k in range(self.n_samples):
+            if seconds[k] != seconds[k]:  # NaN: no step at this sample
+                continue
+            t = (t0 + k) / SAMPLE_RATE
+            message = {"t": t, **tags, "sample": k + 1, "step_ms": 1e3 * seconds[k]}
+            message |= {"missed": missed[k], "qp_iterations": iterations[k]}
+            self._add(MPC_TOPIC, t, t0 + k, message)
+
+    def _add(self, topic: str, t: float, sequence: int, message: dict[str, Any]) -> None:
+        """One message on `topic` at log time t (s)."""
+        log_time = round(t * 1e9)
+        self.writer.add_message(
+            self.channels[topic],
+            log_time=log_time,
+            publish_time=log_time,
+            sequence=sequence,
+            data=orjson.dumps(message),
+        )
 
     def _write_foxglove(
         self, replay: Replay, run: int, episode: int, t0: int, plan: list[dict[str, float]]
@@ -204,14 +249,7 @@ class CampaignLog:
         }
         for topic, messages in streams.items():
             for k, message in messages:
-                log_time = round(float(times[k]) * 1e9)
-                self.writer.add_message(
-                    self.channels[topic],
-                    log_time=log_time,
-                    publish_time=log_time,
-                    sequence=t0 + k,
-                    data=orjson.dumps(message),
-                )
+                self._add(topic, float(times[k]), t0 + k, message)
 
     def finish(self) -> Path:
         """Write the summary and index, and move the log to `out`."""

@@ -8,10 +8,12 @@ from dataclasses import asdict, dataclass, field
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
 from common.resources import check_memory
+from control.mpc_config import MPCConfig
 from twin.variability import Variability
 
 PROFILES = ("nominal", "robust")
-MODES = ("open", "closed")
+MODES = ("open", "closed", "mpc")
+DEFAULT_MODES = ("open", "closed")
 FEEDBACKS = ("lqr", "pd")
 MAX_RUNS = 100_000
 
@@ -45,7 +47,9 @@ class ReplayConfig:
 
     runs: int = 100
     seed: int = 0
-    modes: tuple[str, ...] = MODES
+    modes: tuple[str, ...] = DEFAULT_MODES
+    """open (the torque as planned), closed (plan + LQR or PD), mpc (the online MPC, opt-in:
+    it needs the PPANN the plan was solved on)."""
     feedback: str = "lqr"
     """Closed loop: "lqr" (the profile's gains) or "pd" (kp, kd)."""
     kp: float = 20.0
@@ -55,6 +59,8 @@ class ReplayConfig:
     max_start_time: float = 60.0
     """Each machine has run U[0, max_start_time] s before its replay (warm-up drift), s."""
     variability: Variability = field(default_factory=Variability)
+    mpc: MPCConfig = field(default_factory=MPCConfig)
+    """The online MPC of the mpc mode (control/mpc.py)."""
 
     def __post_init__(self) -> None:
         check_count("runs", self.runs, high=MAX_RUNS, error=ReplayConfigError)

@@ -33,24 +33,26 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             s = stats["profiles"][profile][mode]
             ax.plot(t, replay.slider_position.T, color=color, lw=0.4, alpha=0.35)
             lower, upper = predicted_band(planned, mode, k, geometry=ocp.geometry)
-            ax.fill_between(
-                t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({mode} loop)"
-            )
+            loop = "LQR loop" if mode == "mpc" else f"{mode} loop"
+            ax.fill_between(t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({loop})")
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
             for side, label in (("lower", f"twin ±{k:g}σ (within the stroke)"), ("upper", None)):
                 ax.plot(t, top(s["slider"][side]), "k--", lw=0.8, label=label)
             constraint_boxes(ax, ocp)
-            if mode == "closed":  # feedback keeps every run near the plan: show the constraint
+            if mode != "open":  # feedback keeps every run near the plan: show the constraint
                 ax.set_ylim(ocp.config.height - 0.005, ocp.geometry.stroke_top + 0.002)
             else:
                 ax.set_ylim(-0.005, ocp.geometry.stroke_top + 0.005)
             shown = ", ".join(f"{v} at k={n}" for n, v in s["violations"].items())
-            ax.set_title(f"{profile}, {mode} loop: {shown} of {s['runs']} below", fontsize=10)
+            title = f"{mode} loop"
+            if "mpc" in s:
+                title = f"MPC, {s['mpc']['median_ms']:.2f} ms/step"
+            ax.set_title(f"{profile}, {title}: {shown} of {s['runs']} below", fontsize=10)
             ax.set_ylabel("slider position [m]")
             if row == 0 and col == 0:
                 ax.legend(loc="lower right", fontsize=7)
         ax = axes[-1, col]
-        for mode, style in zip(modes, ("-", ":"), strict=False):
+        for mode, style in zip(modes, ("-", ":", "--"), strict=False):
             applied = campaign.replays[profile, mode].tau
             ax.fill_between(t, applied.min(axis=0), applied.max(axis=0), color=color, alpha=0.2)
             ax.plot(
@@ -59,7 +61,7 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
                 style,
                 color=color,
                 lw=1,
-                label=f"{mode} loop (mean, range)",
+                label=f"{'MPC' if mode == 'mpc' else mode + ' loop'} (mean, range)",
             )
         ax.plot(t, planned.tau, color="k", lw=1, label="planned")
         ax.set_ylabel("τ applied [N·m]")

@@ -11,12 +11,13 @@ import json
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from common.atomic import check_writable, writes
 from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path
+from control.mpc_config import check_fits
 from control.ocp_file import OCPFileError, read_ocp
 from replay.campaign import Replay, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
@@ -27,6 +28,9 @@ from replay.statistics import campaign_statistics, write_statistics
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
 from twin.rig_import import RIG_SCENARIO
 from twin.variability import Variability
+
+if TYPE_CHECKING:
+    from ppann.model import PPANN
 
 
 def output_paths(out: str | Path) -> dict[str, Path]:
@@ -39,6 +43,43 @@ def output_paths(out: str | Path) -> dict[str, Path]:
         "figure": Path(f"{stem}.png"),
         "rrd": Path(f"{stem}.rrd"),
     }
+
+
+def plan_model(ocp_path: str | Path, *, override: str | Path | None = None) -> PPANN:
+    """The PPANN an ocp.json was solved on (the mpc mode predicts with it): the checkpoint it
+    names (relative to its folder), or `override`, which must be that same file (sha256).
+
+    Raises:
+      CheckpointError: the checkpoint is missing, another file than the plan's, or not a PPANN.
+    """
+    import hashlib
+
+    from ppann.checkpoint import CheckpointError, load
+    from ppann.model import PPANN
+
+    record = read_ocp(ocp_path).raw.get("model") or {}
+    if override is not None:
+        path = Path(override)
+    elif "path" in record:
+        named = Path(record["path"])
+        path = named if named.is_absolute() else Path(ocp_path).parent / named
+    else:
+        raise CheckpointError(f"{ocp_path} names no checkpoint; give the PPANN with --ppann")
+    if not path.is_file():
+        raise CheckpointError(
+            f"the mpc mode predicts with the PPANN {ocp_path} was solved on, and {path} is not "
+            "there (give it with --ppann)"
+        )
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if record.get("sha256") not in (None, digest):
+        raise CheckpointError(
+            f"{path} is not the checkpoint {ocp_path} was solved on (sha256 {digest[:12]}…, "
+            f"the plan's {record['sha256'][:12]}…)"
+        )
+    model, payload = load(path)
+    if not isinstance(model, PPANN):
+        raise CheckpointError(f"{path}: a {payload['kind']} model; the MPC needs a PPANN")
+    return model
 
 
 def ocp_variability(ocp_path: str | Path) -> Variability:
@@ -60,7 +101,7 @@ def ocp_variability(ocp_path: str | Path) -> Variability:
     return Variability.from_dict(raw)
 
 
-@writes("out", inputs=("ocp_path", "model_path"), suffix=".mcap")
+@writes("out", inputs=("ocp_path", "model_path", "ppann"), suffix=".mcap")
 def replay_file(
     ocp_path: str | Path,
     out: str | Path,
@@ -70,10 +111,12 @@ def replay_file(
     resolved: dict[str, Any] | None = None,
     nthread: int | None = None,
     on_run: Callable[[int], None] | None = None,
+    ppann: str | Path | None = None,
 ) -> dict[str, Any]:
     """Play both profiles of `ocp_path` in every mode of `config`; write the campaign's files.
 
     Args:
+      ppann: the checkpoint the mpc mode predicts with (default: the one ocp.json names).
       resolved: the command's resolved configuration, attached to the log as config.json
         (default: the replay config).
       on_run: called with the number of runs logged so far (all profiles and modes).
@@ -88,6 +131,10 @@ def replay_file(
     for path in paths.values():
         check_writable(path)
     check_not_partial(out)
+    predictor = None
+    if "mpc" in config.modes:
+        check_fits(config.mpc, ocp.horizon)
+        predictor = plan_model(ocp_path, override=ppann)
     model, model_xml = load_model(model_path)
     physics = SliderCrank(model)
     ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that=f"the twin {model_path}")
@@ -122,7 +169,13 @@ def replay_file(
             logging += time.perf_counter() - t0
 
         campaign = run_campaign(
-            physics, ocp, config=config, machines=machines, nthread=nthread, on_replay=write
+            physics,
+            ocp,
+            config=config,
+            machines=machines,
+            nthread=nthread,
+            on_replay=write,
+            model=predictor,
         )
         t0 = time.perf_counter()
         log.finish()

@@ -15,11 +15,12 @@ in every Monte-Carlo mode (same torque, same start state), and the same for θ a
 
   format, version        "crank-heldout", 1
   runs, seed, streams    machines per profile, root seed, and the stream tree
-  mode                   open or closed (loop the profiles were played in)
+  mode                   open, closed or mpc (loop the profiles were played in)
   variability, max_start_time
   mc_samples             trajectories of each predicted σ
   target_rate            0.005: the robust profile's allowed violation rate
   profiles.<nominal|robust>:
+    mpc                  (mpc mode) the MPC steps' compute times, as in replay.stats.json
     violating_runs, rate, rate_upper_95
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_quantile (at Φ(-k_sigma)), skew,
@@ -43,6 +44,7 @@ from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
 from control.config import lower_tail
+from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
@@ -51,6 +53,7 @@ from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
 from replay.campaign import draw_machines, play
 from replay.config import PROFILES, ReplayConfig, check_campaign_memory
+from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
@@ -82,8 +85,11 @@ def heldout_check(
     max_start_time: float = 60.0,
     mc_samples: int = 1000,
     mode: str = "open",
+    mpc: MPCConfig | None = None,
 ) -> dict[str, Any]:
     """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content.
+    In mpc mode each machine runs the online MPC on `model` (settings `mpc`), and the prediction
+    beside it is the LQR closed loop's (the MPC's law while no bound is active).
 
     Raises:
       GeometryError: the plan, the model and the twin are not all of one mechanism.
@@ -97,6 +103,7 @@ def heldout_check(
         modes=(mode,),
         variability=variability,
         max_start_time=max_start_time,
+        mpc=mpc if mpc is not None else MPCConfig(),
     )
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
@@ -119,11 +126,13 @@ def heldout_check(
     simulate_s = mc_s = 0.0
     for profile in PROFILES:
         t0 = time.perf_counter()
-        replay = play(physics, ocp, profile=profile, mode=mode, machines=machines, config=config)
+        replay = play(
+            physics, ocp, profile=profile, mode=mode, machines=machines, config=config, model=model
+        )
         simulate_s += time.perf_counter() - t0
         planned = getattr(ocp, profile)
         feedback = None
-        if mode == "closed":
+        if mode in ("closed", "mpc"):
             feedback = Feedback(
                 np.stack([planned.theta, planned.omega], axis=-1),
                 np.stack([planned.gain_theta, planned.gain_omega], axis=-1),
@@ -177,6 +186,7 @@ def heldout_check(
         theta_observed = float(replay.theta[:, -1].std(ddof=1))
         violating = int(below.sum())
         out["profiles"][profile] = {
+            **({} if replay.mpc is None else {"mpc": mpc_timing(replay)}),
             "violating_runs": violating,
             "rate": violating / runs,
             "rate_upper_95": rate_upper(violating, runs),
@@ -209,10 +219,14 @@ def heldout_file(
     max_start_time: float = 60.0,
     mode: str = "open",
     model_path: str | Path = MODEL_PATH,
+    mpc: MPCConfig | None = None,
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
     check_writable(out)
-    check_campaign_memory(runs, modes=1, horizon=read_ocp(ocp_path).horizon, held_out=True)
+    horizon = read_ocp(ocp_path).horizon
+    check_campaign_memory(runs, modes=1, horizon=horizon, held_out=True)
+    if mode == "mpc":
+        check_fits(mpc if mpc is not None else MPCConfig(), horizon)
     ppann, payload = load(model)
     if not isinstance(ppann, PPANN):
         raise CheckpointError(
@@ -228,6 +242,7 @@ def heldout_file(
         variability=variability,
         max_start_time=max_start_time,
         mode=mode,
+        mpc=mpc,
     )
     result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder
     write_json(out, result)

@@ -19,6 +19,12 @@
     final_error           {theta, omega}: each {mean, std, max_abs} of the measured state minus
                           the OCP's θ_N, ω_N at sample N
     effort                {applied_mean, applied_std, planned}: Σ u_k² over the N samples
+    tracking              {theta_rms, omega_rms}: RMS over runs and samples of the measured
+                          state minus the plan's, rad and rad/s; saturated_share: the share of
+                          samples whose applied torque sits at the torque limit
+    mpc                   (mpc mode) {horizon, deadline_ms, steps, median_ms, p99_ms, max_ms,
+                          deadline_misses, qp_iterations_max}: compute time of one machine's
+                          MPC step
     slider                {mean, lower, upper}: per-sample mean and mean ∓ k·σ over the runs, m
   timing                  {simulate_s, log_s, rerun_s, total_s}: seconds simulating, writing
                           the MCAP, writing the .rrd, and in all (figures included)
@@ -52,6 +58,24 @@ def _spread(values: np.ndarray) -> dict[str, float]:
     }
 
 
+def mpc_timing(replay: Replay) -> dict[str, Any] | None:
+    """The MPC steps' compute times (stats key `mpc`), or None outside the mpc mode."""
+    record = replay.mpc
+    if record is None:
+        return None
+    ms = 1e3 * record.seconds[np.isfinite(record.seconds)]
+    return {
+        "horizon": record.horizon,
+        "deadline_ms": 1e3 * record.deadline,
+        "steps": int(ms.size),
+        "median_ms": float(np.median(ms)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "max_ms": float(ms.max()),
+        "deadline_misses": int(record.missed.sum()),
+        "qp_iterations_max": int(record.qp_iterations.max()),
+    }
+
+
 def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
     """The statistics of one profile in one mode (keys as in the module docstring)."""
     c = ocp.config
@@ -75,6 +99,8 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "clearance": float(at.min() - c.height),
         }
     effort = np.sum(replay.tau**2, axis=1)
+    limit = c.torque_limit
+    extra = {} if replay.mpc is None else {"mpc": mpc_timing(replay)}
     return {
         "runs": replay.runs,
         "violations": violations,
@@ -89,6 +115,12 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "applied_std": float(effort.std(ddof=ddof)),
             "planned": float(np.sum(planned.tau**2)),
         },
+        "tracking": {
+            "theta_rms": float(np.sqrt(np.mean((replay.theta - planned.theta) ** 2))),
+            "omega_rms": float(np.sqrt(np.mean((replay.omega - planned.omega) ** 2))),
+            "saturated_share": float(np.mean(np.abs(replay.tau) >= limit - 1e-9)),
+        },
+        **extra,
         "slider": {
             "mean": mean.tolist(),
             "lower": (mean - k * sigma).tolist(),
@@ -160,6 +192,13 @@ def summary_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
             theta = s["final_error"]["theta"]
             row["θ_N err rad"] = f"{theta['mean']:+.3f}±{theta['std']:.3f}"
             row["Σu² (plan)"] = f"{s['effort']['applied_mean']:.0f} ({s['effort']['planned']:.0f})"
+            if any("mpc" in m for m in stats["profiles"].values()):
+                step = s.get("mpc")
+                row["MPC step ms med/p99 (misses)"] = (
+                    f"{step['median_ms']:.2f}/{step['p99_ms']:.2f} ({step['deadline_misses']})"
+                    if step
+                    else ""
+                )
             rows.append(row)
     return rows
 

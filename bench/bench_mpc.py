@@ -1,0 +1,103 @@
+"""Benchmark: the online MPC's per-step compute time (median, p99, max; target median < 2 ms, real
+time at 500 Hz) at several horizons, beside one IPOPT nominal solve of the same model in the same
+run, and the MPC campaign on the twin against the LQR closed loop and open loop.
+
+    python bench/bench_mpc.py --ocp logs/<run>/ocp.json [--model logs/<run>/model.pt]
+                              [--horizons 10,30,60] [--runs 20]
+
+The per-step times are of one machine's controller (one RTI step: the rollout with sensitivities
+in CasADi's SX virtual machine, the condensed QP and its box active set in NumPy), measured as
+the twin's closed loop calls it, on this process's one thread; nothing else should run beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from control.mpc_config import MPCConfig
+from control.ocp import NominalOCP
+from control.ocp_file import read_ocp
+from replay.campaign import draw_machines, play
+from replay.config import ReplayConfig
+from replay.files import ocp_variability, plan_model
+from replay.statistics import mpc_timing
+from twin.physics import SliderCrank, load_model
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ocp", required=True, help="ocp.json of a crank run")
+    parser.add_argument("--model", default=None, help="its PPANN (default: the one it names)")
+    parser.add_argument("--horizons", default="10,30,60")
+    parser.add_argument("--runs", type=int, default=20, help="machines per campaign")
+    parser.add_argument("--repeat", type=int, default=3, help="IPOPT solves (median)")
+    args = parser.parse_args()
+    model = plan_model(args.ocp, override=args.model)
+    ocp = read_ocp(args.ocp)
+    physics = SliderCrank(load_model()[0])
+
+    nominal = NominalOCP(model, ocp.config)
+    solves, iterations = [], 0
+    for _ in range(args.repeat):
+        started = time.perf_counter()
+        solution = nominal.solve()
+        solves.append(time.perf_counter() - started)
+        iterations = solution.iterations
+    ipopt = statistics.median(solves)
+    print(f"model: {args.ocp} (horizon {ocp.horizon}, profile robust)")
+    print(
+        f"IPOPT nominal solve (full, cold start), median of {args.repeat}: {ipopt * 1e3:.0f} ms, "
+        f"{iterations} iterations, {ipopt / max(iterations, 1) * 1e3:.1f} ms per iteration"
+    )
+
+    base = ReplayConfig(runs=args.runs, seed=1, variability=ocp_variability(args.ocp))
+    machines = draw_machines(base, ocp.horizon)
+    rows = []
+    for mode in ("open", "closed"):
+        config = replace(base, modes=(mode,))
+        started = time.perf_counter()
+        replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
+        rows.append((mode, time.perf_counter() - started, replay, None))
+    for horizon in (int(h) for h in args.horizons.split(",")):
+        config = replace(base, modes=("mpc",), mpc=MPCConfig(horizon=horizon))
+        started = time.perf_counter()
+        replay = play(
+            physics,
+            ocp,
+            profile="robust",
+            mode="mpc",
+            machines=machines,
+            config=config,
+            model=model,
+        )
+        rows.append((f"mpc H={horizon}", time.perf_counter() - started, replay, mpc_timing(replay)))
+    print(
+        f"\n{'loop':<10} {'campaign s':>10} {'step median ms':>15} {'p99 ms':>8} {'max ms':>8} "
+        f"{'misses':>7} {'IPOPT/step':>10} {'θ rms mrad':>11} {'lowest mm':>10}"
+    )
+    c = ocp.config
+    for label, seconds, replay, timing in rows:
+        lowest = min(replay.slider_position[:, k - 1].min() for k in c.constraint_samples)
+        rms = 1e3 * float(np.sqrt(np.mean((replay.theta - ocp.robust.theta) ** 2)))
+        if timing is None:
+            cells = f"{'':>15} {'':>8} {'':>8} {'':>7} {'':>10}"
+        else:
+            cells = (
+                f"{timing['median_ms']:>15.3f} {timing['p99_ms']:>8.3f} {timing['max_ms']:>8.3f} "
+                f"{timing['deadline_misses']:>7} {ipopt * 1e3 / timing['median_ms']:>9.0f}×"
+            )
+        print(f"{label:<10} {seconds:>10.2f} {cells} {rms:>11.1f} {1e3 * lowest:>10.1f}")
+    print(
+        f"\n{args.runs} machines × {ocp.horizon - 1} steps per campaign; deadline "
+        f"{1e3 * MPCConfig().deadline:g} ms; the IPOPT column is one nominal solve over the "
+        "median MPC step."
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,165 @@
+"""Online MPC on the PPANN mean: one real-time iteration per 2 ms sample (beyond the paper).
+
+At every sample k the controller sees the measured state x_k (encoder angle and speed) and
+solves, over the next H samples, the tracking problem of the profile it follows,
+
+    min  sum_{j=1..H-1} dx_{k+j}^T Q dx_{k+j} + dx_{k+H}^T P_{k+H} dx_{k+H}
+           + r sum_{j=0..H-1} du_{k+j}^2
+    s.t. x_{k+j+1} = f(x_{k+j}, u_{k+j}),  |u| <= torque limit,
+
+dx, du the deviations from the plan, f the PPANN mean's one-step map (control/dynamics.py, with
+its own 2 pi wrap: the derivative of the floor is zero, so the Jacobians are those of the turn the
+state is on), P_k the Riccati cost-to-go of the same weights along the plan (control/lqr.py): with
+no bound active, on a linear system, this is the TV-LQR law exactly, for any H.
+
+Solver: a real-time iteration (SQP-RTI, Gauss-Newton, Diehl et al. 2005). From the measured
+state, the previous solution shifted by one sample is rolled out through f; one CasADi function
+returns the predicted states and their sensitivities to the H torques (the condensed QP's
+matrices, computed from the per-step Jacobians); the box QP (control/boxqp.py) gives the new
+torques, of which the first is applied. One iteration per sample, warm-started: the Newton
+iterations of a plain SQP are spread over the samples.
+
+Near the end of the plan the horizon shrinks: states past the plan's last sample are not
+weighed and torques past its last control are not free. A step whose compute time exceeds the
+deadline (one sample) is counted as a miss, and the shifted previous solution is applied instead
+of the late one, as a real-time controller would have to.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from control.boxqp import solve_box_qp
+from control.lqr import LQRWeights, riccati
+from control.mpc_config import MPCConfig, MPCConfigError, check_fits
+
+
+def prediction_function(step: ca.Function, horizon: int) -> ca.Function:
+    """(x0 (2,), u (H,)) -> (x (2, H) the states after each torque, g (2H, H) d vec(x) / du),
+    from the one-step map `step(x, u) -> x_next`, as one SX function."""
+    xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
+    nxt = step(xs, us)
+    jac = ca.Function(
+        "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
+    )
+    x0, u = ca.SX.sym("x0", 2), ca.SX.sym("u", horizon)
+    x, states, blocks = x0, [], []  # blocks[i] = d x_{i+1} / du as a (2, H) row block
+    for j in range(horizon):
+        x, a, b = jac(x, u[j])
+        prev = blocks[-1] if blocks else ca.SX.zeros(2, horizon)
+        block = ca.mtimes(a, prev)
+        block[:, j] = b
+        states.append(x)
+        blocks.append(block)
+    return ca.Function("mpc_prediction", [x0, u], [ca.horzcat(*states), ca.vertcat(*blocks)])
+
+
+@dataclass(frozen=True)
+class Step:
+    """What one MPC step did."""
+
+    torque: float
+    """The torque applied from t_k to t_{k+1}, N·m."""
+    seconds: float
+    """Compute time of the step."""
+    missed: bool
+    """The step took longer than the deadline; the shifted previous solution was applied."""
+    qp_iterations: int
+
+
+class TrackingMPC:
+    """The MPC of one plan. `start()` gives a warm start; `step(k, x, guess)` one RTI step."""
+
+    def __init__(
+        self,
+        step: ca.Function,
+        *,
+        states: np.ndarray,
+        tau: np.ndarray,
+        torque_limit: float,
+        config: MPCConfig,
+    ) -> None:
+        """Args:
+        step: the model's one-step map (x (2,), u) -> x_next.
+        states: the plan's states x_0..x_{N-1} (N, 2) (0-based samples).
+        tau: the plan's torques (N,); u_k acts from t_k to t_{k+1}, u_{N-1} is not used.
+        """
+        n = states.shape[0]
+        check_fits(config, n)
+        self.config = config
+        self.states = np.asarray(states, dtype=float)
+        self.tau = np.asarray(tau, dtype=float)
+        self.limit = float(torque_limit)
+        self.n = n
+        h = config.horizon
+        self.predict = prediction_function(step, h)
+        _, a, b = (
+            np.asarray(m)
+            for m in jacobians(step, self.states[:-1], self.tau[: n - 1])  # (N-1, ...)
+        )
+        weights = LQRWeights(q_theta=config.q_theta, q_omega=config.q_omega, r=config.r)
+        _, self.costs = riccati(a, b, weights)  # P_0..P_{N-1}
+        self.q = np.array([config.q_theta, config.q_omega])
+
+    def start(self) -> np.ndarray:
+        """The first warm start: the plan's torques over the horizon."""
+        return self._plan_torques(0)
+
+    def _plan_torques(self, k: int) -> np.ndarray:
+        idx = np.minimum(np.arange(k, k + self.config.horizon), self.n - 2)
+        return self.tau[idx].copy()
+
+    def step(self, k: int, x: np.ndarray, guess: np.ndarray) -> tuple[Step, np.ndarray]:
+        """One RTI step at 0-based sample k from the measured state x (2,) and the warm start
+        `guess` (H,); returns the step and the next sample's warm start."""
+        started = time.perf_counter()
+        h = self.config.horizon
+        free = min(h, self.n - 1 - k)  # torques u_k..u_{k+free-1} reach a state of the plan
+        if free <= 0:
+            return Step(float(self.tau[min(k, self.n - 1)]), 0.0, False, 0), guess
+        xs, g = self.predict(x, guess)
+        xs = np.asarray(xs).T[:free].reshape(-1)  # x_{k+1}..x_{k+free}, (2 free,)
+        g = np.asarray(g)[: 2 * free, :free]
+        ref = self.states[k + 1 : k + 1 + free].reshape(-1)
+        w = np.tile(self.q, free)
+        wg = w[:, None] * g
+        wg[-2:] = self.costs[k + free] @ g[-2:]
+        err = xs - ref
+        werr = w * err
+        werr[-2:] = self.costs[k + free] @ err[-2:]
+        u = guess[:free]
+        du_plan = u - self.tau[k : k + free]
+        hess = g.T @ wg + self.config.r * np.eye(free)
+        grad = g.T @ werr + self.config.r * du_plan
+        delta, iterations = solve_box_qp(hess, grad, -self.limit - u, self.limit - u)
+        solution = guess.copy()
+        solution[:free] = u + delta
+        seconds = time.perf_counter() - started
+        missed = seconds > self.config.deadline
+        applied = solution if not missed else guess
+        nxt = np.empty_like(guess)
+        nxt[:-1] = applied[1:]
+        nxt[-1] = self.tau[min(k + h, self.n - 2)]
+        return Step(float(applied[0]), seconds, missed, iterations), nxt
+
+
+def jacobians(
+    step: ca.Function, states: np.ndarray, tau: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """f(x_k, u_k) (T, 2), A_k (T, 2, 2) and B_k (T, 2) of `step` at T states (T, 2)."""
+    xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
+    nxt = step(xs, us)
+    fn = ca.Function(
+        "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
+    )
+    t = states.shape[0]
+    f, a, b = fn.map(t)(states.T, np.asarray(tau, dtype=float)[None, :])
+    a = np.asarray(a).reshape(2, t, 2).transpose(1, 0, 2)
+    return np.asarray(f).T, a, np.asarray(b).T
+
+
+__all__ = ["MPCConfig", "MPCConfigError", "Step", "TrackingMPC", "jacobians"]

@@ -1,0 +1,297 @@
+"""The online MPC (control/mpc.py) and its box QP against exact answers: the TV-LQR law on a
+linear system, the closed-form one-step law, exact tracking of a plan of the model itself, the
+torque limit, and the deadline rule."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from control.boxqp import solve_box_qp
+from control.dynamics import CasadiPPANN
+from control.lqr import LQRWeights, riccati
+from control.mpc import TrackingMPC
+from control.mpc_config import MPCConfig, MPCConfigError
+from control.ocp_file import OCPFile, read_ocp
+from ppann.checkpoint import CheckpointError, save
+from ppann.model import constant_ppann
+from replay.campaign import draw_machines, play
+from replay.config import PROFILES, ReplayConfig
+from replay.files import replay_file
+from tests.test_replay import ocp, ocp_path  # noqa: F401  (the module fixtures, reused here)
+from twin.physics import SliderCrank
+
+DT = 2e-3
+
+
+def _brute_force_box_qp(h, g, lo, hi):
+    """The minimiser by enumerating which bound (or none) each variable sits on."""
+    best, best_value = None, np.inf
+    n = g.shape[0]
+    for pattern in itertools.product((None, "lo", "hi"), repeat=n):
+        v = np.zeros(n)
+        fixed = np.array([p is not None for p in pattern])
+        for i, p in enumerate(pattern):
+            if p is not None:
+                v[i] = lo[i] if p == "lo" else hi[i]
+        free = ~fixed
+        if free.any():
+            rhs = -(g[free] + h[np.ix_(free, fixed)] @ v[fixed])
+            v[free] = np.linalg.solve(h[np.ix_(free, free)], rhs)
+        if np.any(v < lo - 1e-12) or np.any(v > hi + 1e-12):
+            continue
+        value = 0.5 * v @ h @ v + g @ v
+        if value < best_value:
+            best, best_value = v, value
+    return best
+
+
+def test_box_qp_equals_the_enumeration_of_active_sets() -> None:
+    rng = np.random.default_rng(0)
+    active = 0
+    for _ in range(40):
+        n = 5
+        m = rng.normal(size=(n, n))
+        h = m @ m.T + 0.1 * np.eye(n)
+        g = rng.normal(scale=3.0, size=n)
+        lo, hi = -rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
+        v, _ = solve_box_qp(h, g, lo, hi, start=rng.uniform(lo, hi))
+        exact = _brute_force_box_qp(h, g, lo, hi)
+        np.testing.assert_allclose(v, exact, atol=1e-9)
+        active += int(np.sum(np.isclose(v, lo) | np.isclose(v, hi)))
+    assert active > 40  # the bounds mattered, not only the Newton step
+
+
+def _linear_step(a: np.ndarray, b: np.ndarray) -> ca.Function:
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
+    return ca.Function("linear_step", [x, u], [ca.mtimes(ca.DM(a), x) + ca.DM(b) * u])
+
+
+def _linear_plan(a, b, n, rng):
+    tau = rng.uniform(-1.0, 1.0, n)
+    states = np.zeros((n, 2))
+    for k in range(n - 1):
+        states[k + 1] = a @ states[k] + b * tau[k]
+    return states, tau
+
+
+@pytest.mark.parametrize("horizon", [1, 5, 30])
+def test_mpc_on_a_linear_system_is_the_tv_lqr_law(horizon: int) -> None:
+    """No bound active, terminal cost the Riccati cost-to-go: the first torque is
+    u_k = û_k - K_k (x_k - x̂_k) of the finite-horizon LQR, to 1e-9, at every sample including
+    those where the horizon shrinks at the end of the plan; the warm start does not matter."""
+    a = np.array([[1.0, DT], [-DT * 4.0, 1.0 - DT * 0.3]])
+    b = np.array([0.0, DT / 3e-3])
+    n = 60
+    rng = np.random.default_rng(1)
+    states, tau = _linear_plan(a, b, n, rng)
+    config = MPCConfig(horizon=horizon)
+    mpc = TrackingMPC(_linear_step(a, b), states=states, tau=tau, torque_limit=1e6, config=config)
+    weights = LQRWeights(q_theta=config.q_theta, q_omega=config.q_omega, r=config.r)
+    gains, _ = riccati(np.repeat(a[None], n - 1, 0), np.repeat(b[None], n - 1, 0), weights)
+    for k in range(n - 1):
+        x = states[k] + rng.normal(scale=[0.05, 1.0])
+        guess = rng.uniform(-5.0, 5.0, horizon)
+        step, _ = mpc.step(k, x, guess)
+        expected = tau[k] - gains[k] @ (x - states[k])
+        assert step.torque == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def _ppann_plan(dynamics: CasadiPPANN, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A plan that is a trajectory of the model itself: its rollout of a smooth torque."""
+    t = np.arange(n) * DT
+    tau = 3.0 * np.sin(2 * np.pi * 4.0 * t) + 1.0
+    states = dynamics.rollout(np.array([np.pi, 0.0]), tau[:-1])
+    return states, tau
+
+
+def _model():
+    return CasadiPPANN(constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.03, 0.05, 0.05)))
+
+
+def test_horizon_one_is_the_closed_form_one_step_law() -> None:
+    """H = 1: the map is affine in u, f(x, u) = f(x, 0) + b u, so the MPC's torque is
+    û + b^T P (x̂_{k+1} - f(x, û)) / (r + b^T P b) with P the cost-to-go at k + 1, exactly; at
+    the last step (P = Q) with q_theta = r = 0 it is the torque that puts ω on the plan."""
+    dynamics = _model()
+    n = 80
+    states, tau = _ppann_plan(dynamics, n)
+    config = MPCConfig(horizon=1)
+    mpc = TrackingMPC(dynamics.step, states=states, tau=tau, torque_limit=100.0, config=config)
+    rng = np.random.default_rng(2)
+
+    def f(x, u):
+        return dynamics.step(x, u).full().ravel()
+
+    for k in (0, 17, 40, n - 2):
+        x = states[k] + rng.normal(scale=[0.03, 0.5])
+        b = f(x, 1.0) - f(x, 0.0)
+        p = mpc.costs[k + 1]
+        expected = tau[k] + b @ p @ (states[k + 1] - f(x, tau[k])) / (config.r + b @ p @ b)
+        step, _ = mpc.step(k, x, np.array([tau[k]]))
+        assert step.torque == pytest.approx(expected, rel=1e-9)
+    deadbeat = TrackingMPC(
+        dynamics.step,
+        states=states,
+        tau=tau,
+        torque_limit=100.0,
+        config=MPCConfig(horizon=1, q_theta=0.0, q_omega=1.0, r=0.0),
+    )
+    x = states[n - 2] + np.array([0.02, -0.7])
+    step, _ = deadbeat.step(n - 2, x, np.array([0.0]))
+    assert f(x, step.torque)[1] == pytest.approx(states[n - 1, 1], abs=1e-9)
+
+
+def test_mpc_tracks_a_plan_of_its_own_model() -> None:
+    """The plant is the model (no disturbance): from the plan's start the MPC applies the
+    plan's torques (to 1e-9); from a start 50 mrad off it brings the state back onto the plan
+    (within 1e-5 rad and 1e-3 rad/s at the end; 50 mrad, 0 rad/s at the start)."""
+    dynamics = _model()
+    n = 150
+    states, tau = _ppann_plan(dynamics, n)
+    mpc = TrackingMPC(dynamics.step, states=states, tau=tau, torque_limit=100.0, config=MPCConfig())
+    for offset, check in ((0.0, "exact"), (0.05, "converges")):
+        x, guess, applied = states[0] + [offset, 0.0], mpc.start(), []
+        for k in range(n - 1):
+            step, guess = mpc.step(k, x, guess)
+            applied.append(step.torque)
+            x = dynamics.step(x, step.torque).full().ravel()
+        if check == "exact":
+            np.testing.assert_allclose(applied, tau[:-1], atol=1e-9)
+        else:
+            assert abs(x[0] - states[-1, 0]) < 1e-5 and abs(x[1] - states[-1, 1]) < 1e-3
+            assert abs(applied[0] - tau[0]) > 1.0  # it did have to correct
+
+
+def test_mpc_respects_the_torque_limit_and_the_deadline_rule() -> None:
+    dynamics = _model()
+    n = 100
+    states, tau = _ppann_plan(dynamics, n)
+    limit = 4.5  # the plan peaks at 4 N·m: a 0.3 rad offset asks for more
+    mpc = TrackingMPC(dynamics.step, states=states, tau=tau, torque_limit=limit, config=MPCConfig())
+    x, guess, applied = states[0] + [0.3, 0.0], mpc.start(), []
+    for k in range(n - 1):
+        step, guess = mpc.step(k, x, guess)
+        applied.append(step.torque)
+        x = dynamics.step(x, step.torque).full().ravel()
+    applied = np.array(applied)
+    assert np.all(np.abs(applied) <= limit + 1e-12)
+    assert np.abs(applied[0]) == pytest.approx(limit, abs=1e-12)  # the bound was active,
+    free = TrackingMPC(  # where the same MPC without the bound asks for more
+        dynamics.step, states=states, tau=tau, torque_limit=100.0, config=MPCConfig()
+    )
+    assert abs(free.step(0, states[0] + [0.3, 0.0], free.start())[0].torque) > limit + 1.0
+    # every step over a deadline of 1 ns: each applies the shifted previous solution, which
+    # from the first warm start on is the plan itself
+    late = TrackingMPC(
+        dynamics.step,
+        states=states,
+        tau=tau,
+        torque_limit=limit,
+        config=MPCConfig(deadline=1e-9),
+    )
+    x, guess = states[0] + [0.3, 0.0], late.start()
+    for k in range(n - 1):
+        step, guess = late.step(k, x, guess)
+        assert step.missed and step.torque == tau[k]
+        x = dynamics.step(x, step.torque).full().ravel()
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"q_theta": -1.0}, "q_theta must be >= 0"),
+        ({"r": float("nan")}, "r must be a finite number"),
+        ({"r": 0.0, "q_omega": 0.0}, "not determined"),
+        ({"horizon": 0}, "horizon"),
+        ({"deadline": 0.0}, "deadline must be > 0"),
+    ],
+)
+def test_bad_mpc_settings_are_refused(options: dict, message: str) -> None:
+    with pytest.raises(MPCConfigError, match=message):
+        MPCConfig(**options)
+
+
+def test_a_horizon_longer_than_the_plan_is_refused() -> None:
+    dynamics = _model()
+    states, tau = _ppann_plan(dynamics, 20)
+    with pytest.raises(MPCConfigError, match="longer than the plan's 19 steps"):
+        TrackingMPC(
+            dynamics.step,
+            states=states,
+            tau=tau,
+            torque_limit=10.0,
+            config=MPCConfig(horizon=20),
+        )
+
+
+def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
+    ocp_path: Path,  # noqa: F811
+    tmp_path: Path,
+    physics: SliderCrank,
+) -> None:
+    """The mpc mode inside the twin's stepping loop: the torque stays within the limit, the
+    MPC holds the runs nearer the plan than open loop, each step's time is in the stats and in
+    the log's /slider_crank/mpc channel (one message per machine and step); a plan whose
+    checkpoint is another file is refused before anything is written."""
+    from mcap.reader import make_reader
+
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    checkpoint = tmp_path / "m.pt"
+    save(checkpoint, model, kind="ppann", extra={"history": {}})
+    raw = json.loads(ocp_path.read_text())
+    raw["model"] = {
+        "path": "m.pt",
+        "sha256": hashlib.sha256(checkpoint.read_bytes()).hexdigest(),
+        "kind": "ppann",
+    }
+    plan = tmp_path / "ocp.json"
+    plan.write_text(json.dumps(raw))
+    runs = 3
+    config = ReplayConfig(runs=runs, seed=7, modes=("open", "mpc"), mpc=MPCConfig(horizon=10))
+    stats = replay_file(plan, tmp_path / "r.mcap", config=config)
+    horizon = read_ocp(plan).horizon
+    for profile in PROFILES:
+        mpc, open_loop = stats["profiles"][profile]["mpc"], stats["profiles"][profile]["open"]
+        timing = mpc["mpc"]
+        assert timing["steps"] == runs * (horizon - 1) and timing["horizon"] == 10
+        assert 0 < timing["median_ms"] <= timing["p99_ms"] <= timing["max_ms"]
+        assert mpc["tracking"]["theta_rms"] < 0.5 * open_loop["tracking"]["theta_rms"]
+    with (tmp_path / "r.mcap").open("rb") as f:
+        steps = [
+            json.loads(message.data)
+            for _, channel, message in make_reader(f).iter_messages(topics=["/slider_crank/mpc"])
+        ]
+    assert len(steps) == 2 * runs * (horizon - 1)
+    assert {s["mode"] for s in steps} == {"mpc"} and all(s["step_ms"] > 0 for s in steps)
+    assert sum(s["missed"] for s in steps) == sum(
+        stats["profiles"][p]["mpc"]["mpc"]["deadline_misses"] for p in PROFILES
+    )
+    # the plan solved on another checkpoint
+    raw["model"]["sha256"] = "0" * 64
+    plan.write_text(json.dumps(raw))
+    before = sorted(tmp_path.iterdir())
+    with pytest.raises(CheckpointError, match="is not the checkpoint"):
+        replay_file(plan, tmp_path / "other.mcap", config=config)
+    assert sorted(tmp_path.iterdir()) == before
+
+
+def test_mpc_applied_torque_is_within_the_twin_limit_on_every_sample(
+    ocp: OCPFile,  # noqa: F811
+    physics: SliderCrank,
+) -> None:
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    config = ReplayConfig(runs=4, seed=3, modes=("mpc",), mpc=MPCConfig(horizon=5))
+    machines = draw_machines(config, ocp.horizon)
+    replay = play(
+        physics, ocp, profile="robust", mode="mpc", machines=machines, config=config, model=model
+    )
+    assert np.all(np.abs(replay.tau) <= ocp.config.torque_limit + 1e-12)
+    assert replay.mpc is not None and np.isnan(replay.mpc.seconds[:, -1]).all()
+    assert np.isfinite(replay.mpc.seconds[:, :-1]).all()
