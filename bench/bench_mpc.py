@@ -5,9 +5,10 @@ run, and the MPC campaign on the twin against the LQR closed loop and open loop.
     python bench/bench_mpc.py --ocp logs/<run>/ocp.json [--model logs/<run>/model.pt]
                               [--horizons 10,30,60] [--runs 20]
 
-The per-step times are of one machine's controller (one RTI step: the rollout with sensitivities
-in CasADi's SX virtual machine, the condensed QP and its box active set in NumPy), measured as
-the twin's closed loop calls it, on this process's one thread; nothing else should run beside it.
+The per-step times are of one machine's controller (one RTI step: the rollout with sensitivities,
+compiled to C — and at the second horizon also on CasADi's virtual machine, the fallback without
+a compiler —, the condensed QP and its box active set in NumPy), measured as the twin's closed
+loop calls it, on this process's one thread; nothing else should run beside it.
 """
 
 from __future__ import annotations
@@ -63,8 +64,10 @@ def main() -> None:
         started = time.perf_counter()
         replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
         rows.append((mode, time.perf_counter() - started, replay, None))
-    for horizon in (int(h) for h in args.horizons.split(",")):
-        config = replace(base, modes=("mpc",), mpc=MPCConfig(horizon=horizon))
+    runs = [(int(h), True) for h in args.horizons.split(",")]
+    runs.append((int(args.horizons.split(",")[1]), False))  # the second horizon on the VM too
+    for horizon, compiled in runs:
+        config = replace(base, modes=("mpc",), mpc=MPCConfig(horizon=horizon, compiled=compiled))
         started = time.perf_counter()
         replay = play(
             physics,
@@ -75,7 +78,9 @@ def main() -> None:
             config=config,
             model=model,
         )
-        rows.append((f"mpc H={horizon}", time.perf_counter() - started, replay, mpc_timing(replay)))
+        timing = mpc_timing(replay)
+        label = f"mpc H={horizon}" + (" vm" if timing and timing["engine"] == "vm" else "")
+        rows.append((label, time.perf_counter() - started, replay, timing))
     print(
         f"\n{'loop':<10} {'campaign s':>10} {'step median ms':>15} {'p99 ms':>8} {'max ms':>8} "
         f"{'misses':>7} {'IPOPT/step':>10} {'θ rms mrad':>11} {'lowest mm':>10}"

@@ -15,9 +15,10 @@ no bound active, on a linear system, this is the TV-LQR law exactly, for any H.
 Solver: a real-time iteration (SQP-RTI, Gauss-Newton, Diehl et al. 2005). From the measured
 state, the previous solution shifted by one sample is rolled out through f; one CasADi function
 returns the predicted states and their sensitivities to the H torques (the condensed QP's
-matrices, computed from the per-step Jacobians); the box QP (control/boxqp.py) gives the new
-torques, of which the first is applied. One iteration per sample, warm-started: the Newton
-iterations of a plain SQP are spread over the samples.
+matrices, computed from the per-step Jacobians), compiled to C once per plan (1-2 s; 3-4x
+faster than CasADi's virtual machine, which is the fallback without a C compiler); the box QP
+(control/boxqp.py) gives the new torques, of which the first is applied. One iteration per
+sample, warm-started: the Newton iterations of a plain SQP are spread over the samples.
 
 Near the end of the plan the horizon shrinks: states past the plan's last sample are not
 weighed and torques past its last control are not free. A step whose compute time exceeds the
@@ -27,6 +28,8 @@ of the late one, as a real-time controller would have to.
 
 from __future__ import annotations
 
+import os
+import tempfile
 import time
 from dataclasses import dataclass
 
@@ -38,24 +41,52 @@ from control.lqr import LQRWeights, riccati
 from control.mpc_config import MPCConfig, MPCConfigError, check_fits
 
 
-def prediction_function(step: ca.Function, horizon: int) -> ca.Function:
-    """(x0 (2,), u (H,)) -> (x (2, H) the states after each torque, g (2H, H) d vec(x) / du),
-    from the one-step map `step(x, u) -> x_next`, as one SX function."""
+def prediction_function(
+    step: ca.Function, horizon: int, *, compiled: bool = False
+) -> tuple[ca.Function, str]:
+    """(x0 (2,), u (H,)) -> (x (2, H) the states after each torque, g (2H, H) d vec(x) / du)
+    from the one-step map `step(x, u) -> x_next`, and the engine that evaluates it: "compiled"
+    (CasADi's C code generation, built with the system's C compiler in a temporary folder) or
+    "vm" (CasADi's SX virtual machine: without a compiler, or when asked). The same numbers
+    either way (tests/test_mpc.py)."""
     xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
     nxt = step(xs, us)
     jac = ca.Function(
         "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
     )
-    x0, u = ca.SX.sym("x0", 2), ca.SX.sym("u", horizon)
+    x0, u = ca.MX.sym("x0", 2), ca.MX.sym("u", horizon)
     x, states, blocks = x0, [], []  # blocks[i] = d x_{i+1} / du as a (2, H) row block
     for j in range(horizon):
         x, a, b = jac(x, u[j])
-        prev = blocks[-1] if blocks else ca.SX.zeros(2, horizon)
-        block = ca.mtimes(a, prev)
-        block[:, j] = b
+        unit = ca.DM.zeros(1, horizon)
+        unit[j] = 1.0
+        block = ca.mtimes(b, unit)
+        if blocks:
+            block = block + ca.mtimes(a, blocks[-1])
         states.append(x)
         blocks.append(block)
-    return ca.Function("mpc_prediction", [x0, u], [ca.horzcat(*states), ca.vertcat(*blocks)])
+    outputs = [ca.horzcat(*states), ca.vertcat(*blocks)]
+    if compiled:
+        try:
+            with tempfile.TemporaryDirectory(prefix="crank-mpc-") as folder:
+                options = {
+                    "jit": True,
+                    "compiler": "shell",
+                    "jit_name": "mpc_prediction",
+                    "jit_temp_suffix": True,
+                    "jit_cleanup": False,  # the folder goes as a whole once the library is loaded
+                    "jit_options": {
+                        "flags": ["-O2"],
+                        "directory": folder + os.sep,
+                        "cleanup": False,
+                    },
+                }
+                fn = ca.Function("mpc_prediction", [x0, u], outputs, options)
+                fn(np.zeros(2), np.zeros(horizon))  # loaded now; the folder may go
+            return fn, "compiled"
+        except RuntimeError:  # no C compiler here: the virtual machine
+            pass
+    return ca.Function("mpc_prediction", [x0, u], outputs).expand(), "vm"
 
 
 @dataclass(frozen=True)
@@ -96,7 +127,7 @@ class TrackingMPC:
         self.limit = float(torque_limit)
         self.n = n
         h = config.horizon
-        self.predict = prediction_function(step, h)
+        self.predict, self.engine = prediction_function(step, h, compiled=config.compiled)
         _, a, b = (
             np.asarray(m)
             for m in jacobians(step, self.states[:-1], self.tau[: n - 1])  # (N-1, ...)

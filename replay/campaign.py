@@ -68,6 +68,8 @@ class MPCRecord:
     qp_iterations: np.ndarray
     horizon: int
     deadline: float
+    engine: str
+    """What evaluated the predictions: "compiled" (C) or "vm" (CasADi's virtual machine)."""
 
 
 @dataclass(frozen=True)
@@ -165,6 +167,7 @@ def mpc_law(
         qp_iterations=np.zeros(shape, dtype=int),
         horizon=config.mpc.horizon,
         deadline=config.mpc.deadline,
+        engine=controller.engine,
     )
     guesses = np.tile(controller.start(), (config.runs, 1))
 

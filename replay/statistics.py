@@ -22,9 +22,9 @@
     tracking              {theta_rms, omega_rms}: RMS over runs and samples of the measured
                           state minus the plan's, rad and rad/s; saturated_share: the share of
                           samples whose applied torque sits at the torque limit
-    mpc                   (mpc mode) {horizon, deadline_ms, steps, median_ms, p99_ms, max_ms,
-                          deadline_misses, qp_iterations_max}: compute time of one machine's
-                          MPC step
+    mpc                   (mpc mode) {horizon, engine, deadline_ms, steps, median_ms, p99_ms,
+                          max_ms, deadline_misses, qp_iterations_max}: compute time of one
+                          machine's MPC step (engine: compiled or vm, control/mpc.py)
     slider                {mean, lower, upper}: per-sample mean and mean ∓ k·σ over the runs, m
   timing                  {simulate_s, log_s, rerun_s, total_s}: seconds simulating, writing
                           the MCAP, writing the .rrd, and in all (figures included)
@@ -66,6 +66,7 @@ def mpc_timing(replay: Replay) -> dict[str, Any] | None:
     ms = 1e3 * record.seconds[np.isfinite(record.seconds)]
     return {
         "horizon": record.horizon,
+        "engine": record.engine,
         "deadline_ms": 1e3 * record.deadline,
         "steps": int(ms.size),
         "median_ms": float(np.median(ms)),
