@@ -291,13 +291,20 @@ def _beyond_stroke(
             f"from the training machines and {1e3 * unc.sampling[k]:.1f} mm for the "
             f"Monte-Carlo's standard error, at confidence {config.confidence:g}"
         )
+    if config.feedback == "lqr":
+        hint = (
+            f"or give the feedback more authority, a torque limit above "
+            f"{config.torque_limit:g} N·m or stiffer LQR weights: the closed loop cannot keep "
+            f"this spread"
+        )
+    else:
+        hint = "or close the loop: open loop cannot keep this spread"
     return BeyondStrokeError(
         f"the model's tightening of the slider at sample {sample} "
         f"({1e3 * unc.tightening[k]:.1f} mm{line}; Monte-Carlo σ there "
         f"{1e3 * unc.std[sample - 1]:.1f} mm) exceeds the stroke "
         f"above the height even for a torque that uses {1e3 * cap[k]:.1f} mm of it: no "
-        f"robust profile (train on more machines, lower k_sigma or height, or close the "
-        f"loop: open loop cannot keep this spread)",
+        f"robust profile (train on more machines, lower k_sigma or height, {hint})",
         sample=sample,
         tightening=float(unc.tightening[k]),
         available=float(available),
