@@ -28,8 +28,6 @@ of the late one, as a real-time controller would have to.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass
 
@@ -37,17 +35,19 @@ import casadi as ca
 import numpy as np
 
 from control.boxqp import solve_box_qp
+from control.compiled import Workshop
 from control.lqr import LQRWeights, riccati
 from control.mpc_config import MPCConfig, MPCConfigError, check_fits
 
 
 def prediction_function(
-    step: ca.Function, horizon: int, *, compiled: bool = False
+    step: ca.Function, horizon: int, *, workshop: Workshop | None = None
 ) -> tuple[ca.Function, str]:
     """(x0 (2,), u (H,)) -> (x (2, H) the states after each torque, g (2H, H) d vec(x) / du)
     from the one-step map `step(x, u) -> x_next`, and the engine that evaluates it: "compiled"
-    (CasADi's C code generation, built with the system's C compiler in a temporary folder) or
-    "vm" (CasADi's SX virtual machine: without a compiler, or when asked). The same numbers
+    (CasADi's C code generation, built with the system's C compiler in `workshop`'s folder,
+    which must live as long as the function) or "vm" (CasADi's SX virtual machine: without a
+    workshop, or without a compiler). The same numbers
     either way (tests/test_mpc.py)."""
     xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
     nxt = step(xs, us)
@@ -66,23 +66,11 @@ def prediction_function(
         states.append(x)
         blocks.append(block)
     outputs = [ca.horzcat(*states), ca.vertcat(*blocks)]
-    if compiled:
+    if workshop is not None:
         try:
-            with tempfile.TemporaryDirectory(prefix="crank-mpc-") as folder:
-                options = {
-                    "jit": True,
-                    "compiler": "shell",
-                    "jit_name": "mpc_prediction",
-                    "jit_temp_suffix": True,
-                    "jit_cleanup": False,  # the folder goes as a whole once the library is loaded
-                    "jit_options": {
-                        "flags": ["-O2"],
-                        "directory": folder + os.sep,
-                        "cleanup": False,
-                    },
-                }
-                fn = ca.Function("mpc_prediction", [x0, u], outputs, options)
-                fn(np.zeros(2), np.zeros(horizon))  # loaded now; the folder may go
+            fn = ca.Function(
+                "mpc_prediction", [x0, u], outputs, workshop.options(flags=("-O2",))
+            )
             return fn, "compiled"
         except RuntimeError:  # no C compiler here: the virtual machine
             pass
@@ -127,7 +115,8 @@ class TrackingMPC:
         self.limit = float(torque_limit)
         self.n = n
         h = config.horizon
-        self.predict, self.engine = prediction_function(step, h, compiled=config.compiled)
+        self.workshop = Workshop() if config.compiled else None
+        self.predict, self.engine = prediction_function(step, h, workshop=self.workshop)
         _, a, b = (
             np.asarray(m)
             for m in jacobians(step, self.states[:-1], self.tau[: n - 1])  # (N-1, ...)
