@@ -88,6 +88,10 @@ class OCPConfig:
     """The robust loop stops when k sigma moves by less than this between iterations, m."""
     max_robust_iterations: int = 30
     max_ipopt_iterations: int = 3000
+    compiled: bool = False
+    """Compile the NLP's functions to C (CasADi's JIT with the system's C compiler, ~15 s once
+    per model; CasADi's virtual machine if there is none). Each IPOPT iteration is then ~3x
+    cheaper: worth it when one model is solved many times (tasks, sweeps), not for one run."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "constraint_samples", tuple(self.constraint_samples))
@@ -147,6 +151,8 @@ class OCPConfig:
                 f"samples ({QUANTILE_TAIL} beyond the {100 * tail:.3g} % quantile), "
                 f"got {self.mc_samples}"
             )
+        if not isinstance(self.compiled, bool):
+            raise OCPConfigError(f"compiled must be true or false, got {self.compiled!r}")
         for name in ("max_robust_iterations", "max_ipopt_iterations"):
             if getattr(self, name) < 1:
                 raise OCPConfigError(f"{name} must be >= 1, got {getattr(self, name)}")

@@ -68,9 +68,7 @@ def prediction_function(
     outputs = [ca.horzcat(*states), ca.vertcat(*blocks)]
     if workshop is not None:
         try:
-            fn = ca.Function(
-                "mpc_prediction", [x0, u], outputs, workshop.options(flags=("-O2",))
-            )
+            fn = ca.Function("mpc_prediction", [x0, u], outputs, workshop.options(flags=("-O2",)))
             return fn, "compiled"
         except RuntimeError:  # no C compiler here: the virtual machine
             pass

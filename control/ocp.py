@@ -44,6 +44,7 @@ import casadi as ca
 import numpy as np
 
 from common.errors import CrankError
+from control.compiled import Workshop
 from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
 from ppann.model import PPANN
@@ -150,7 +151,7 @@ class NominalOCP:
         )
         self._boundary = np.array([c.theta_start, c.omega_start, c.theta_end, c.omega_end])
         self._n_defects = 2 * (n - 1)
-        options = {
+        options: dict[str, Any] = {
             "expand": True,
             "print_time": False,
             "ipopt": {
@@ -166,8 +167,21 @@ class NominalOCP:
             },
         }
         nlp = {"x": w, "p": turns, "f": cost, "g": g}
-        self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, options)
+        self.engine = "vm"
+        self._workshop = None
+        if c.compiled:  # the NLP's functions in C: IPOPT's callbacks are most of a solve
+            self._workshop = Workshop()
+            try:
+                compiled = {**options, "expand": False, **self._workshop.options()}
+                self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, compiled)
+                self.engine = "compiled"
+            except RuntimeError:  # no C compiler here: CasADi's virtual machine
+                self._workshop = None
+        if self.engine == "vm":
+            self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, options)
         derivatives = {f: self._solver.get_function(f) for f in self._solver.get_function()}
+        # the drafts share those functions (compiled or not) through the cache
+        options["expand"] = self.engine == "vm"
         draft_ipopt = {**options["ipopt"], "tol": DRAFT_TOLERANCE, "mu_init": 1e-6}
         self._draft_solver = ca.nlpsol(
             "draft_ocp", "ipopt", nlp, {**options, "ipopt": draft_ipopt, "cache": derivatives}

@@ -19,7 +19,7 @@ Top-level keys (stable; `version` changes if any meaning does):
                              solve, control/ocp.py; the last entry is always a full solve, the
                              one in `robust`)
   failed_margins             margins IPOPT could not meet during the loop, m
-  timing                     build_s, nominal_solve_s, robust_loop_s
+  timing                     build_s, engine (compiled or vm), nominal_solve_s, robust_loop_s
   versions                   project, casadi, torch, numpy, python
   created                    ISO time of writing
 
@@ -262,15 +262,18 @@ def write_ocp(
     geometry: Geometry,
     build_s: float,
     variability: dict[str, Any] | None = None,
+    engine: str = "vm",
 ) -> dict[str, Any]:
     """Write ocp.json atomically and return what was written. `variability` is the training
-    dataset's scenario (from the checkpoint), which replays draw their machines from."""
+    dataset's scenario (from the checkpoint), which replays draw their machines from; `engine`
+    what evaluated the NLP (compiled or vm, control/ocp.py)."""
     payload = {
         **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
         **{name: _profile_of(result, name, config=config, dt=dt) for name in ("nominal", "robust")},
         **_history(result),
         "timing": {
             "build_s": build_s,
+            "engine": engine,
             "nominal_solve_s": result.nominal.wall_time,
             "robust_loop_s": result.wall_time,
         },

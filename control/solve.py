@@ -110,6 +110,7 @@ def solve_file(
         geometry=model.geometry,
         variability=payload.get("variability"),
         build_s=build_s,
+        engine=ocp.engine,
     )
     loaded = read_ocp(out)
     paths = figure_paths(out)

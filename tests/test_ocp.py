@@ -147,6 +147,21 @@ def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
         ocp.solve(raised, draft=True)
 
 
+def test_compiled_nlp_gives_the_same_solutions(model: PPANN, ocp: NominalOCP) -> None:
+    """`compiled=True` (the NLP's functions in C): the same full solve and the same draft after a
+    jump as CasADi's virtual machine, to 1e-9, the drafts sharing the compiled functions."""
+    compiled = NominalOCP(model, OCPConfig(compiled=True))
+    assert (compiled.engine, ocp.engine) == ("compiled", "vm")
+    full, reference = compiled.solve(), ocp.solve()
+    np.testing.assert_allclose(full.tau, reference.tau, rtol=0, atol=1e-9)
+    assert full.iterations == reference.iterations
+    raised = full.heights + np.array([0.004, 0.006])
+    draft = compiled.solve(raised, warm=full, draft=True)
+    np.testing.assert_allclose(
+        draft.tau, ocp.solve(raised, warm=reference, draft=True).tau, rtol=0, atol=1e-9
+    )
+
+
 def test_impossible_height_is_a_typed_error(model: PPANN) -> None:
     with pytest.raises(OCPError) as info:
         NominalOCP(model, OCPConfig(height=0.2)).solve()
