@@ -68,7 +68,10 @@ def prediction_function(
     outputs = [ca.horzcat(*states), ca.vertcat(*blocks)]
     if workshop is not None:
         try:
-            fn = ca.Function("mpc_prediction", [x0, u], outputs, workshop.options(flags=("-O2",)))
+            with workshop.building():
+                options = workshop.options(flags=("-O2",))
+                fn = ca.Function("mpc_prediction", [x0, u], outputs, options)
+                fn(np.zeros(2), np.zeros(horizon))  # loaded while inside the folder
             return fn, "compiled"
         except RuntimeError:  # no C compiler here: the virtual machine
             pass

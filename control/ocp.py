@@ -173,7 +173,8 @@ class NominalOCP:
             self._workshop = Workshop()
             try:
                 compiled = {**options, "expand": False, **self._workshop.options()}
-                self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, compiled)
+                with self._workshop.building():
+                    self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, compiled)
                 self.engine = "compiled"
             except RuntimeError:  # no C compiler here: CasADi's virtual machine
                 self._workshop = None

@@ -180,11 +180,13 @@ def test_mpc_tracks_a_plan_of_its_own_model() -> None:
 
 
 def test_compiled_prediction_equals_the_virtual_machine_and_falls_back_without_a_compiler(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
     dynamics = _model()
+    monkeypatch.chdir(tmp_path)
     workshop = Workshop()
     compiled, engine = prediction_function(dynamics.step, 12, workshop=workshop)
+    assert list(tmp_path.iterdir()) == []  # sources and library in the workshop's folder
     vm, vm_engine = prediction_function(dynamics.step, 12)
     assert (engine, vm_engine) == ("compiled", "vm")
     rng = np.random.default_rng(5)

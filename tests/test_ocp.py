@@ -147,10 +147,15 @@ def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
         ocp.solve(raised, draft=True)
 
 
-def test_compiled_nlp_gives_the_same_solutions(model: PPANN, ocp: NominalOCP) -> None:
+def test_compiled_nlp_gives_the_same_solutions(
+    model: PPANN, ocp: NominalOCP, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """`compiled=True` (the NLP's functions in C): the same full solve and the same draft after a
-    jump as CasADi's virtual machine, to 1e-9, the drafts sharing the compiled functions."""
+    jump as CasADi's virtual machine, to 1e-9, the drafts sharing the compiled functions; the
+    build leaves nothing in the working folder."""
+    monkeypatch.chdir(tmp_path)
     compiled = NominalOCP(model, OCPConfig(compiled=True))
+    assert list(tmp_path.iterdir()) == []
     assert (compiled.engine, ocp.engine) == ("compiled", "vm")
     full, reference = compiled.solve(), ocp.solve()
     np.testing.assert_allclose(full.tau, reference.tau, rtol=0, atol=1e-9)
