@@ -3,7 +3,12 @@ time at 500 Hz) at several horizons, beside one IPOPT nominal solve of the same 
 run, and the MPC campaign on the twin against the LQR closed loop and open loop.
 
     python bench/bench_mpc.py --ocp logs/<run>/ocp.json [--model logs/<run>/model.pt]
-                              [--horizons 10,30,60] [--runs 20]
+                              [--horizons 10,30,60] [--runs 20] [--no-do-mpc]
+
+With do-mpc installed (`pip install -e ".[bench]"`; bench/dompc_ocp.py), the same nominal OCP is
+also solved by do-mpc, beside the project's first IPOPT pass (the same NLP from the same initial
+guess) and its full solve (turn passes included): the issue's target is the project's solve at
+least 2x faster than do-mpc's.
 
 The per-step times are of one machine's controller (one RTI step: the rollout with sensitivities,
 compiled to C — and at the second horizon also on CasADi's virtual machine, the fallback without
@@ -37,24 +42,34 @@ def main() -> None:
     parser.add_argument("--horizons", default="10,30,60")
     parser.add_argument("--runs", type=int, default=20, help="machines per campaign")
     parser.add_argument("--repeat", type=int, default=3, help="IPOPT solves (median)")
+    parser.add_argument("--no-do-mpc", action="store_true", help="skip the do-mpc comparison")
     args = parser.parse_args()
     model = plan_model(args.ocp, override=args.model)
     ocp = read_ocp(args.ocp)
     physics = SliderCrank(load_model()[0])
 
-    nominal = NominalOCP(model, ocp.config)
-    solves, iterations = [], 0
-    for _ in range(args.repeat):
+    solvers = {}
+    for label, compiled in (("CasADi VM, the default", False), ("--compiled", True)):
         started = time.perf_counter()
-        solution = nominal.solve()
-        solves.append(time.perf_counter() - started)
-        iterations = solution.iterations
-    ipopt = statistics.median(solves)
+        nominal = NominalOCP(model, replace(ocp.config, compiled=compiled))
+        build = time.perf_counter() - started
+        solves, iterations = [], 0
+        for _ in range(args.repeat):
+            started = time.perf_counter()
+            solution = nominal.solve()
+            solves.append(time.perf_counter() - started)
+            iterations = solution.iterations
+        full = statistics.median(solves)
+        solvers[f"{label}, {nominal.engine}"] = (nominal, full)
+        print(
+            f"IPOPT nominal solve ({label}: {nominal.engine}, build {build:.1f} s), full, cold "
+            f"start, median of {args.repeat}: {full * 1e3:.0f} ms, {iterations} iterations, "
+            f"{full / max(iterations, 1) * 1e3:.1f} ms per iteration"
+        )
+    ipopt = next(iter(solvers.values()))[1]
     print(f"model: {args.ocp} (horizon {ocp.horizon}, profile robust)")
-    print(
-        f"IPOPT nominal solve (full, cold start), median of {args.repeat}: {ipopt * 1e3:.0f} ms, "
-        f"{iterations} iterations, {ipopt / max(iterations, 1) * 1e3:.1f} ms per iteration"
-    )
+    if not args.no_do_mpc:
+        compare_do_mpc(solvers, repeat=args.repeat)
 
     base = ReplayConfig(runs=args.runs, seed=1, variability=ocp_variability(args.ocp))
     machines = draw_machines(base, ocp.horizon)
@@ -102,6 +117,59 @@ def main() -> None:
         f"{1e3 * MPCConfig().deadline:g} ms; the IPOPT column is one nominal solve over the "
         "median MPC step."
     )
+
+
+def _first_pass(nominal: NominalOCP, repeat: int) -> tuple[float, int, np.ndarray]:
+    """The project's first IPOPT pass from its initial guess (median seconds, iterations, u)."""
+    c, n = nominal.config, nominal.config.horizon
+    guess = nominal.initial_guess()
+    turns = np.floor(guess[0 : 2 * (n - 1) : 2] / (2 * np.pi))
+    boundary = [c.theta_start, c.omega_start, c.theta_end, c.omega_end]
+    heights = [c.height] * len(c.constraint_samples)
+    zeros = np.zeros(2 * (n - 1))
+    bounds = {
+        "lbx": nominal._lbx,
+        "ubx": nominal._ubx,
+        "lbg": np.concatenate([zeros, boundary, heights]),
+        "ubg": np.concatenate([zeros, boundary, np.full(len(heights), np.inf)]),
+    }
+    times = []
+    for _ in range(repeat):
+        started = time.perf_counter()
+        result = nominal._solver(x0=guess, p=turns, **bounds)
+        times.append(time.perf_counter() - started)
+    iterations = int(nominal._solver.stats()["iter_count"])
+    return statistics.median(times), iterations, result["x"].full().ravel()[2 * n : 3 * n - 1]
+
+
+def compare_do_mpc(solvers: dict[str, tuple[NominalOCP, float]], *, repeat: int) -> None:
+    """do-mpc's solve of the same OCP beside each project solver's first pass and full solve
+    (`solvers`: label -> (the OCP, its median full solve in s))."""
+    try:
+        from dompc_ocp import DoMPCOCP  # bench/, beside this script
+    except ImportError as exc:
+        print(f"do-mpc: not installed ({exc}); pip install -e '.[bench]'")
+        return
+    reference = next(iter(solvers.values()))[0]
+    started = time.perf_counter()
+    dompc = DoMPCOCP(reference)
+    build = time.perf_counter() - started
+    dompc.solve()  # do-mpc's first call also sets itself up: not timed
+    runs = [dompc.solve() for _ in range(repeat)]
+    seconds = statistics.median(r[0] for r in runs)
+    _, iterations, status, tau = runs[-1]
+    print(
+        f"do-mpc 5.0.1, the same OCP (build {build:.1f} s): {seconds * 1e3:.0f} ms, "
+        f"{iterations} iterations, {status}, Σu² {np.sum(tau**2):.1f}"
+    )
+    for label, (nominal, full) in solvers.items():
+        one, first_iterations, ours = _first_pass(nominal, repeat)
+        print(
+            f"project ({label}): first IPOPT pass (the same NLP) {one * 1e3:.0f} ms, "
+            f"{first_iterations} iterations, Σu² {np.sum(ours**2):.1f}: do-mpc / project = "
+            f"{seconds / one:.2f}; full solve with turn passes {full * 1e3:.0f} ms: "
+            f"do-mpc / project = {seconds / full:.2f} (target >= 2)"
+        )
 
 
 if __name__ == "__main__":
