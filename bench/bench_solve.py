@@ -1,8 +1,9 @@
 """Benchmark: nominal OCP solve against the whole robust loop (every re-solve and Monte-Carlo),
 measured in the same run (target: robust loop <= 3 × the nominal solve), with today's default
 Monte-Carlo (1000 mixed trajectories, gaussian tightening, the line allowance at confidence 0.95),
-the same at confidence 0, the same sized for the LQR closed loop (a tube), and, for reference in
-the same run, the paper's (100 step trajectories, confidence 0).
+the same at confidence 0, the same sized for the LQR closed loop (a tube), for reference in the
+same run the paper's (100 step trajectories, confidence 0), and the default with the NLP compiled
+to C (`--compiled`: every solve ~3x faster, the Monte-Carlo not, so the ratio rises).
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
 
@@ -45,13 +46,21 @@ def main() -> None:
         "paper (100 step, gaussian, confidence 0)": OCPConfig(
             mc_samples=100, mc_mode="step", confidence=0.0
         ),
+        "default, NLP compiled to C (--compiled)": OCPConfig(compiled=True),
     }
     started = time.perf_counter()
-    ocp = NominalOCP(model, OCPConfig())
+    ocps = {False: NominalOCP(model, OCPConfig())}
     build = time.perf_counter() - started
+    started = time.perf_counter()
+    ocps[True] = NominalOCP(model, OCPConfig(compiled=True))
+    build_compiled = time.perf_counter() - started
     print(f"model: {source}")
-    print(f"build (SX expansion + IPOPT setup, once): {build:.2f} s")
+    print(
+        f"build (SX expansion + IPOPT setup, once): {build:.2f} s; compiled "
+        f"({ocps[True].engine}): {build_compiled:.2f} s"
+    )
     for label, config in configs.items():
+        ocp = ocps[config.compiled]
         nominal, robust, ratios, mc = [], [], [], []
         for _ in range(args.repeat):
             started = time.perf_counter()
