@@ -1,0 +1,65 @@
+"""report.md's wording: the held-out loop as played, and ratios of a runaway Monte-Carlo."""
+
+from __future__ import annotations
+
+import pytest
+
+from crank.report import heldout_lines, train_summary
+
+
+def _heldout(mode: str, ratio: float) -> dict:
+    entry = {
+        "rate": 0.0,
+        "rate_upper_95": 0.003,
+        "samples": {
+            "50": {
+                "observed_sigma": 5e-4,
+                "lowest": 0.081,
+                "skew": 0.1,
+                "predicted": {"mixed": {"ratio": 0.95}, "trajectory": {"ratio": ratio}},
+            }
+        },
+    }
+    return {
+        "runs": 1000,
+        "seed": 7,
+        "mode": mode,
+        "mc_samples": 1000,
+        "target_rate": 0.005,
+        "holds": True,
+        "profiles": {"nominal": entry, "robust": entry},
+    }
+
+
+@pytest.mark.parametrize(
+    ("mode", "words"),
+    [
+        ("open", "open loop"),
+        ("closed", "closed loop (each profile under its LQR gains)"),
+        ("mpc", "under the online MPC"),
+    ],
+)
+def test_heldout_says_the_loop_it_was_played_in(mode: str, words: str) -> None:
+    text = "\n".join(heldout_lines(_heldout(mode, 1.1)))
+    assert f"streams no other stage draws from), {words}, the robust torque" in text
+    assert (mode == "open") == ("open loop" in text)
+
+
+def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
+    text = "\n".join(heldout_lines(_heldout("closed", 1.46e68)))
+    assert "diverged (1.5e+68)" in text and "| 0.95 |" in text
+    assert "146" not in text.replace("1.46e68", "")
+    calibration = {
+        mode: {"theta": {"median": ratio}, "slider_position": {"median": 1.0}}
+        for mode, ratio in (
+            ("step", 0.2),
+            ("trajectory", 1.46e68),
+            ("machine", 0.8),
+            ("mixed", 0.9),
+        )
+    }
+    ppann = {"rmse_10_step": {"theta": 0.05, "omega": 4.8}, "train_seconds": 1.0}
+    report = {"models": {"ppann": ppann}, "calibration": calibration}
+    rows = train_summary(report)
+    assert rows["σ predicted/observed (trajectory)"] == "θ diverged (1.5e+68), slider 1.00"
+    assert rows["σ predicted/observed (mixed)"] == "θ 0.90, slider 1.00"
