@@ -117,7 +117,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
             f"{stats['ocp']['robust_cost_premium']:+.1%}."
         )
     lines = [
-        f"# crank run `{run_dir.name}`",
+        f"# crank run `{run_dir.name.removesuffix('.partial')}`",  # a sweep step's folder
         "",
         verdict,
         "",
