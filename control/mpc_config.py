@@ -22,10 +22,11 @@ class MPCConfig:
     deviations (20 mrad, 1 rad/s, 1 N·m; control/lqr.py), so that the two loops compare."""
 
     horizon: int = 10
-    """H, samples predicted at every step (20 ms). Chosen by bench/bench_mpc.py for the deadline:
-    at 10 one step took 0.54 ms median and 1.0 ms at p99 inside the twin's loop, at 30 1.7 and
-    2.1 ms (95 of 2980 steps missed); the Riccati cost-to-go at the horizon's end stands for
-    what lies beyond it."""
+    """H, samples predicted at every step (20 ms). bench/bench_mpc.py, idle: one step took 0.32 ms
+    median (p99 0.72) at 10, 0.56 at 30 and 1.14 at 60 compiled, 1.15 at 30 on CasADi's virtual
+    machine, against the 2 ms deadline; 10 leaves room on a busy machine and without a compiler,
+    and the Riccati cost-to-go at the horizon's end stands for what lies beyond it (with no bound
+    active the MPC is the LQR at any horizon)."""
     q_theta: float = 0.02**-2
     q_omega: float = 1.0
     r: float = 1.0
