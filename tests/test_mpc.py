@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import shutil
 from pathlib import Path
 
 import casadi as ca
@@ -179,6 +180,7 @@ def test_mpc_tracks_a_plan_of_its_own_model() -> None:
             assert abs(applied[0] - tau[0]) > 1.0  # it did have to correct
 
 
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler here")
 def test_compiled_prediction_equals_the_virtual_machine_and_falls_back_without_a_compiler(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -147,6 +148,7 @@ def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
         ocp.solve(raised, draft=True)
 
 
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler here")
 def test_compiled_nlp_gives_the_same_solutions(
     model: PPANN, ocp: NominalOCP, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
