@@ -38,6 +38,7 @@ from control.boxqp import solve_box_qp
 from control.compiled import Workshop
 from control.lqr import LQRWeights, riccati
 from control.mpc_config import MPCConfig, MPCConfigError, check_fits
+from twin.geometry import Geometry
 
 
 def prediction_function(
@@ -79,6 +80,81 @@ def prediction_function(
 
 
 @dataclass(frozen=True)
+class SliderLimit:
+    """slider(θ) >= height at the plan's constraint samples, held in the MPC's QP (linearised
+    about the prediction) while those samples are within the horizon."""
+
+    geometry: Geometry
+    height: float
+    samples: tuple[int, ...]
+    """0-based state indices (the OCP's 1-based constraint samples minus 1)."""
+
+
+def solve_with_limits(
+    hess: np.ndarray,
+    grad: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    rows: np.ndarray,
+    rhs: np.ndarray,
+    *,
+    tol: float = 1e-10,
+) -> tuple[np.ndarray, int]:
+    """The box QP with rows @ v >= rhs as well (a few rows), by its dual: for multipliers
+    lam >= 0 the box QP of grad - rows^T lam is solved, and each lam_i is found by regula falsi
+    (Illinois) on the slack rows_i @ v(lam) - rhs_i, which is nondecreasing in lam_i (one sweep
+    for one row, a few for more). A row the box cannot meet gets the largest multiplier tried:
+    the torque then goes as far towards it as the limit lets. Returns v and the box QPs solved."""
+    solves = 0
+
+    def box(lam: np.ndarray) -> np.ndarray:
+        nonlocal solves
+        solves += 1
+        return solve_box_qp(hess, grad - rows.T @ lam, lo, hi)[0]
+
+    lam = np.zeros(len(rhs))
+    v = box(lam)
+    for _ in range(1 if len(rhs) == 1 else 6):
+        for i in range(len(rhs)):
+
+            def slack(li: float, i: int = i) -> tuple[float, np.ndarray]:
+                trial = lam.copy()
+                trial[i] = li
+                w = box(trial)
+                return float(rows[i] @ w - rhs[i]), w
+
+            a = 0.0
+            fa, va = slack(a)
+            if fa >= -tol:  # not binding at lam_i = 0
+                lam[i], v = 0.0, va
+                continue
+            b, (fb, vb) = 1.0, slack(1.0)
+            while fb < -tol and b < 1e12:
+                a, fa, b = b, fb, 10.0 * b
+                fb, vb = slack(b)
+            if fb < -tol:  # out of the box's reach
+                lam[i], v = b, vb
+                continue
+            side = 0
+            for _ in range(60):
+                c = b - fb * (b - a) / (fb - fa)
+                fc, vc = slack(c)
+                if abs(fc) <= tol:
+                    b, fb, vb = c, fc, vc
+                    break
+                if fc < 0:
+                    a, fa = c, fc
+                    fb = fb / 2 if side == -1 else fb
+                    side = -1
+                else:
+                    b, fb, vb = c, fc, vc
+                    fa = fa / 2 if side == 1 else fa
+                    side = 1
+            lam[i], v = b, vb
+    return v, solves
+
+
+@dataclass(frozen=True)
 class Step:
     """What one MPC step did."""
 
@@ -102,12 +178,15 @@ class TrackingMPC:
         tau: np.ndarray,
         torque_limit: float,
         config: MPCConfig,
+        slider: SliderLimit | None = None,
     ) -> None:
         """Args:
         step: the model's one-step map (x (2,), u) -> x_next.
         states: the plan's states x_0..x_{N-1} (N, 2) (0-based samples).
         tau: the plan's torques (N,); u_k acts from t_k to t_{k+1}, u_{N-1} is not used.
+        slider: the slider's lower limit to hold in the QP (None: tracking only).
         """
+        self.slider = slider
         n = states.shape[0]
         check_fits(config, n)
         self.config = config
@@ -156,7 +235,12 @@ class TrackingMPC:
         du_plan = u - self.tau[k : k + free]
         hess = g.T @ wg + self.config.r * np.eye(free)
         grad = g.T @ werr + self.config.r * du_plan
-        delta, iterations = solve_box_qp(hess, grad, -self.limit - u, self.limit - u)
+        lo, hi = -self.limit - u, self.limit - u
+        rows, rhs = self._slider_rows(k, free, xs, g)
+        if rows is None:
+            delta, iterations = solve_box_qp(hess, grad, lo, hi)
+        else:
+            delta, iterations = solve_with_limits(hess, grad, lo, hi, rows, rhs)
         solution = guess.copy()
         solution[:free] = u + delta
         seconds = time.perf_counter() - started
@@ -166,6 +250,28 @@ class TrackingMPC:
         nxt[:-1] = applied[1:]
         nxt[-1] = self.tau[min(k + h, self.n - 2)]
         return Step(float(applied[0]), seconds, missed, iterations), nxt
+
+    def _slider_rows(
+        self, k: int, free: int, xs: np.ndarray, g: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray]:
+        """The slider limits within the horizon as rows @ delta >= rhs, linearised about the
+        prediction xs (2 free,) with sensitivities g (2 free, free); (None, _) if none."""
+        if self.slider is None:
+            return None, np.empty(0)
+        limit = self.slider
+        inside = [c - k - 1 for c in limit.samples if k < c <= k + free]
+        if not inside:
+            return None, np.empty(0)
+        theta = xs[0::2][inside]
+        eps = 1e-6
+        position = limit.geometry.slider_position
+        slope = (position(theta + eps) - position(theta - eps)) / (2 * eps)
+        rows = slope[:, None] * g[[2 * j for j in inside]]
+        rhs = limit.height - limit.geometry.slider_position(theta)
+        reach = np.abs(rows).sum(axis=1) > 1e-12  # θ one sample ahead no torque can move
+        if not reach.any():
+            return None, np.empty(0)
+        return rows[reach], rhs[reach]
 
 
 def jacobians(
@@ -183,4 +289,4 @@ def jacobians(
     return np.asarray(f).T, a, np.asarray(b).T
 
 
-__all__ = ["MPCConfig", "MPCConfigError", "Step", "TrackingMPC", "jacobians"]
+__all__ = ["MPCConfig", "MPCConfigError", "SliderLimit", "Step", "TrackingMPC", "jacobians"]

@@ -35,14 +35,20 @@ class MPCConfig:
     compiled: bool = True
     """Compile the prediction to C (the system's C compiler; CasADi's virtual machine if there
     is none)."""
+    slider_limit: bool = False
+    """Also hold the OCP's slider height at its constraint samples in the QP, linearised about
+    the prediction, while they are within the horizon (control/mpc.py, `SliderLimit`)."""
 
     def __post_init__(self) -> None:
         check_count("mpc horizon", self.horizon, error=MPCConfigError)
         for name in ("q_theta", "q_omega", "r"):
             check_finite(f"mpc {name}", getattr(self, name), nonneg=True, error=MPCConfigError)
         check_finite("mpc deadline", self.deadline, positive=True, error=MPCConfigError)
-        if not isinstance(self.compiled, bool):
-            raise MPCConfigError(f"mpc compiled must be true or false, got {self.compiled!r}")
+        for name in ("compiled", "slider_limit"):
+            if not isinstance(getattr(self, name), bool):
+                raise MPCConfigError(
+                    f"mpc {name} must be true or false, got {getattr(self, name)!r}"
+                )
         if self.r == 0 and self.q_omega == 0:
             raise MPCConfigError(
                 "mpc weights: r and q_omega are both 0, so the torque is not determined "

@@ -51,6 +51,13 @@ MPCWeights = Annotated[
 MPCDeadline = Annotated[
     float, typer.Option("--mpc-deadline-ms", help="mpc mode: compute time allowed per step.")
 ]
+MPCSliderLimit = Annotated[
+    bool,
+    typer.Option(
+        "--mpc-slider-limit/--no-mpc-slider-limit",
+        help="mpc mode: also hold the OCP's slider height at its constraint samples in the QP.",
+    ),
+]
 PPANNPath = Annotated[
     Path | None,
     typer.Option(
@@ -61,8 +68,9 @@ _MPC = MPCConfig()
 DEFAULT_WEIGHTS = f"{_MPC.q_theta:g},{_MPC.q_omega:g},{_MPC.r:g}"
 
 
-def mpc_config(*, horizon: int, weights: str, deadline_ms: float) -> MPCConfig:
-    """The MPC settings of --mpc-horizon, --mpc-weights and --mpc-deadline-ms."""
+def mpc_config(*, horizon: int, weights: str, deadline_ms: float, slider_limit: bool) -> MPCConfig:
+    """The MPC settings of --mpc-horizon, --mpc-weights, --mpc-deadline-ms and
+    --mpc-slider-limit."""
     parts = [p.strip() for p in weights.split(",")]
     try:
         q_theta, q_omega, r = (float(p) for p in parts)
@@ -71,7 +79,12 @@ def mpc_config(*, horizon: int, weights: str, deadline_ms: float) -> MPCConfig:
             f"--mpc-weights must be three numbers q_theta,q_omega,r, got {weights!r}"
         ) from None
     return MPCConfig(
-        horizon=horizon, q_theta=q_theta, q_omega=q_omega, r=r, deadline=deadline_ms / 1e3
+        horizon=horizon,
+        q_theta=q_theta,
+        q_omega=q_omega,
+        r=r,
+        deadline=deadline_ms / 1e3,
+        slider_limit=slider_limit,
     )
 
 
@@ -146,6 +159,7 @@ def replay_command(
     mpc_horizon: MPCHorizon = _MPC.horizon,
     mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
     mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
+    mpc_slider_limit: MPCSliderLimit = _MPC.slider_limit,
 ) -> None:
     """Play the nominal and robust torque on freshly drawn twins, open and closed loop (and
     under the online MPC with --modes …,mpc): the campaign MCAP, <stem>.stats.json, <stem>.png
@@ -153,7 +167,12 @@ def replay_command(
     from replay.files import ocp_variability
 
     check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
-    mpc = mpc_config(horizon=mpc_horizon, weights=mpc_weights, deadline_ms=mpc_deadline_ms)
+    mpc = mpc_config(
+        horizon=mpc_horizon,
+        weights=mpc_weights,
+        deadline_ms=mpc_deadline_ms,
+        slider_limit=mpc_slider_limit,
+    )
     config = ReplayConfig(
         runs=runs,
         seed=seed,
@@ -207,6 +226,7 @@ def heldout_command(
     mpc_horizon: MPCHorizon = _MPC.horizon,
     mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
     mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
+    mpc_slider_limit: MPCSliderLimit = _MPC.slider_limit,
 ) -> None:
     """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
     with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
@@ -216,7 +236,12 @@ def heldout_command(
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
     if mode not in MODES:
         raise ReplayConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-    mpc = mpc_config(horizon=mpc_horizon, weights=mpc_weights, deadline_ms=mpc_deadline_ms)
+    mpc = mpc_config(
+        horizon=mpc_horizon,
+        weights=mpc_weights,
+        deadline_ms=mpc_deadline_ms,
+        slider_limit=mpc_slider_limit,
+    )
     ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(

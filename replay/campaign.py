@@ -151,7 +151,7 @@ def mpc_law(
     """One online MPC per machine, tracking `profile` on the PPANN mean, and the record its
     steps fill in as the twin calls the law (control/mpc.py)."""
     from control.dynamics import CasadiPPANN  # CasADi: only when an MPC is played
-    from control.mpc import TrackingMPC
+    from control.mpc import SliderLimit, TrackingMPC
 
     controller = TrackingMPC(
         CasadiPPANN(model).step,
@@ -159,6 +159,13 @@ def mpc_law(
         tau=profile.tau,
         torque_limit=ocp.config.torque_limit,
         config=config.mpc,
+        slider=SliderLimit(
+            geometry=ocp.geometry,
+            height=ocp.config.height,
+            samples=tuple(k - 1 for k in ocp.config.constraint_samples),
+        )
+        if config.mpc.slider_limit
+        else None,
     )
     shape = (config.runs, ocp.horizon)
     record = MPCRecord(

@@ -13,12 +13,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 import pytest
+from scipy.optimize import minimize
 
 from control.boxqp import solve_box_qp
 from control.compiled import Workshop
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, riccati
-from control.mpc import TrackingMPC, prediction_function
+from control.mpc import SliderLimit, TrackingMPC, prediction_function, solve_with_limits
 from control.mpc_config import MPCConfig, MPCConfigError
 from control.ocp_file import OCPFile, read_ocp
 from ppann.checkpoint import CheckpointError, save
@@ -336,3 +337,78 @@ def test_mpc_applied_torque_is_within_the_twin_limit_on_every_sample(
     assert np.all(np.abs(replay.tau) <= ocp.config.torque_limit + 1e-12)
     assert replay.mpc is not None and np.isnan(replay.mpc.seconds[:, -1]).all()
     assert np.isfinite(replay.mpc.seconds[:, :-1]).all()
+
+
+@pytest.mark.parametrize("bias", [-0.3, 0.3])
+def test_slider_limit_holds_the_height_against_an_unmodelled_torque(bias: float) -> None:
+    """A plan that sits exactly on the slider's height at one sample, and a plant that is the
+    model plus a constant torque the MPC does not know. Tracking only, the bias that lowers the
+    slider leaves it 0.2 mm below the height; with the limit in the QP the slider misses by no
+    more than what the bias does in the one step no torque can answer any more (the angle of
+    the next sample is set by the speed now: dt² |bias| / J times the slope), and where the bias
+    raises the slider the limit is slack and changes nothing."""
+    model = constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    dynamics = CasadiPPANN(model)
+    n, c = 100, 60
+    states, tau = _ppann_plan(dynamics, n)
+    position = model.geometry.slider_position
+    height = float(position(states[c, 0]))
+    limit = SliderLimit(geometry=model.geometry, height=height, samples=(c,))
+    ends = {}
+    for name, slider in (("tracking", None), ("limited", limit)):
+        mpc = TrackingMPC(
+            dynamics.step,
+            states=states,
+            tau=tau,
+            torque_limit=100.0,
+            config=MPCConfig(deadline=LATE, compiled=False),
+            slider=slider,
+        )
+        x, guess = states[0].copy(), mpc.start()
+        for k in range(c):
+            step, guess = mpc.step(k, x, guess)
+            x = dynamics.step(x, step.torque + bias).full().ravel()
+        ends[name] = float(position(x[0])) - height
+    inertia = float(model.physical[0]) * 1.1  # J (1 + z_J)
+    slope = abs(float(position(states[c, 0] + 1e-6) - position(states[c, 0] - 1e-6)) / 2e-6)
+    one_step = slope * DT**2 * abs(bias) / inertia
+    if bias < 0:
+        assert ends["tracking"] < -1e-4
+        assert -1.5 * one_step <= ends["limited"] < 0.0
+    else:
+        assert ends["tracking"] > 1e-4
+        assert ends["limited"] == pytest.approx(ends["tracking"], abs=1e-12)
+
+
+def test_limited_box_qp_meets_its_rows_or_goes_as_far_as_the_box_lets() -> None:
+    rng = np.random.default_rng(3)
+    reachable = 0
+    for _ in range(30):
+        n = 6
+        m = rng.normal(size=(n, n))
+        h = m @ m.T + 0.1 * np.eye(n)
+        g = rng.normal(size=n)
+        lo, hi = -np.ones(n), np.ones(n)
+        row = rng.normal(size=(1, n))
+        free, _ = solve_box_qp(h, g, lo, hi)
+        rhs = np.array([row[0] @ free + 0.5])  # binding by construction
+        v, _ = solve_with_limits(h, g, lo, hi, row, rhs)
+        best = float(np.abs(row[0]) @ np.ones(n))  # the most the box allows
+        if rhs[0] <= best - 1e-6:
+            reachable += 1
+            assert row[0] @ v == pytest.approx(rhs[0], abs=1e-8)
+        assert np.all(v >= lo - 1e-12) and np.all(v <= hi + 1e-12)
+        # the constrained optimum costs more than the free one, never less, and is SciPy's
+        assert 0.5 * v @ h @ v + g @ v >= 0.5 * free @ h @ free + g @ free - 1e-12
+        if rhs[0] <= best - 1e-6:
+            reference = minimize(
+                lambda w, h=h, g=g: 0.5 * w @ h @ w + g @ w,
+                free,
+                jac=lambda w, h=h, g=g: h @ w + g,
+                bounds=list(zip(lo, hi, strict=True)),
+                constraints=[{"type": "ineq", "fun": lambda w, a=row[0], b=rhs[0]: a @ w - b}],
+                method="SLSQP",
+                options={"ftol": 1e-14, "maxiter": 500},
+            )
+            np.testing.assert_allclose(v, reference.x, atol=1e-6)
+    assert reachable >= 20  # the comparisons above did run
