@@ -81,13 +81,18 @@ def prediction_function(
 
 @dataclass(frozen=True)
 class SliderLimit:
-    """slider(θ) >= height at the plan's constraint samples, held in the MPC's QP (linearised
-    about the prediction) while those samples are within the horizon."""
+    """slider(θ + δ) >= height at the plan's constraint samples, held in the MPC's QP
+    (linearised about the prediction) while those samples are within the horizon. δ is the
+    crank's angle to the motor (ppann/transmission.py) at its quantile on the unsafe side:
+    `delta_low` where the slider rises with θ, `delta_high` where it falls (both 0: the motor
+    angle itself)."""
 
     geometry: Geometry
     height: float
     samples: tuple[int, ...]
     """0-based state indices (the OCP's 1-based constraint samples minus 1)."""
+    delta_low: float = 0.0
+    delta_high: float = 0.0
 
 
 def solve_with_limits(
@@ -265,6 +270,8 @@ class TrackingMPC:
         theta = xs[0::2][inside]
         eps = 1e-6
         position = limit.geometry.slider_position
+        rising = position(theta + eps) >= position(theta - eps)
+        theta = theta + np.where(rising, limit.delta_low, limit.delta_high)
         slope = (position(theta + eps) - position(theta - eps)) / (2 * eps)
         rows = slope[:, None] * g[[2 * j for j in inside]]
         rhs = limit.height - limit.geometry.slider_position(theta)

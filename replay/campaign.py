@@ -34,14 +34,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from common.streams import stream
+from control.config import lower_tail
 from control.mpc_config import MPCConfigError
 from control.ocp_file import OCPFile, Profile
+from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 from replay.config import PROFILES, ReplayConfig
 from twin.physics import SliderCrank
 from twin.stepping import simulate
 from twin.variability import MachineDraw
 
 if TYPE_CHECKING:
+    from control.mpc import SliderLimit
     from ppann.model import PPANN
 
 
@@ -145,13 +148,30 @@ def tracking_law(
     return law
 
 
+def slider_limit(ocp: OCPFile, model: PPANN) -> SliderLimit:
+    """The OCP's slider height at its constraint samples for the MPC's QP, with the crank's
+    angle to the motor at its quantiles Φ(∓k_sigma) (the OCP's confidence; the model's
+    transmission quantiles, ppann/transmission.py)."""
+    from control.mpc import SliderLimit
+
+    level = lower_tail(ocp.config.k_sigma)
+    quantiles = model.transmission.detach().numpy()
+    return SliderLimit(
+        geometry=ocp.geometry,
+        height=ocp.config.height,
+        samples=tuple(k - 1 for k in ocp.config.constraint_samples),
+        delta_low=float(np.interp(level, TRANSMISSION_LEVELS, quantiles)),
+        delta_high=float(np.interp(1.0 - level, TRANSMISSION_LEVELS, quantiles)),
+    )
+
+
 def mpc_law(
     physics: SliderCrank, ocp: OCPFile, profile: Profile, model: PPANN, config: ReplayConfig
 ) -> tuple[Callable[[int, np.ndarray], np.ndarray], MPCRecord]:
     """One online MPC per machine, tracking `profile` on the PPANN mean, and the record its
     steps fill in as the twin calls the law (control/mpc.py)."""
     from control.dynamics import CasadiPPANN  # CasADi: only when an MPC is played
-    from control.mpc import SliderLimit, TrackingMPC
+    from control.mpc import TrackingMPC
 
     controller = TrackingMPC(
         CasadiPPANN(model).step,
@@ -159,13 +179,7 @@ def mpc_law(
         tau=profile.tau,
         torque_limit=ocp.config.torque_limit,
         config=config.mpc,
-        slider=SliderLimit(
-            geometry=ocp.geometry,
-            height=ocp.config.height,
-            samples=tuple(k - 1 for k in ocp.config.constraint_samples),
-        )
-        if config.mpc.slider_limit
-        else None,
+        slider=slider_limit(ocp, model) if config.mpc.slider_limit else None,
     )
     shape = (config.runs, ocp.horizon)
     record = MPCRecord(

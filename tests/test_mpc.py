@@ -339,21 +339,25 @@ def test_mpc_applied_torque_is_within_the_twin_limit_on_every_sample(
     assert np.isfinite(replay.mpc.seconds[:, :-1]).all()
 
 
-@pytest.mark.parametrize("bias", [-0.3, 0.3])
-def test_slider_limit_holds_the_height_against_an_unmodelled_torque(bias: float) -> None:
+@pytest.mark.parametrize(("bias", "delta"), [(-0.3, 0.0), (0.3, 0.0), (-0.3, -0.01)])
+def test_slider_limit_holds_the_height_against_an_unmodelled_torque(
+    bias: float, delta: float
+) -> None:
     """A plan that sits exactly on the slider's height at one sample, and a plant that is the
     model plus a constant torque the MPC does not know. Tracking only, the bias that lowers the
     slider leaves it 0.2 mm below the height; with the limit in the QP the slider misses by no
     more than what the bias does in the one step no torque can answer any more (the angle of
     the next sample is set by the speed now: dt² |bias| / J times the slope), and where the bias
-    raises the slider the limit is slack and changes nothing."""
+    raises the slider the limit is slack and changes nothing. With the crank allowed to lag
+    the motor by 10 mrad (`delta_low`, the slider rising there), the MPC holds the lagging
+    crank's slider at the height, so the motor's own runs that much higher."""
     model = constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.03, 0.05, 0.05))
     dynamics = CasadiPPANN(model)
     n, c = 100, 60
     states, tau = _ppann_plan(dynamics, n)
     position = model.geometry.slider_position
     height = float(position(states[c, 0]))
-    limit = SliderLimit(geometry=model.geometry, height=height, samples=(c,))
+    limit = SliderLimit(geometry=model.geometry, height=height, samples=(c,), delta_low=delta)
     ends = {}
     for name, slider in (("tracking", None), ("limited", limit)):
         mpc = TrackingMPC(
@@ -368,7 +372,7 @@ def test_slider_limit_holds_the_height_against_an_unmodelled_torque(bias: float)
         for k in range(c):
             step, guess = mpc.step(k, x, guess)
             x = dynamics.step(x, step.torque + bias).full().ravel()
-        ends[name] = float(position(x[0])) - height
+        ends[name] = float(position(x[0] + (delta if slider else 0.0))) - height
     inertia = float(model.physical[0]) * 1.1  # J (1 + z_J)
     slope = abs(float(position(states[c, 0] + 1e-6) - position(states[c, 0] - 1e-6)) / 2e-6)
     one_step = slope * DT**2 * abs(bias) / inertia
