@@ -20,6 +20,11 @@ faster than CasADi's virtual machine, which is the fallback without a C compiler
 (control/boxqp.py) gives the new torques, of which the first is applied. One iteration per
 sample, warm-started: the Newton iterations of a plain SQP are spread over the samples.
 
+With a `SliderLimit` (`--mpc-slider-limit`) the QP also holds slider(θ + δ) >= height at the
+OCP's constraint samples within the horizon, linearised about the prediction, δ the crank's
+angle to the motor at its unsafe-side quantile (the model's transmission error); the QP is then
+solved through its dual on those few rows (`solve_with_limits`).
+
 Near the end of the plan the horizon shrinks: states past the plan's last sample are not
 weighed and torques past its last control are not free. A step whose compute time exceeds the
 deadline (one sample) is counted as a miss, and the shifted previous solution is applied instead
@@ -170,6 +175,7 @@ class Step:
     missed: bool
     """The step took longer than the deadline; the shifted previous solution was applied."""
     qp_iterations: int
+    """Active-set steps of the box QP; with a binding slider limit, the box QPs solved."""
 
 
 class TrackingMPC:

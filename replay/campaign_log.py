@@ -67,7 +67,10 @@ MPC_FIELDS = {
         "type": "boolean",
         "description": "over the deadline: the shifted previous solution was applied",
     },
-    "qp_iterations": {"type": "integer", "description": "active-set steps of the box QP"},
+    "qp_iterations": {
+        "type": "integer",
+        "description": "active-set steps of the box QP (box QPs solved if the slider limit bound)",
+    },
 }
 OCP_ATTACHMENT = "ocp.json"
 CONFIG_ATTACHMENT = "config.json"
