@@ -1,4 +1,5 @@
-"""A small dense QP with box bounds, solved by a primal active set: the MPC's QP (control/mpc.py).
+"""A small dense QP with box bounds, solved by a primal active set: the MPC's QP (control/mpc.py);
+and the same QP with a few general rows (`solve_with_limits`, the MPC's slider limit) by its dual.
 
     minimise 1/2 v^T H v + g^T v   subject to   lo <= v <= hi,   H symmetric positive definite.
 
@@ -77,3 +78,67 @@ def solve_box_qp(
         pinned[worst] = False
         on_minimum = False
     raise BoxQPError(f"the box QP of {n} variables did not settle in {budget} active-set steps")
+
+
+def solve_with_limits(
+    hess: np.ndarray,
+    grad: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    rows: np.ndarray,
+    rhs: np.ndarray,
+    *,
+    tol: float = 1e-10,
+) -> tuple[np.ndarray, int]:
+    """The box QP with rows @ v >= rhs as well (a few rows), by its dual: for multipliers
+    lam >= 0 the box QP of grad - rows^T lam is solved, and each lam_i is found by regula falsi
+    (Illinois) on the slack rows_i @ v(lam) - rhs_i, which is nondecreasing in lam_i (one sweep
+    for one row, a few for more). A row the box cannot meet gets the largest multiplier tried:
+    the torque then goes as far towards it as the limit lets. Returns v and the box QPs solved."""
+    solves = 0
+
+    def box(lam: np.ndarray) -> np.ndarray:
+        nonlocal solves
+        solves += 1
+        return solve_box_qp(hess, grad - rows.T @ lam, lo, hi)[0]
+
+    lam = np.zeros(len(rhs))
+    v = box(lam)
+    for _ in range(1 if len(rhs) == 1 else 6):
+        for i in range(len(rhs)):
+
+            def slack(li: float, i: int = i) -> tuple[float, np.ndarray]:
+                trial = lam.copy()
+                trial[i] = li
+                w = box(trial)
+                return float(rows[i] @ w - rhs[i]), w
+
+            a = 0.0
+            fa, va = slack(a)
+            if fa >= -tol:  # not binding at lam_i = 0
+                lam[i], v = 0.0, va
+                continue
+            b, (fb, vb) = 1.0, slack(1.0)
+            while fb < -tol and b < 1e12:
+                a, fa, b = b, fb, 10.0 * b
+                fb, vb = slack(b)
+            if fb < -tol:  # out of the box's reach
+                lam[i], v = b, vb
+                continue
+            side = 0
+            for _ in range(60):
+                c = b - fb * (b - a) / (fb - fa)
+                fc, vc = slack(c)
+                if abs(fc) <= tol:
+                    b, fb, vb = c, fc, vc
+                    break
+                if fc < 0:
+                    a, fa = c, fc
+                    fb = fb / 2 if side == -1 else fb
+                    side = -1
+                else:
+                    b, fb, vb = c, fc, vc
+                    fa = fa / 2 if side == 1 else fa
+                    side = 1
+            lam[i], v = b, vb
+    return v, solves

@@ -39,11 +39,20 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from control.boxqp import solve_box_qp
+from control.boxqp import solve_box_qp, solve_with_limits
 from control.compiled import Workshop
 from control.lqr import LQRWeights, riccati
 from control.mpc_config import MPCConfig, MPCConfigError, check_fits
 from twin.geometry import Geometry
+
+
+def step_sensitivities(step: ca.Function) -> ca.Function:
+    """(x (2,), u) -> (x_next, A = d x_next / dx (2, 2), B = d x_next / du (2, 1)) of `step`."""
+    xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
+    nxt = step(xs, us)
+    return ca.Function(
+        "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
+    )
 
 
 def prediction_function(
@@ -53,13 +62,8 @@ def prediction_function(
     from the one-step map `step(x, u) -> x_next`, and the engine that evaluates it: "compiled"
     (CasADi's C code generation, built with the system's C compiler in `workshop`'s folder,
     which must live as long as the function) or "vm" (CasADi's SX virtual machine: without a
-    workshop, or without a compiler). The same numbers
-    either way (tests/test_mpc.py)."""
-    xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
-    nxt = step(xs, us)
-    jac = ca.Function(
-        "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
-    )
+    workshop, or without a compiler). The same numbers either way (tests/test_mpc.py)."""
+    jac = step_sensitivities(step)
     x0, u = ca.MX.sym("x0", 2), ca.MX.sym("u", horizon)
     x, states, blocks = x0, [], []  # blocks[i] = d x_{i+1} / du as a (2, H) row block
     for j in range(horizon):
@@ -98,70 +102,6 @@ class SliderLimit:
     """0-based state indices (the OCP's 1-based constraint samples minus 1)."""
     delta_low: float = 0.0
     delta_high: float = 0.0
-
-
-def solve_with_limits(
-    hess: np.ndarray,
-    grad: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    rows: np.ndarray,
-    rhs: np.ndarray,
-    *,
-    tol: float = 1e-10,
-) -> tuple[np.ndarray, int]:
-    """The box QP with rows @ v >= rhs as well (a few rows), by its dual: for multipliers
-    lam >= 0 the box QP of grad - rows^T lam is solved, and each lam_i is found by regula falsi
-    (Illinois) on the slack rows_i @ v(lam) - rhs_i, which is nondecreasing in lam_i (one sweep
-    for one row, a few for more). A row the box cannot meet gets the largest multiplier tried:
-    the torque then goes as far towards it as the limit lets. Returns v and the box QPs solved."""
-    solves = 0
-
-    def box(lam: np.ndarray) -> np.ndarray:
-        nonlocal solves
-        solves += 1
-        return solve_box_qp(hess, grad - rows.T @ lam, lo, hi)[0]
-
-    lam = np.zeros(len(rhs))
-    v = box(lam)
-    for _ in range(1 if len(rhs) == 1 else 6):
-        for i in range(len(rhs)):
-
-            def slack(li: float, i: int = i) -> tuple[float, np.ndarray]:
-                trial = lam.copy()
-                trial[i] = li
-                w = box(trial)
-                return float(rows[i] @ w - rhs[i]), w
-
-            a = 0.0
-            fa, va = slack(a)
-            if fa >= -tol:  # not binding at lam_i = 0
-                lam[i], v = 0.0, va
-                continue
-            b, (fb, vb) = 1.0, slack(1.0)
-            while fb < -tol and b < 1e12:
-                a, fa, b = b, fb, 10.0 * b
-                fb, vb = slack(b)
-            if fb < -tol:  # out of the box's reach
-                lam[i], v = b, vb
-                continue
-            side = 0
-            for _ in range(60):
-                c = b - fb * (b - a) / (fb - fa)
-                fc, vc = slack(c)
-                if abs(fc) <= tol:
-                    b, fb, vb = c, fc, vc
-                    break
-                if fc < 0:
-                    a, fa = c, fc
-                    fb = fb / 2 if side == -1 else fb
-                    side = -1
-                else:
-                    b, fb, vb = c, fc, vc
-                    fa = fa / 2 if side == 1 else fa
-                    side = 1
-            lam[i], v = b, vb
-    return v, solves
 
 
 @dataclass(frozen=True)
@@ -291,13 +231,8 @@ def jacobians(
     step: ca.Function, states: np.ndarray, tau: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """f(x_k, u_k) (T, 2), A_k (T, 2, 2) and B_k (T, 2) of `step` at T states (T, 2)."""
-    xs, us = ca.SX.sym("x", 2), ca.SX.sym("u")
-    nxt = step(xs, us)
-    fn = ca.Function(
-        "step_sensitivities", [xs, us], [nxt, ca.jacobian(nxt, xs), ca.jacobian(nxt, us)]
-    )
     t = states.shape[0]
-    f, a, b = fn.map(t)(states.T, np.asarray(tau, dtype=float)[None, :])
+    f, a, b = step_sensitivities(step).map(t)(states.T, np.asarray(tau, dtype=float)[None, :])
     a = np.asarray(a).reshape(2, t, 2).transpose(1, 0, 2)
     return np.asarray(f).T, a, np.asarray(b).T
 

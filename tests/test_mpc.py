@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from control.boxqp import solve_box_qp
+from control.boxqp import solve_box_qp, solve_with_limits
 from control.compiled import Workshop
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, riccati
-from control.mpc import SliderLimit, TrackingMPC, prediction_function, solve_with_limits
+from control.mpc import SliderLimit, TrackingMPC, prediction_function
 from control.mpc_config import MPCConfig, MPCConfigError
 from control.ocp_file import OCPFile, read_ocp
 from ppann.checkpoint import CheckpointError, save
@@ -58,13 +58,17 @@ def _brute_force_box_qp(h, g, lo, hi):
     return best
 
 
+def _positive_definite(rng: np.random.Generator, n: int) -> np.ndarray:
+    m = rng.normal(size=(n, n))
+    return m @ m.T + 0.1 * np.eye(n)
+
+
 def test_box_qp_equals_the_enumeration_of_active_sets() -> None:
     rng = np.random.default_rng(0)
     active = 0
     for _ in range(40):
         n = 5
-        m = rng.normal(size=(n, n))
-        h = m @ m.T + 0.1 * np.eye(n)
+        h = _positive_definite(rng, n)
         g = rng.normal(scale=3.0, size=n)
         lo, hi = -rng.uniform(0.1, 1.0, n), rng.uniform(0.1, 1.0, n)
         v, _ = solve_box_qp(h, g, lo, hi, start=rng.uniform(lo, hi))
@@ -389,8 +393,7 @@ def test_limited_box_qp_meets_its_rows_or_goes_as_far_as_the_box_lets() -> None:
     reachable = 0
     for _ in range(30):
         n = 6
-        m = rng.normal(size=(n, n))
-        h = m @ m.T + 0.1 * np.eye(n)
+        h = _positive_definite(rng, n)
         g = rng.normal(size=n)
         lo, hi = -np.ones(n), np.ones(n)
         row = rng.normal(size=(1, n))
