@@ -124,15 +124,7 @@ def _first_pass(nominal: NominalOCP, repeat: int) -> tuple[float, int, np.ndarra
     c, n = nominal.config, nominal.config.horizon
     guess = nominal.initial_guess()
     turns = np.floor(guess[0 : 2 * (n - 1) : 2] / (2 * np.pi))
-    boundary = [c.theta_start, c.omega_start, c.theta_end, c.omega_end]
-    heights = [c.height] * len(c.constraint_samples)
-    zeros = np.zeros(2 * (n - 1))
-    bounds = {
-        "lbx": nominal._lbx,
-        "ubx": nominal._ubx,
-        "lbg": np.concatenate([zeros, boundary, heights]),
-        "ubg": np.concatenate([zeros, boundary, np.full(len(heights), np.inf)]),
-    }
+    bounds = nominal.bounds(np.full(len(c.constraint_samples), c.height))
     times = []
     for _ in range(repeat):
         started = time.perf_counter()

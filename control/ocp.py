@@ -203,6 +203,17 @@ class NominalOCP:
         omega = span * np.pi / (2 * (c.horizon - 1) * self.dt) * np.sin(np.pi * s)
         return np.concatenate([np.stack([theta, omega], axis=1).ravel(), np.zeros(c.horizon)])
 
+    def bounds(self, heights: np.ndarray) -> dict[str, np.ndarray]:
+        """IPOPT's lbx, ubx, lbg and ubg with slider lower bounds `heights` at the constraint
+        samples (the turn passes narrow lbx and ubx further)."""
+        zeros = np.zeros(self._n_defects)
+        return {
+            "lbx": self._lbx,
+            "ubx": self._ubx,
+            "lbg": np.concatenate([zeros, self._boundary, heights]),
+            "ubg": np.concatenate([zeros, self._boundary, np.full(len(heights), np.inf)]),
+        }
+
     def solve(
         self,
         heights: np.ndarray | None = None,
@@ -221,11 +232,8 @@ class NominalOCP:
         if heights is None:
             heights = np.full(len(c.constraint_samples), c.height)
         heights = np.asarray(heights, dtype=float)
-        lbg = np.concatenate([np.zeros(self._n_defects), self._boundary, heights])
-        ubg = np.concatenate(
-            [np.zeros(self._n_defects), self._boundary, np.full(len(heights), np.inf)]
-        )
-        args: dict[str, Any] = {"lbx": self._lbx, "ubx": self._ubx, "lbg": lbg, "ubg": ubg}
+        args: dict[str, Any] = self.bounds(heights)
+        lbg, ubg = args["lbg"], args["ubg"]
         if warm is None:
             w0 = self.initial_guess()
         else:

@@ -18,7 +18,7 @@ from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path
 from control.mpc_config import check_fits
-from control.ocp_file import OCPFileError, read_ocp
+from control.ocp_file import OCPFile, OCPFileError, read_ocp
 from replay.campaign import Replay, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
 from replay.config import ReplayConfig, check_campaign_memory
@@ -45,9 +45,12 @@ def output_paths(out: str | Path) -> dict[str, Path]:
     }
 
 
-def plan_model(ocp_path: str | Path, *, override: str | Path | None = None) -> PPANN:
+def plan_model(
+    ocp_path: str | Path, *, override: str | Path | None = None, ocp: OCPFile | None = None
+) -> PPANN:
     """The PPANN an ocp.json was solved on (the mpc mode predicts with it): the checkpoint it
     names (relative to its folder), or `override`, which must be that same file (sha256).
+    `ocp`: the file already read, if it was.
 
     Raises:
       CheckpointError: the checkpoint is missing, another file than the plan's, or not a PPANN.
@@ -57,7 +60,7 @@ def plan_model(ocp_path: str | Path, *, override: str | Path | None = None) -> P
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
 
-    record = read_ocp(ocp_path).raw.get("model") or {}
+    record = (ocp if ocp is not None else read_ocp(ocp_path)).raw.get("model") or {}
     if override is not None:
         path = Path(override)
     elif "path" in record:
@@ -134,7 +137,7 @@ def replay_file(
     predictor = None
     if "mpc" in config.modes:
         check_fits(config.mpc, ocp.horizon)
-        predictor = plan_model(ocp_path, override=ppann)
+        predictor = plan_model(ocp_path, override=ppann, ocp=ocp)
     model, model_xml = load_model(model_path)
     physics = SliderCrank(model)
     ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that=f"the twin {model_path}")
