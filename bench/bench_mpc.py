@@ -103,7 +103,7 @@ def main() -> None:
     c = ocp.config
     for label, seconds, replay, timing in rows:
         lowest = min(replay.slider_position[:, k - 1].min() for k in c.constraint_samples)
-        rms = 1e3 * float(np.sqrt(np.mean((replay.theta - ocp.robust.theta) ** 2)))
+        rms = 1e3 * float(np.sqrt(np.mean((replay.theta - ocp.profiles["robust"].theta) ** 2)))
         if timing is None:
             cells = f"{'':>15} {'':>8} {'':>8} {'':>7} {'':>10}"
         else:

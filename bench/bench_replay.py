@@ -29,7 +29,7 @@ from mujoco import rollout
 from control.ocp_file import read_ocp
 from replay.campaign import draw_machines, play
 from replay.campaign_log import CampaignLog
-from replay.config import PROFILES, ReplayConfig
+from replay.config import ReplayConfig
 from twin.physics import SliderCrank, load_model
 
 
@@ -68,18 +68,18 @@ def main() -> None:
     config = ReplayConfig(runs=args.runs)
     machines = draw_machines(config, ocp.horizon)
     nthread = os.cpu_count() or 1
-    tau = {p: getattr(ocp, p).tau for p in PROFILES}
+    tau = {p: ocp.profiles[p].tau for p in ocp.names}
     project, reference, closed, logging = [], [], [], []
     for _ in range(args.repeats):
         started = time.perf_counter()
         replays = [
             play(physics, ocp, profile=p, mode="open", machines=machines, config=config)
-            for p in PROFILES
+            for p in ocp.names
         ]
         project.append(time.perf_counter() - started)
         reference.append(bare(physics, tau, args.runs, nthread))
         started = time.perf_counter()
-        for p in PROFILES:
+        for p in ocp.names:
             play(physics, ocp, profile=p, mode="closed", machines=machines, config=config)
         closed.append(time.perf_counter() - started)
         with tempfile.TemporaryDirectory() as tmp:

@@ -1,9 +1,10 @@
 """Benchmark: nominal OCP solve against the whole robust loop (every re-solve and Monte-Carlo),
 measured in the same run (target: robust loop <= 3 × the nominal solve), with today's default
 Monte-Carlo (1000 mixed trajectories, gaussian tightening, the line allowance at confidence 0.95),
-the same at confidence 0, the same sized for the LQR closed loop (a tube), for reference in the
-same run the paper's (100 step trajectories, confidence 0), and the default with the NLP compiled
-to C (`--compiled`: every solve ~3x faster, the Monte-Carlo not, so the ratio rises).
+the same at confidence 0, the same sized for the LQR closed loop (robust-fb, a tube), for
+reference in the same run the paper's (100 step trajectories, confidence 0), and the default with
+the NLP compiled to C (`--compiled`: every solve ~3x faster, the Monte-Carlo not, so the ratio
+rises).
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
 
@@ -40,13 +41,14 @@ def main() -> None:
         model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
         source = "constant networks"
     configs = {
-        "default (1000 mixed, gaussian, confidence 0.95)": OCPConfig(),
-        "default at confidence 0": OCPConfig(confidence=0.0),
-        "default with the LQR tube (--feedback lqr)": OCPConfig(feedback="lqr"),
-        "paper (100 step, gaussian, confidence 0)": OCPConfig(
-            mc_samples=100, mc_mode="step", confidence=0.0
+        "default (1000 mixed, gaussian, confidence 0.95)": (OCPConfig(), "robust"),
+        "default at confidence 0": (OCPConfig(confidence=0.0), "robust"),
+        "default for the LQR closed loop (robust-fb, a tube)": (OCPConfig(), "robust-fb"),
+        "paper (100 step, gaussian, confidence 0)": (
+            OCPConfig(mc_samples=100, mc_mode="step", confidence=0.0),
+            "robust",
         ),
-        "default, NLP compiled to C (--compiled)": OCPConfig(compiled=True),
+        "default, NLP compiled to C (--compiled)": (OCPConfig(compiled=True), "robust"),
     }
     started = time.perf_counter()
     ocps = {False: NominalOCP(model, OCPConfig())}
@@ -59,14 +61,14 @@ def main() -> None:
         f"build (SX expansion + IPOPT setup, once): {build:.2f} s; compiled "
         f"({ocps[True].engine}): {build_compiled:.2f} s"
     )
-    for label, config in configs.items():
+    for label, (config, profile) in configs.items():
         ocp = ocps[config.compiled]
         nominal, robust, ratios, mc = [], [], [], []
         for _ in range(args.repeat):
             started = time.perf_counter()
             solution = ocp.solve()
             nominal.append(time.perf_counter() - started)
-            result = solve_robust(model, config, ocp=ocp)
+            result = solve_robust(model, config, profile=profile, ocp=ocp)
             robust.append(result.wall_time)
             ratios.append(robust[-1] / nominal[-1])
             mc.append(sum(it.monte_carlo_time for it in result.iterations))
@@ -87,7 +89,7 @@ def main() -> None:
             f"ratio robust / nominal: {r / n:.2f} (target <= 3); per repeat "
             f"{min(ratios):.2f}-{max(ratios):.2f}"
         )
-        print(f"robust cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
+        print(f"{profile} cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
 
 
 if __name__ == "__main__":

@@ -70,7 +70,7 @@ def main() -> None:
                 seed=args.heldout_seed,
                 variability=ocp_variability(ocp_path),
             )
-            robust = heldout["profiles"]["robust"]
+            robust = heldout["profiles"]["robust"]["open"]
             row |= {
                 "verdict": "robust",
                 "margins_mm": [1e3 * (h - config.height) for h in solved["robust"]["heights"]],

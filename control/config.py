@@ -18,7 +18,10 @@ class OCPConfigError(CrankError, ValueError):
 
 
 TIGHTENINGS = ("gaussian", "quantile")
-FEEDBACKS = ("none", "lqr")
+ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed"}
+"""The robust profiles `crank solve` knows, each with the loop its tightening is sized for:
+`robust`, open loop (the paper's eq. 16), and `robust-fb`, the closed loop under the plan's
+time-varying LQR law, saturated at the torque limit (a tube, beyond the paper; control/lqr.py)."""
 GAUSSIAN_SAMPLES = 1000
 """Default Monte-Carlo size for gaussian tightening: k·σ to 2.2 % standard error (100 gave 7 %)."""
 QUANTILE_TAIL = 20
@@ -27,10 +30,10 @@ MAX_MC_SAMPLES = 200_000
 """Most Monte-Carlo trajectories (150 steps of 200 000 samples hold ~0.5 GB)."""
 
 
-def loop_of(feedback: str) -> str:
-    """The loop a robust claim is about for a `feedback` setting: "closed" when the tightening is
-    sized for the LQR closed loop, else "open" (the paper's experiment)."""
-    return "closed" if feedback == "lqr" else "open"
+def loop_of(profile: str) -> str:
+    """The loop a profile's robust claim is about: "closed" for a profile tightened for the LQR
+    closed loop (robust-fb), else "open" (the paper's experiment)."""
+    return ROBUST_PROFILES.get(profile, "open")
 
 
 def lower_tail(k_sigma: float) -> float:
@@ -74,10 +77,10 @@ class OCPConfig:
     trajectories. 0 takes the fitted line and the estimate as the truth (the paper's eq. 16)."""
     mc_seed: int = 0
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
-    feedback: str = "none"
-    """The loop the robust tightening is sized for (beyond the paper): "none" (open loop, the
-    paper's eq. 16) or "lqr" (the Monte-Carlo runs each machine under the time-varying LQR law
-    along the plan, saturated at the torque limit: a tube; control/lqr.py)."""
+    profiles: tuple[str, ...] = ("robust",)
+    """The robust profiles solved beside the nominal one (ROBUST_PROFILES): "robust" (tightened
+    for the open loop, the paper's eq. 16) and "robust-fb" (the Monte-Carlo runs each machine
+    under the time-varying LQR law along the plan, saturated at the torque limit: a tube)."""
     feedback_theta: float = 0.02
     """LQR: acceptable crank-angle deviation, rad (Bryson: q_theta = 1 / this^2)."""
     feedback_omega: float = 1.0
@@ -123,9 +126,12 @@ class OCPConfig:
         if self.confidence >= 1:
             raise OCPConfigError(f"confidence must be in [0, 1), got {self.confidence:g}")
         check_mode(self.mc_mode, error=OCPConfigError)
-        if self.feedback not in FEEDBACKS:
+        object.__setattr__(self, "profiles", tuple(self.profiles))
+        unknown = [p for p in self.profiles if p not in ROBUST_PROFILES]
+        if not self.profiles or unknown or len(set(self.profiles)) != len(self.profiles):
             raise OCPConfigError(
-                f"feedback must be one of {', '.join(FEEDBACKS)}, got {self.feedback!r}"
+                f"profiles must be distinct names among {', '.join(ROBUST_PROFILES)}, "
+                f"got {', '.join(self.profiles) or 'none'}"
             )
         if self.tightening not in TIGHTENINGS:
             raise OCPConfigError(
@@ -160,4 +166,5 @@ class OCPConfig:
     def as_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["constraint_samples"] = list(self.constraint_samples)
+        out["profiles"] = list(self.profiles)
         return out

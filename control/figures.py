@@ -6,7 +6,6 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from control.config import loop_of
 from control.ocp_file import OCPFile, Profile
 from twin.geometry import Geometry
 
@@ -31,19 +30,23 @@ def constraint_boxes(ax: Axes, ocp: OCPFile, heights: list[float] | None = None)
         ax.plot([t], [h], "kv", ms=7)
 
 
-def _slider(ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str) -> None:
+def _slider(
+    ax: Axes, ocp: OCPFile, profile: Profile, color: str, label: str, *, loop: str | None = None
+) -> None:
+    """The profile's mean slider and its ±kσ band in `loop` (default: the loop it was sized
+    for)."""
     k = ocp.config.k_sigma
+    loop = loop or profile.loop
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
-    lower, upper = predicted_band(
-        profile, loop_of(ocp.config.feedback), k, geometry=ocp.geometry
-    )  # the loop it was sized for
+    lower, upper = predicted_band(profile, loop, k, geometry=ocp.geometry)
     ax.fill_between(
         profile.time,
         lower,
         upper,
         color=color,
         alpha=0.2,
-        label=f"{label}: ±{k:g}σ (Monte-Carlo, {ocp.config.mc_samples} runs; within the stroke)",
+        label=f"{label}: ±{k:g}σ {loop} loop (Monte-Carlo, {ocp.config.mc_samples} runs; "
+        f"within the stroke)",
     )
 
 
@@ -73,25 +76,32 @@ def nominal_figure(ocp: OCPFile) -> Figure:
     return fig
 
 
-def robust_figure(ocp: OCPFile) -> Figure:
-    """Fig. 11: nominal and robust torque; robust slider position with its ±kσ band, and the
-    margins of every robust iteration."""
+TITLES = {
+    "robust": "Robust OCP (eq. 16, tightened open loop)",
+    "robust-fb": "Robust OCP tightened for the LQR closed loop (a tube)",
+}
+COLORS = {"nominal": "C0", "robust": "C3", "robust-fb": "C2"}
+
+
+def robust_figure(ocp: OCPFile, name: str) -> Figure:
+    """Fig. 11: nominal and the robust profile `name`'s torque; the slider position with its ±kσ
+    band in the loop it was tightened for, and the margins of each of its robust iterations."""
     fig = Figure(figsize=(9, 8), layout="constrained")
     top, middle, bottom = fig.subplots(3, 1, height_ratios=(1, 1.3, 0.8))
-    top.plot(ocp.nominal.time, ocp.nominal.tau, color="C0", label="nominal")
-    top.plot(ocp.robust.time, ocp.robust.tau, color="C3", label="robust")
+    robust = ocp.profiles[name]
+    top.plot(ocp.nominal.time, ocp.nominal.tau, color=COLORS["nominal"], label="nominal")
+    top.plot(robust.time, robust.tau, color=COLORS[name], label=name)
     torque_limits(top, ocp)
     top.set_ylabel("τ [N·m]")
-    premium = ocp.robust.cost / ocp.nominal.cost - 1
-    top.set_title(f"Robust OCP (eq. 16): cost {ocp.robust.cost:.4g}, {premium:+.1%} over nominal")
+    top.set_title(f"{TITLES[name]}: cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal")
     top.legend(fontsize=8)
-    _slider(middle, ocp, ocp.nominal, "C0", "nominal")
-    _slider(middle, ocp, ocp.robust, "C3", "robust")
+    _slider(middle, ocp, ocp.nominal, COLORS["nominal"], "nominal", loop=robust.loop)
+    _slider(middle, ocp, robust, COLORS[name], name)
     constraint_boxes(middle, ocp)
     middle.set_ylabel("slider position [m]")
     middle.set_xlabel("t [s]")
     middle.legend(loc="lower center", fontsize=7)
-    iterations = ocp.raw.get("robust_iterations", [])
+    iterations = [it for it in ocp.raw.get("robust_iterations", []) if it["profile"] == name]
     for i, k in enumerate(ocp.config.constraint_samples):
         margins = [1e3 * it["margin"][i] for it in iterations]
         sigmas = [1e3 * it["tightening"][i] for it in iterations]

@@ -1,8 +1,9 @@
-"""ocp.json: the nominal and robust torque profiles of one `crank solve`, and its loader.
+"""ocp.json: the nominal and robust torque profiles of one `crank solve`, and its loader (the
+writer: control/ocp_write.py).
 
 Top-level keys (stable; `version` changes if any meaning does):
 
-  format, version            "crank-ocp", 6
+  format, version            "crank-ocp", 7
   index_convention           how sample k maps to arrays (text; see control/ocp.py)
   dt                         sample time Ts, s
   horizon                    N, samples per profile
@@ -10,16 +11,23 @@ Top-level keys (stable; `version` changes if any meaning does):
   config                     the resolved OCPConfig
   model                      {path, sha256, kind} of the checkpoint solved on
   geometry                   {crank_length, rod_length}, m: the checkpoint's (twin/geometry.py)
-  nominal, robust            profiles (below)
+  profiles                   the profiles in the file, in order: "nominal", then each robust
+                             profile of config.profiles that was solved (control/config.py
+                             ROBUST_PROFILES: "robust", open-loop tightening, the paper's eq. 16;
+                             "robust-fb", tightened for the LQR closed loop)
+  nominal, robust, robust-fb each profile listed (below)
+  refused                    {profile: the one-line reason} for each asked-for robust profile
+                             that has no robust torque (e.g. open loop on a wide line)
   variability                the training dataset's variability scenario (replays draw from it)
-  robust_iterations          one entry per robust solve: margin, tightening, tightening_se (m,
-                             per constraint sample: k sigma or plan - quantile, and its standard
-                             error from the finite Monte-Carlo), cost, ipopt_iterations,
-                             solve_time_s, monte_carlo_time_s, damping, draft (true: a draft
-                             solve, control/ocp.py; the last entry is always a full solve, the
-                             one in `robust`)
-  failed_margins             margins IPOPT could not meet during the loop, m
+  robust_iterations          one entry per robust solve: profile, margin, tightening,
+                             tightening_se (m, per constraint sample: k sigma or plan - quantile,
+                             and its standard error from the finite Monte-Carlo), cost,
+                             ipopt_iterations, solve_time_s, monte_carlo_time_s, damping, draft
+                             (true: a draft solve, control/ocp.py; each profile's last entry is
+                             always a full solve, the one in its profile)
+  failed_margins             {profile: margins IPOPT could not meet during its loop, m}
   timing                     build_s, engine (compiled or vm), nominal_solve_s, robust_loop_s
+                             ({profile: s})
   versions                   project, casadi, torch, numpy, python
   created                    ISO time of writing
 
@@ -29,47 +37,40 @@ states), `slider` (mean-model slider position, m), `slider_mc_mean`, `slider_sig
 mean and standard deviation of the slider position, in the loop the tightening was sized for),
 `slider_lower`, `slider_upper` (slider ∓ k sigma), `slider_sigma_open`, `slider_sigma_closed`
 (the Monte-Carlo std of the plan open loop and closed under its gains, which the replay's rows
-compare against); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, plus
+compare against); and scalars `cost`, `status`, `ipopt_iterations`, `wall_time_s`, `loop`
+(open or closed: the loop its bands and tightening are of; a robust profile's is the loop it
+was tightened for), plus
 `heights`, the slider lower bounds used at the constraint samples, and `tightening`,
 `tightening_se` there (m), and `population` and `sampling`, the parts of `tightening` that
 allow for the line's uncertain mean and for the Monte-Carlo's standard error (m,
 control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
 (N - 1 each), the LQR gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the
-twin's closed loop applies before samples 1..N-1. With config.feedback "lqr" the Monte-Carlo
-bands and the tightening are those of that closed loop.
+twin's closed loop applies before samples 1..N-1.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import platform
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import casadi as ca
 import numpy as np
-import torch
 
-from common.atomic import writes
 from common.errors import CrankError
-from common.jsonio import write_json
-from control.config import OCPConfig
-from control.ocp import Solution
-from control.robust import Partial, RobustResult
-from control.tightening import Uncertainty
-from twin import __version__
+from control.config import ROBUST_PROFILES, OCPConfig
 from twin.geometry import Geometry, GeometryError
 
 FORMAT = "crank-ocp"
 FAILED_FORMAT = "crank-ocp-failed"
 """The format of what a failed robust solve leaves beside the ocp.json it could not write."""
-VERSION = 6
+VERSION = 7
 """2: variability, tightening (was k_sigma) and tightening_se; 3: config.confidence, and
 population in each profile; 4: LQR gains and both loops' spreads; 5: sampling in each profile
-(the tightening includes the Monte-Carlo's standard-error allowance); 6: geometry."""
+(the tightening includes the Monte-Carlo's standard-error allowance); 6: geometry; 7: several
+robust profiles (config.profiles in place of config.feedback; profiles, refused, each profile's
+loop; iterations, failed margins and loop times per profile)."""
 INDEX_CONVENTION = (
     "sample k = 1..N is array index k - 1 at t = (k - 1) dt; tau[k - 1] acts from t_k to "
     "t_{k+1}; constraint_samples are 1-based"
@@ -89,7 +90,7 @@ SERIES = (
 )
 GAINS = ("gain_theta", "gain_omega")
 SCALARS = ("cost", "ipopt_iterations", "wall_time_s")
-TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "geometry", "nominal", "robust")
+TOP_KEYS = ("dt", "horizon", "constraint_samples", "config", "geometry", "profiles", "nominal")
 
 
 class OCPFileError(CrankError, ValueError):
@@ -122,6 +123,8 @@ class Profile:
     status: str
     ipopt_iterations: int
     wall_time_s: float
+    loop: str
+    """open or closed: the loop its bands and tightening are of (a robust profile's claim)."""
 
     def sigma_in(self, mode: str) -> np.ndarray:
         """Monte-Carlo slider std of the plan played in `mode`, (N,), m: open loop, or closed
@@ -135,185 +138,33 @@ class OCPFile:
     config: OCPConfig
     geometry: Geometry
     dt: float
-    nominal: Profile
-    robust: Profile
+    profiles: dict[str, Profile]
+    """"nominal", then each robust profile solved, in the file's order."""
+    refused: dict[str, str]
+    """Each asked-for robust profile that has none: why."""
     raw: dict[str, Any]
 
     @property
     def horizon(self) -> int:
         return self.config.horizon
 
+    @property
+    def nominal(self) -> Profile:
+        return self.profiles["nominal"]
 
-def profile_dict(
-    solution: Solution,
-    uncertainty: Uncertainty,
-    *,
-    gains: np.ndarray,
-    loops: dict[str, np.ndarray],
-    k_sigma: float,
-    dt: float,
-) -> dict[str, Any]:
-    """A profile as JSON-ready lists and scalars."""
-    n = len(solution.tau)
-    band = k_sigma * uncertainty.std
-    series = {
-        "time": np.arange(n) * dt,
-        "tau": solution.tau,
-        "theta": solution.states[:, 0],
-        "omega": solution.states[:, 1],
-        "slider": solution.slider,
-        "slider_mc_mean": uncertainty.mean,
-        "slider_sigma": uncertainty.std,
-        "slider_lower": solution.slider - band,
-        "slider_upper": solution.slider + band,
-        "slider_sigma_open": loops["open"],
-        "slider_sigma_closed": loops["closed"],
-    }
-    return {
-        **{k: [float(v) for v in values] for k, values in series.items()},
-        "heights": [float(h) for h in solution.heights],
-        "tightening": [float(v) for v in uncertainty.tightening],
-        "tightening_se": [float(v) for v in uncertainty.tightening_se],
-        "population": [float(v) for v in uncertainty.population],
-        "sampling": [float(v) for v in uncertainty.sampling],
-        "gain_theta": [float(v) for v in gains[:, 0]],
-        "gain_omega": [float(v) for v in gains[:, 1]],
-        "cost": solution.cost,
-        "status": solution.status,
-        "ipopt_iterations": solution.iterations,
-        "wall_time_s": solution.wall_time,
-    }
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The profiles in the file: "nominal" first."""
+        return tuple(self.profiles)
 
+    @property
+    def robust_names(self) -> tuple[str, ...]:
+        """The robust profiles in the file."""
+        return self.names[1:]
 
-def _header(
-    config: OCPConfig,
-    *,
-    dt: float,
-    model: dict[str, Any],
-    geometry: Geometry,
-    variability: dict[str, Any] | None,
-) -> dict[str, Any]:
-    return {
-        "format": FORMAT,
-        "version": VERSION,
-        "index_convention": INDEX_CONVENTION,
-        "dt": dt,
-        "horizon": config.horizon,
-        "constraint_samples": list(config.constraint_samples),
-        "config": config.as_dict(),
-        "model": model,
-        "geometry": geometry.as_dict(),
-        "variability": variability,
-    }
-
-
-def _profile_of(
-    result: RobustResult | Partial, name: str, *, config: OCPConfig, dt: float
-) -> dict[str, Any]:
-    """The profile `name` of a result (or of a failed solve's partial one) as JSON-ready data."""
-    return profile_dict(
-        getattr(result, name),
-        getattr(result, f"{name}_uncertainty"),
-        gains=getattr(result, f"{name}_gains"),
-        loops=getattr(result, f"{name}_loops"),
-        k_sigma=config.k_sigma,
-        dt=dt,
-    )
-
-
-def _history(result: RobustResult | Partial) -> dict[str, Any]:
-    """Every robust iteration and every margin IPOPT could not meet."""
-    return {
-        "robust_iterations": [
-            {
-                "margin": it.margin.tolist(),
-                "tightening": it.tightening.tolist(),
-                "tightening_se": it.tightening_se.tolist(),
-                "cost": it.cost,
-                "ipopt_iterations": it.ipopt_iterations,
-                "solve_time_s": it.solve_time,
-                "monte_carlo_time_s": it.monte_carlo_time,
-                "damping": it.damping,
-                "draft": it.draft,
-            }
-            for it in result.iterations
-        ],
-        "failed_margins": [m.tolist() for m in result.failed_proposals],
-    }
-
-
-def _versions() -> dict[str, str]:
-    return {
-        "project": __version__,
-        "casadi": ca.__version__,
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def write_ocp(
-    path: str | Path,
-    result: RobustResult,
-    *,
-    config: OCPConfig,
-    dt: float,
-    model: dict[str, Any],
-    geometry: Geometry,
-    build_s: float,
-    variability: dict[str, Any] | None = None,
-    engine: str = "vm",
-) -> dict[str, Any]:
-    """Write ocp.json atomically and return what was written. `variability` is the training
-    dataset's scenario (from the checkpoint), which replays draw their machines from; `engine`
-    what evaluated the NLP (compiled or vm, control/ocp.py)."""
-    payload = {
-        **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
-        **{name: _profile_of(result, name, config=config, dt=dt) for name in ("nominal", "robust")},
-        **_history(result),
-        "timing": {
-            "build_s": build_s,
-            "engine": engine,
-            "nominal_solve_s": result.nominal.wall_time,
-            "robust_loop_s": result.wall_time,
-        },
-        "versions": _versions(),
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-    }
-    write_json(path, payload)
-    return payload
-
-
-@writes("path", suffix=".json")
-def write_failed(
-    path: str | Path,
-    partial: Partial,
-    *,
-    error: str,
-    config: OCPConfig,
-    dt: float,
-    model: dict[str, Any],
-    geometry: Geometry,
-    variability: dict[str, Any] | None = None,
-) -> None:
-    """Write what a failed robust solve leaves (`<stem>.failed.json`): the nominal profile in
-    ocp.json's form, the margin history and the error, marked `"status": "failed"`. It is not an
-    ocp.json (no robust profile), and read_ocp refuses it by its format name."""
-    payload = {
-        **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
-        "format": FAILED_FORMAT,
-        "status": "failed",
-        "error": error,
-        "nominal": _profile_of(partial, "nominal", config=config, dt=dt),
-        **_history(partial),
-        "timing": {
-            "nominal_solve_s": partial.nominal.wall_time,
-            "robust_loop_s": partial.wall_time,
-        },
-        "versions": _versions(),
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-    }
-    write_json(path, payload)
+    def premium(self, name: str) -> float:
+        """The cost of profile `name` over the nominal's, minus 1."""
+        return self.profiles[name].cost / self.nominal.cost - 1.0
 
 
 def read_ocp(path: str | Path) -> OCPFile:
@@ -340,6 +191,7 @@ def read_ocp(path: str | Path) -> OCPFile:
     try:
         settings = dict(raw["config"])
         settings["constraint_samples"] = tuple(settings["constraint_samples"])
+        settings["profiles"] = tuple(settings["profiles"])
         config = OCPConfig(**settings)
     except (TypeError, KeyError, ValueError) as exc:
         raise OCPFileError(f"{path}: bad config ({exc})") from None
@@ -356,8 +208,27 @@ def read_ocp(path: str | Path) -> OCPFile:
         geometry = Geometry.from_dict(raw["geometry"], source=str(path))
     except GeometryError as exc:
         raise OCPFileError(str(exc)) from None
-    profiles = {name: _profile(path, name, raw[name], config) for name in ("nominal", "robust")}
-    return OCPFile(config=config, geometry=geometry, dt=dt, raw=raw, **profiles)
+    names = raw["profiles"]
+    if (
+        not isinstance(names, list)
+        or names[:1] != ["nominal"]
+        or len(set(names)) != len(names)
+        or any(name not in ROBUST_PROFILES for name in names[1:])
+    ):
+        raise OCPFileError(
+            f"{path}: profiles must be 'nominal' then distinct names among "
+            f"{', '.join(ROBUST_PROFILES)}, got {names!r}"
+        )
+    for name in names:
+        if name not in raw:
+            raise OCPFileError(f"{path}: missing key {name!r}")
+    refused = raw.get("refused", {})
+    if not isinstance(refused, dict) or not all(isinstance(v, str) for v in refused.values()):
+        raise OCPFileError(f"{path}: refused must map profiles to reasons, got {refused!r}")
+    profiles = {name: _profile(path, name, raw[name], config) for name in names}
+    return OCPFile(
+        config=config, geometry=geometry, dt=dt, profiles=profiles, refused=refused, raw=raw
+    )
 
 
 def _finite(path: Path, name: str, value: Any) -> float:
@@ -369,7 +240,7 @@ def _finite(path: Path, name: str, value: Any) -> float:
 def _profile(path: Path, name: str, raw: Any, config: OCPConfig) -> Profile:
     if not isinstance(raw, dict):
         raise OCPFileError(f"{path}: {name} must be an object")
-    for key in (*SERIES, "heights", *GAINS, *SCALARS, "status"):
+    for key in (*SERIES, "heights", *GAINS, *SCALARS, "status", "loop"):
         if key not in raw:
             raise OCPFileError(f"{path}: missing key '{name}.{key}'")
     arrays = {}
@@ -396,7 +267,10 @@ def _profile(path: Path, name: str, raw: Any, config: OCPConfig) -> Profile:
     if np.any(np.abs(arrays["tau"]) > limit * (1 + 1e-9)):
         raise OCPFileError(f"{path}: {name}.tau exceeds the torque limit {limit:g} N·m")
     scalars = {key: _finite(path, f"{name}.{key}", raw[key]) for key in SCALARS}
+    if raw["loop"] not in ("open", "closed"):
+        raise OCPFileError(f"{path}: {name}.loop must be open or closed, got {raw['loop']!r}")
     return Profile(
+        loop=raw["loop"],
         **arrays,
         cost=scalars["cost"],
         status=str(raw["status"]),

@@ -72,9 +72,11 @@ dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so.""
 
 class RobustError(CrankError, RuntimeError):
     """The robust iteration did not reach a margin that its own Monte-Carlo confirms. Raised by
-    solve_robust with `partial` set: what was solved before it failed."""
+    solve_robust with `partial` set: what was solved before it failed; by solve_profiles, when
+    every profile failed, with `partials` set too: each profile's."""
 
     partial: Partial | None = None
+    partials: dict[str, Partial] | None = None
 
 
 class BeyondStrokeError(RobustError):
@@ -106,6 +108,8 @@ class Iteration:
     damping: float
     draft: bool
     """A draft solve (one loose pass) rather than a full one."""
+    profile: str = "robust"
+    """The robust profile (control/config.py ROBUST_PROFILES) this solve was for."""
 
 
 @dataclass(frozen=True)
@@ -135,7 +139,7 @@ class RobustResult:
     wall_time: float
     """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
     nominal_gains: np.ndarray
-    """LQR gains (N-1, 2) along the nominal plan (control/lqr.py), whatever config.feedback."""
+    """LQR gains (N-1, 2) along the nominal plan (control/lqr.py), whatever the loop."""
     robust_gains: np.ndarray
     nominal_loops: dict[str, np.ndarray]
     """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
@@ -147,11 +151,15 @@ def solve_robust(
     model: PPANN,
     config: OCPConfig | None = None,
     *,
+    profile: str = "robust",
     ocp: NominalOCP | None = None,
+    nominal: Solution | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
 ) -> RobustResult:
-    """Nominal solve, its uncertainty, then the bracketed margin iteration of the module
-    docstring; the result carries both plans' LQR gains and their open- and closed-loop spread.
+    """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
+    margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
+    tightening sized for the open loop, or for the LQR closed loop); the result carries both
+    plans' LQR gains and their open- and closed-loop spread.
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -159,6 +167,7 @@ def solve_robust(
     """
     config = config or OCPConfig()
     ocp = ocp or NominalOCP(model, config)
+    loop = loop_of(profile)
     heads = FusedHeads(model)
     index = np.array(config.constraint_samples) - 1
     base = np.full(len(index), config.height)
@@ -171,9 +180,9 @@ def solve_robust(
         return tracking_gains(ocp.dynamics.step_on_turn, solution.states, solution.tau, weights)
 
     def tube(solution: Solution) -> np.ndarray | None:
-        return gains_of(solution) if config.feedback == "lqr" else None
+        return gains_of(solution) if loop == "closed" else None
 
-    nominal = ocp.solve()
+    nominal = nominal if nominal is not None else ocp.solve()
     nominal_gains = tube(nominal)
     nominal_unc = slider_uncertainty(heads, nominal, config, gains=nominal_gains)
 
@@ -181,7 +190,7 @@ def solve_robust(
         """The nominal plan's gains (the tube's, if already computed) and its open- and
         closed-loop spread, for the result or a failed solve's partial one."""
         gains = gains_of(nominal) if nominal_gains is None else nominal_gains
-        return gains, _loops(heads, nominal, config, gains, nominal_unc)
+        return gains, _loops(heads, nominal, config, gains, nominal_unc, sized=loop)
 
     started = time.perf_counter()
     margin = np.zeros(len(index))
@@ -222,6 +231,7 @@ def solve_robust(
                     monte_carlo_time=unc.wall_time,
                     damping=beta,
                     draft=draft,
+                    profile=profile,
                 )
             )
             if on_iteration is not None:
@@ -229,7 +239,7 @@ def solve_robust(
             beyond = (proposal >= cap) & (new_target > cap)
             if beyond.any():
                 raise _beyond_stroke(
-                    config, int(np.flatnonzero(beyond)[0]), unc, cap, available=available
+                    config, int(np.flatnonzero(beyond)[0]), unc, cap, available=available, loop=loop
                 )
             residual = new_target - proposal
             bracket.update(proposal, residual)
@@ -256,7 +266,7 @@ def solve_robust(
                     nominal_gains=feedback_gains,
                     robust_gains=robust_gains,
                     nominal_loops=feedback_loops,
-                    robust_loops=_loops(heads, solution, config, robust_gains, unc),
+                    robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
                 )
             beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
             draft = True
@@ -279,8 +289,52 @@ def solve_robust(
         raise
 
 
+@dataclass(frozen=True)
+class Solved:
+    """The robust profiles of config.profiles on one nominal plan: those solved and, for those
+    refused, why."""
+
+    results: dict[str, RobustResult]
+    refused: dict[str, RobustError]
+
+
+def solve_profiles(
+    model: PPANN,
+    config: OCPConfig,
+    *,
+    ocp: NominalOCP | None = None,
+    on_iteration: Callable[[Iteration], None] | None = None,
+) -> Solved:
+    """The nominal plan once, then each robust profile of `config.profiles` from it
+    (solve_robust). A profile that has no robust torque is refused and the others go on.
+
+    Raises:
+      OCPError: the nominal OCP itself fails.
+      RobustError: every profile was refused: the first one's error, naming the others', with
+        `partials` (each profile's Partial).
+    """
+    ocp = ocp or NominalOCP(model, config)
+    nominal = ocp.solve()
+    results: dict[str, RobustResult] = {}
+    refused: dict[str, RobustError] = {}
+    for profile in config.profiles:
+        try:
+            results[profile] = solve_robust(
+                model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+            )
+        except RobustError as exc:
+            refused[profile] = exc
+    if not results:
+        first = next(iter(refused.values()))
+        if len(refused) > 1:
+            first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
+        first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
+        raise first
+    return Solved(results=results, refused=refused)
+
+
 def _beyond_stroke(
-    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray, *, available: float
+    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray, *, available: float, loop: str
 ) -> BeyondStrokeError:
     """The error for constraint `k` (0-based) whose tightening `unc` asks for exceeds the cap."""
     sample = config.constraint_samples[k]
@@ -291,14 +345,14 @@ def _beyond_stroke(
             f"from the training machines and {1e3 * unc.sampling[k]:.1f} mm for the "
             f"Monte-Carlo's standard error, at confidence {config.confidence:g}"
         )
-    if config.feedback == "lqr":
+    if loop == "closed":
         hint = (
             f"or give the feedback more authority, a torque limit above "
             f"{config.torque_limit:g} N·m or stiffer LQR weights: the closed loop cannot keep "
             f"this spread"
         )
     else:
-        hint = "or close the loop: open loop cannot keep this spread"
+        hint = "or close the loop (robust-fb): open loop cannot keep this spread"
     return BeyondStrokeError(
         f"the model's tightening of the slider at sample {sample} "
         f"({1e3 * unc.tightening[k]:.1f} mm{line}; Monte-Carlo σ there "
@@ -318,11 +372,12 @@ def _loops(
     config: OCPConfig,
     gains: np.ndarray,
     known: Uncertainty,
+    *,
+    sized: str,
 ) -> dict[str, np.ndarray]:
     """Monte-Carlo slider std (N,) of a plan open loop and closed under `gains`; `known` is the
-    plan's full-horizon uncertainty in the loop config.feedback sized the tightening for (the
-    Monte-Carlo uses the same draws, so it is that loop's std bit for bit)."""
-    sized = loop_of(config.feedback)
+    plan's full-horizon uncertainty in the loop `sized` (the tightening's; the Monte-Carlo uses
+    the same draws, so it is that loop's std bit for bit)."""
     other = "open" if sized == "closed" else "closed"
     unc = slider_uncertainty(heads, planned, config, gains=gains if other == "closed" else None)
     return {sized: known.std, other: unc.std}

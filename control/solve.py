@@ -15,8 +15,9 @@ from common.jsonio import recorded_path
 from control.config import OCPConfig, OCPConfigError
 from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP
-from control.ocp_file import read_ocp, write_failed, write_ocp
-from control.robust import Iteration, RobustError, solve_robust
+from control.ocp_file import read_ocp
+from control.ocp_write import write_failed, write_ocp
+from control.robust import Iteration, RobustError, solve_profiles
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN
 
@@ -34,9 +35,10 @@ def _model_record(model_path: Path, out: Path, payload: dict[str, Any]) -> dict[
     }
 
 
-def figure_paths(out: Path) -> dict[str, Path]:
-    """Where the figures of ocp.json at `out` go: <stem>.nominal.png, <stem>.robust.png."""
-    return {name: out.with_name(f"{out.stem}.{name}.png") for name in ("nominal", "robust")}
+def figure_paths(out: Path, names: tuple[str, ...]) -> dict[str, Path]:
+    """Where the figures of the profiles `names` of ocp.json at `out` go: <stem>.<name>.png
+    (ocp.nominal.png, ocp.robust.png, ocp.robust-fb.png)."""
+    return {name: out.with_name(f"{out.stem}.{name}.png") for name in names}
 
 
 @writes("out", inputs=("model_path",), suffix=".json")
@@ -47,15 +49,18 @@ def solve_file(
     config: OCPConfig,
     on_iteration: Callable[[Iteration], None] | None = None,
 ) -> dict[str, Any]:
-    """Solve the nominal and robust OCP on a PPANN checkpoint and write ocp.json and figures.
+    """Solve the nominal OCP and each robust profile of `config.profiles` on a PPANN
+    checkpoint and write ocp.json and figures.
 
-    Nothing is written at `out` unless both solves succeed; a failed robust solve leaves the
-    nominal plan and the margin history in <stem>.failed.json (`failed_path`) and says so.
+    A robust profile without a robust torque is refused (ocp.json says why) while another one
+    is solved; nothing is written at `out` unless the nominal and at least one robust solve
+    succeed. When every robust profile fails, the nominal plan and the margin histories go to
+    <stem>.failed.json (`failed_path`) and the error says so.
 
     Raises:
       CheckpointError: unreadable checkpoint, or not a PPANN (the black box has no physics).
       OCPError: the nominal solve failed; nothing is written.
-      RobustError: the robust loop failed; only <stem>.failed.json is written.
+      RobustError: every robust loop failed; only <stem>.failed.json is written.
       OutputError: `out` cannot be written.
     """
     model_path, out = Path(model_path), Path(out)
@@ -79,14 +84,14 @@ def solve_file(
     ocp = NominalOCP(model, config)
     build_s = time.perf_counter() - started
     try:
-        result = solve_robust(model, config, ocp=ocp, on_iteration=on_iteration)
+        solved = solve_profiles(model, config, ocp=ocp, on_iteration=on_iteration)
     except RobustError as exc:
-        if exc.partial is not None:  # keep the nominal plan and the margin history
+        if exc.partials:  # keep the nominal plan and the margin history
             failed = failed_path(out)
             try:
                 write_failed(
                     failed,
-                    exc.partial,
+                    exc.partials,
                     error=str(exc),
                     config=config,
                     dt=ocp.dt,
@@ -103,7 +108,7 @@ def solve_file(
         failed_path(out).unlink()
     written = write_ocp(
         out,
-        result,
+        solved,
         config=config,
         dt=ocp.dt,
         model=_model_record(model_path, out, payload),
@@ -113,7 +118,7 @@ def solve_file(
         engine=ocp.engine,
     )
     loaded = read_ocp(out)
-    paths = figure_paths(out)
-    save_figure(nominal_figure(loaded), paths["nominal"])
-    save_figure(robust_figure(loaded), paths["robust"])
+    for name, path in figure_paths(out, loaded.names).items():
+        figure = nominal_figure(loaded) if name == "nominal" else robust_figure(loaded, name)
+        save_figure(figure, path)
     return written

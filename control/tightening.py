@@ -203,7 +203,7 @@ def slider_uncertainty(
     """Monte-Carlo (eq. 11, or the configured mode) of the slider position under the solution's
     torque u_1..u_{N-1}, and the tightening of `config.tightening` at the constraint samples.
     The draws are the same for every call (common random numbers). With `gains` (N-1, 2) each
-    machine runs under the LQR law along the solution (config.feedback "lqr": a tube), and so do
+    machine runs under the LQR law along the solution (profile robust-fb: a tube), and so do
     the shifted lines of the line allowance.
 
     constraints_only: simulate only up to the last constraint sample (mean and std then stop

@@ -55,7 +55,7 @@ class RunConfig:
     ocp: OCPConfig = field(default_factory=OCPConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     heldout_runs: int = 0
-    """Machines of the held-out check (both profiles, in `loop`); 0 skips it."""
+    """Machines of the held-out check (every profile, in `heldout_modes`); 0 skips it."""
     heldout_seed: int = 0
     """Root seed of the held-out machines (streams heldout_machines / heldout_noise)."""
     model_path: str = str(MODEL_PATH)
@@ -102,9 +102,11 @@ class RunConfig:
         )
 
     @property
-    def loop(self) -> str:
-        """The loop the robust claim is about (control.config.loop_of)."""
-        return loop_of(self.ocp.feedback)
+    def heldout_modes(self) -> tuple[str, ...]:
+        """The loops the held-out check plays: those the robust profiles' claims are about
+        (control.config.loop_of), open first."""
+        loops = {loop_of(profile) for profile in self.ocp.profiles}
+        return tuple(m for m in ("open", "closed") if m in loops)
 
     def with_seed(self, seed: int) -> RunConfig:
         """The same run under another root seed (the seed study); the replay seed follows."""
@@ -208,7 +210,9 @@ def run_chain(
     horizon = config.ocp.horizon
     check_campaign_memory(config.replay.runs, modes=len(config.replay.modes), horizon=horizon)
     if config.heldout_runs:
-        check_campaign_memory(config.heldout_runs, modes=1, horizon=horizon, held_out=True)
+        check_campaign_memory(
+            config.heldout_runs, modes=len(config.heldout_modes), horizon=horizon, held_out=True
+        )
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     estimate = run_time(config)
     if hooks.on_estimate is not None:

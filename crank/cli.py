@@ -15,13 +15,14 @@ import typer
 
 from control.config import OCPConfig, OCPConfigError
 from crank.console import (
+    DEFAULT_PROFILES,
     Amplitude,
     Confidence,
     Drift,
     EpisodeSeconds,
     EpochBars,
-    FeedbackOption,
     ModelPath,
+    ProfilesOption,
     Progress,
     Seconds,
     Seed,
@@ -29,6 +30,7 @@ from crank.console import (
     app,
     one_line_errors,
     print_summary,
+    profiles_list,
     show_iteration,
 )
 from ppann.train_config import TrainConfig
@@ -202,7 +204,7 @@ def solve_command(
         str, typer.Option(help="gaussian (k·σ, eq. 16) or quantile (at Φ(−k)).")
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
-    feedback: FeedbackOption = OCPConfig.feedback,
+    profiles: ProfilesOption = DEFAULT_PROFILES,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
     theta_end: Annotated[float, typer.Option(help="θ_N, rad.")] = OCPConfig.theta_end,
@@ -229,7 +231,7 @@ def solve_command(
         mc_mode=mc_mode,
         tightening=tightening,
         confidence=confidence,
-        feedback=feedback,
+        profiles=tuple(profiles_list(profiles)),
         torque_limit=torque_limit,
         theta_start=theta_start,
         theta_end=theta_end,
@@ -237,7 +239,7 @@ def solve_command(
         compiled=compiled,
     )
     payload = solve_file(model, out, config=config, on_iteration=show_iteration)
-    figures = ", ".join(str(p) for p in figure_paths(out).values())
+    figures = ", ".join(str(p) for p in figure_paths(out, tuple(payload["profiles"])).values())
     print_summary(f"wrote {out} and {figures}", solve_summary(payload) | solve_timing(payload))
 
 

@@ -27,7 +27,7 @@ from crank.console import (
     print_heldout,
     print_replay,
 )
-from replay.config import MODES, PROFILES, ReplayConfig, ReplayConfigError
+from replay.config import ReplayConfig
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -98,9 +98,10 @@ def replay_campaign(
     resolved: dict[str, Any],
 ) -> dict[str, Any]:
     """`replay_file` with a progress bar over the runs."""
+    from control.ocp_file import read_ocp
     from replay.files import replay_file
 
-    total = config.runs * len(PROFILES) * len(config.modes)
+    total = config.runs * len(read_ocp(ocp).names) * len(config.modes)
     with Progress(total, "replaying", unit="run") as bar:
         done = 0
 
@@ -161,7 +162,7 @@ def replay_command(
     mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
     mpc_slider_limit: MPCSliderLimit = _MPC.slider_limit,
 ) -> None:
-    """Play the nominal and robust torque on freshly drawn twins, open and closed loop (and
+    """Play the nominal and robust torques on freshly drawn twins, open and closed loop (and
     under the online MPC with --modes …,mpc): the campaign MCAP, <stem>.stats.json, <stem>.png
     (Fig. 12) and <stem>.rrd (Rerun)."""
     from replay.files import ocp_variability
@@ -201,7 +202,7 @@ def replay_command(
     print_replay(stats, out)
 
 
-@app.command("heldout", short_help="Check both torques of an ocp.json on held-out machines.")
+@app.command("heldout", short_help="Check every torque of an ocp.json on held-out machines.")
 @one_line_errors
 def heldout_command(
     ocp: Annotated[Path, typer.Option(help="ocp.json from crank solve.")] = Path("logs/ocp.json"),
@@ -215,34 +216,37 @@ def heldout_command(
         str | None,
         typer.Option(help="Scenario or range file (default: the one in ocp.json)."),
     ] = None,
-    mode: Annotated[
+    modes: Annotated[
         str,
         typer.Option(
-            help="open, closed (each profile's LQR gains from ocp.json) or mpc (the online MPC "
-            "on --model)."
+            help="Comma-separated loops to play every profile in: open, closed (each profile's "
+            "LQR gains from ocp.json), mpc (the online MPC on --model)."
         ),
     ] = "open",
     mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
+    feedback: Annotated[
+        str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
+    ] = ReplayConfig.feedback,
     mpc_horizon: MPCHorizon = _MPC.horizon,
     mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
     mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
     mpc_slider_limit: MPCSliderLimit = _MPC.slider_limit,
 ) -> None:
-    """Both torques of an ocp.json, open or closed loop, on held-out machines: violation rates
-    with exact 95 % bounds, and predicted against observed spread for every Monte-Carlo mode."""
+    """Every torque of an ocp.json, open or closed loop or under the MPC, on held-out machines:
+    violation rates with exact 95 % bounds, and predicted against observed spread for every
+    Monte-Carlo mode."""
     from replay.files import ocp_variability
     from replay.heldout import heldout_file
 
     check_suffix(out, ".json")  # before ocp.json is read for its scenario
-    if mode not in MODES:
-        raise ReplayConfigError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     mpc = mpc_config(
         horizon=mpc_horizon,
         weights=mpc_weights,
         deadline_ms=mpc_deadline_ms,
         slider_limit=mpc_slider_limit,
     )
-    ReplayConfig(runs=runs, seed=seed)  # validates runs and seed before any file is read
+    # validates runs, seed and modes before any file is read
+    ReplayConfig(runs=runs, seed=seed, modes=_modes(modes), feedback=feedback)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
         ocp,
@@ -251,7 +255,8 @@ def heldout_command(
         runs=runs,
         seed=seed,
         variability=chosen,
-        mode=mode,
+        modes=_modes(modes),
+        feedback=feedback,
         model_path=mjcf,
         mpc=mpc,
     )

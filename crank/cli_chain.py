@@ -13,14 +13,15 @@ import typer
 from common.errors import ConfigError
 from control.config import OCPConfig
 from crank.console import (
+    DEFAULT_PROFILES,
     HELDOUT_RUNS,
     HELDOUT_SEED,
     Confidence,
     Drift,
     EpisodeSeconds,
     EpochBars,
-    FeedbackOption,
     ModelPath,
+    ProfilesOption,
     Progress,
     Seconds,
     Seed,
@@ -30,6 +31,7 @@ from crank.console import (
     print_heldout,
     print_replay,
     print_summary,
+    profiles_list,
     show_iteration,
     transcript,
 )
@@ -55,7 +57,7 @@ def run_command(
     drift: Drift = True,
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
-    feedback: FeedbackOption = OCPConfig.feedback,
+    profiles: ProfilesOption = DEFAULT_PROFILES,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
@@ -114,7 +116,7 @@ FLAG_KEYS = {
     "drift": ("generation", "drift"),
     "variability": ("generation", "variability"),
     "confidence": ("ocp", "confidence"),
-    "feedback": ("ocp", "feedback"),
+    "profiles": ("ocp", "profiles"),
     "runs": ("replay", "runs"),
     "heldout_runs": ("heldout_runs",),
     "heldout_seed": ("heldout_seed",),
@@ -133,6 +135,8 @@ def flag_values(given: dict[str, Any]) -> dict[str, Any]:
         table = out
         for t in tables:
             table = table.setdefault(t, {})
+        if flag == "profiles":
+            value = profiles_list(value)
         table[key] = str(value) if isinstance(value, Path) else value
     return out
 
@@ -237,7 +241,7 @@ def study_command(
         OCPConfig.tightening
     ),
     confidence: Confidence = OCPConfig.confidence,
-    feedback: FeedbackOption = OCPConfig.feedback,
+    profiles: ProfilesOption = DEFAULT_PROFILES,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
         False
@@ -261,7 +265,7 @@ def study_command(
             "mc_mode": mc_mode,
             "tightening": tightening,
             "confidence": confidence,
-            "feedback": feedback,
+            "profiles": profiles_list(profiles),
         },
         replay={"runs": runs},
         heldout_runs=heldout_runs,

@@ -7,6 +7,7 @@ from typing import Any
 
 from common.atomic import atomic_path
 from common.jsonio import finite_or_none
+from control.config import loop_of
 from ppann.modes import MODES
 from replay.statistics import format_table, summary_rows
 
@@ -19,6 +20,7 @@ FIGURES = (
     ("model.calibration.png", "Predicted against observed σ"),
     ("ocp.nominal.png", "Nominal OCP (Fig. 10)"),
     ("ocp.robust.png", "Robust OCP and its margin iterations (Fig. 11)"),
+    ("ocp.robust-fb.png", "Robust OCP for the LQR closed loop (a tube) and its margin iterations"),
     ("replay.png", "Replays on the twin (Fig. 12)"),
 )
 
@@ -63,21 +65,31 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
 
 
 def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
-    """The OCP result in a few lines."""
-    n, r = payload["nominal"], payload["robust"]
-    return {
-        "nominal cost": f"{n['cost']:.6g}",
-        "robust cost": f"{r['cost']:.6g} ({r['cost'] / n['cost'] - 1:+.1%})",
-        "robust iterations": len(payload["robust_iterations"]),
-        "final margins": ", ".join(
-            f"{1e3 * (h - payload['config']['height']):.2f} mm" for h in r["heights"]
-        ),
-        "of which for the line's mean": ", ".join(f"{1e3 * v:.2f} mm" for v in r["population"])
-        + f" (confidence {payload['config']['confidence']:g})",
-        "of which for the Monte-Carlo's standard error": ", ".join(
-            f"{1e3 * v:.2f} mm" for v in r["sampling"]
-        ),
-    }
+    """The OCP result in a few lines: per robust profile its cost, iterations and margins, or
+    why it was refused."""
+    n = payload["nominal"]
+    rows: dict[str, Any] = {"nominal cost": f"{n['cost']:.6g}"}
+    height = payload["config"]["height"]
+    for name in payload["profiles"][1:]:
+        r = payload[name]
+        solves = [it for it in payload["robust_iterations"] if it["profile"] == name]
+        rows |= {
+            f"{name} cost": f"{r['cost']:.6g} ({r['cost'] / n['cost'] - 1:+.1%}; {r['loop']} loop)",
+            f"{name} iterations": len(solves),
+            f"{name} final margins": ", ".join(
+                f"{1e3 * (h - height):.2f} mm" for h in r["heights"]
+            ),
+            f"{name}: of which for the line's mean": ", ".join(
+                f"{1e3 * v:.2f} mm" for v in r["population"]
+            )
+            + f" (confidence {payload['config']['confidence']:g})",
+            f"{name}: of which for the Monte-Carlo's standard error": ", ".join(
+                f"{1e3 * v:.2f} mm" for v in r["sampling"]
+            ),
+        }
+    for name, why in payload.get("refused", {}).items():
+        rows[name] = f"refused: {why}"
+    return rows
 
 
 def solve_timing(payload: dict[str, Any]) -> dict[str, str]:
@@ -86,7 +98,7 @@ def solve_timing(payload: dict[str, Any]) -> dict[str, str]:
     t = payload["timing"]
     return {
         "nominal solve": f"{t['nominal_solve_s']:.2f} s",
-        "robust loop": f"{t['robust_loop_s']:.2f} s",
+        **{f"{name} loop": f"{s:.2f} s" for name, s in t["robust_loop_s"].items()},
     }
 
 
@@ -104,8 +116,9 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     claim = stats["claim"]
     runs = stats["config"]["runs"]
     samples = ", ".join(str(k) for k in stats["ocp"]["constraint_samples"])
+    premiums = stats["ocp"]["premiums"]
     if claim["holds"] is None:
-        verdict = "Open loop was not replayed, so the paper's claim was not checked."
+        verdict = "The robust torque was not replayed open loop: the paper's claim was not checked."
     else:
         word = "**holds**" if claim["holds"] else "**does not hold**"
         verdict = (
@@ -113,14 +126,24 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
             f"below {stats['ocp']['height']:g} m at a constraint sample ({samples}) in "
             f"{claim['robust_open_violating_runs']} of {runs} runs, the nominal torque in "
             f"{claim['nominal_open_violating_runs']} (the claim needs 0 and at least "
-            f"{claim['nominal_needed']}). Robust cost premium: "
-            f"{stats['ocp']['robust_cost_premium']:+.1%}."
+            f"{claim['nominal_needed']}). Robust cost premium: {premiums['robust']:+.1%}."
         )
+    verdicts = [verdict]
+    for name, c in stats.get("claims", {}).items():
+        if name == "robust":
+            continue  # the paper's claim above
+        word = "**holds**" if c["holds"] else "**does not hold**"
+        verdicts.append(
+            f"The {name} torque {word}: {LOOP_WORDS[c['loop']]}, it left the slider below the "
+            f"height in {c['violating_runs']} of {c['runs']} runs (cost premium "
+            f"{premiums[name]:+.1%})."
+        )
+    for name, why in ocp_refused(report).items():
+        verdicts.append(f"No {name} torque: {why}")
     lines = [
         f"# crank run `{run_dir.name.removesuffix('.partial')}`",  # a sweep step's folder
         "",
-        verdict,
-        "",
+        *(line for v in verdicts for line in (v, "")),
         *heldout_lines(report.get("heldout")),
         "## Replays on the twin",
         "",
@@ -160,38 +183,62 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     return "\n".join(lines)
 
 
+def ocp_refused(report: dict[str, Any]) -> dict[str, str]:
+    """The robust profiles the OCP refused, with why (from report.json's ocp summary)."""
+    return {
+        name: why.removeprefix("refused: ")
+        for name, why in report["ocp"].items()
+        if isinstance(why, str) and why.startswith("refused: ")
+    }
+
+
 def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
-    """The held-out verdict and the calibration table of report.md (nothing if not run)."""
+    """The held-out verdicts and the calibration table of report.md (nothing if not run)."""
     if heldout is None:
         return []
-    robust, nominal = heldout["profiles"]["robust"], heldout["profiles"]["nominal"]
-    word = "**holds**" if heldout["holds"] else "**does not hold**"
+    profiles = heldout["profiles"]
     lines = [
         "## Held-out machines",
         "",
         f"On {heldout['runs']} held-out machines (root seed {heldout['seed']}, streams no other "
-        f"stage draws from), {LOOP_WORDS[heldout.get('mode', 'open')]}, the robust torque left "
-        f"the slider below the height on "
-        f"{100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
-        f"{100 * robust['rate_upper_95']:.2f} %), the nominal one on {100 * nominal['rate']:.1f} %."
-        f" Against the target of <= {100 * heldout['target_rate']:.1f} % the robust torque {word}.",
+        f"stage draws from):",
+        "",
+    ]
+    for name in list(profiles)[1:]:
+        for loop in heldout["modes"]:
+            robust, nominal = profiles[name][loop], profiles["nominal"][loop]
+            holds = robust["rate"] <= heldout["target_rate"]
+            word = "**holds**" if holds else "**does not hold**"
+            pd = loop == "closed" and heldout.get("feedback") == "pd"
+            own = " (the loop it was tightened for)" if loop_of(name) == loop and not pd else ""
+            words = "closed loop under the fixed PD" if pd else LOOP_WORDS[loop]
+            lines.append(
+                f"- {words}{own}, the {name} torque left the slider below the height "
+                f"on {100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
+                f"{100 * robust['rate_upper_95']:.2f} %), the nominal one on "
+                f"{100 * nominal['rate']:.1f} %. Against the target of <= "
+                f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}."
+            )
+    lines += [
         "",
         "Predicted / observed σ of the slider under the OCP's own torque, per Monte-Carlo mode "
         f"({heldout['mc_samples']} trajectories):",
         "",
     ]
-    modes = list(next(iter(robust["samples"].values()))["predicted"])
+    first = next(iter(next(iter(profiles.values())).values()))
+    modes = list(next(iter(first["samples"].values()))["predicted"])
     lines.append(
-        "| profile | sample | observed σ mm | lowest mm | skew | " + " | ".join(modes) + " |"
+        "| profile | loop | sample | observed σ mm | lowest mm | skew | " + " | ".join(modes) + " |"
     )
-    lines.append("|" + "---|" * (5 + len(modes)))
-    for profile, entry in heldout["profiles"].items():
-        for sample, e in entry["samples"].items():
-            ratios = [_ratio(e["predicted"][m]["ratio"]) for m in modes]
-            lines.append(
-                f"| {profile} | {sample} | {1e3 * e['observed_sigma']:.2f} | "
-                f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
-            )
+    lines.append("|" + "---|" * (6 + len(modes)))
+    for profile, played in profiles.items():
+        for loop, entry in played.items():
+            for sample, e in entry["samples"].items():
+                ratios = [_ratio(e["predicted"][m]["ratio"]) for m in modes]
+                lines.append(
+                    f"| {profile} | {loop} | {sample} | {1e3 * e['observed_sigma']:.2f} | "
+                    f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
+                )
     return [*lines, ""]
 
 

@@ -67,7 +67,7 @@ def replay(
     hooks: Hooks,
     nthread: int | None = None,
 ) -> dict[str, Any]:
-    """Both profiles of `ocp` played on the campaign machines: `out`/replay.mcap and its stats."""
+    """Every profile of `ocp` played on the campaign machines: `out`/replay.mcap and its stats."""
     return replay_file(
         ocp,
         out / REPLAY,
@@ -80,7 +80,8 @@ def replay(
 
 
 def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, Any]:
-    """Both profiles of `ocp` on `config.heldout_runs` held-out machines: `out`/heldout.json."""
+    """Every profile of `ocp` on `config.heldout_runs` held-out machines, in the loops its
+    robust profiles were tightened for: `out`/heldout.json."""
     return heldout_file(
         ocp,
         out / HELDOUT,
@@ -89,7 +90,7 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         seed=config.heldout_seed,
         variability=config.generation.variability,
         max_start_time=config.replay.max_start_time,
-        mode=config.loop,
+        modes=config.heldout_modes,
         model_path=config.model_path,
     )
 
@@ -115,7 +116,8 @@ def write_report(
         "ocp": solve_summary(solved),
         "replay": {
             "claim": stats["claim"],
-            "robust_cost_premium": stats["ocp"]["robust_cost_premium"],
+            "claims": stats["claims"],
+            "premiums": stats["ocp"]["premiums"],
             "table": summary_rows(stats),
             "stats": output_paths(out / REPLAY)["stats"].name,
         },

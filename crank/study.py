@@ -35,6 +35,7 @@ from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
 
 TARGET_HELDOUT_RATE = 0.005
+PROFILE_COLORS = {"robust": "C3", "robust-fb": "C2"}
 MAX_SEEDS = 1000
 
 
@@ -58,37 +59,53 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return tuple(seeds)
 
 
-def seed_row(seed: int, run_dir: Path) -> dict[str, Any]:
-    """One row of the study from a finished seed folder."""
-    return {"seed": seed} | run_row(run_dir, run_dir / "ocp.json")
+def seed_rows(seed: int, run_dir: Path) -> list[dict[str, Any]]:
+    """The study's rows of a finished seed folder, one per robust profile."""
+    return [{"seed": seed} | row for row in run_rows(run_dir, run_dir / "ocp.json")]
 
 
-def run_row(leaf: Path, ocp_path: Path) -> dict[str, Any]:
-    """The figures of a finished chain: its report.json and replay stats in `leaf`, and the
-    ocp.json it played (a sweep keeps them in separate step folders)."""
+def run_rows(leaf: Path, ocp_path: Path) -> list[dict[str, Any]]:
+    """The figures of a finished chain, one row per robust profile it asked for (a refused one:
+    its reason as the row's error): its report.json and replay stats in `leaf`, and the ocp.json
+    it played (a sweep keeps them in separate step folders)."""
     report = json.loads((leaf / "report.json").read_text())
     stats = json.loads((leaf / report["replay"]["stats"]).read_text())
     ocp = json.loads(ocp_path.read_text())
+    rows = []
+    for name in ocp["config"]["profiles"]:
+        if name in ocp.get("refused", {}):
+            rows.append({"profile": name, "error": ocp["refused"][name]})
+        else:
+            rows.append(_profile_row(name, report, stats, ocp))
+    return rows
+
+
+def _profile_row(
+    name: str, report: dict[str, Any], stats: dict[str, Any], ocp: dict[str, Any]
+) -> dict[str, Any]:
+    """One robust profile's figures, in the loop it was tightened for."""
     heldout = report["heldout"]
     mode = ocp["config"]["mc_mode"]
     k = ocp["config"]["k_sigma"]
-    loop = loop_of(ocp["config"]["feedback"])
-    played = {p: stats["profiles"][p][loop] for p in ("nominal", "robust")}
+    loop = loop_of(name)
+    played = {p: stats["profiles"][p][loop] for p in ("nominal", name)}
+    ppann = report["ppann"]["models"]["ppann"]
     row: dict[str, Any] = {
+        "profile": name,
         "error": None,
         "loop": loop,
-        "robust_100": played["robust"]["violating_runs"],
+        "robust_100": played[name]["violating_runs"],
         "nominal_100": played["nominal"]["violating_runs"],
-        "premium": stats["ocp"]["robust_cost_premium"],
-        "robust_lowest_mm": 1e3 * min(c["lowest"] for c in played["robust"]["constraint"].values()),
-        "phase1_epochs": report["ppann"]["models"]["ppann"]["epochs"],
-        "phase1_converged": report["ppann"]["models"]["ppann"]["phase1_converged"],
-        "machine_sigma": report["ppann"]["models"]["ppann"]["machine_sigma"],
+        "premium": stats["ocp"]["premiums"][name],
+        "robust_lowest_mm": 1e3 * min(c["lowest"] for c in played[name]["constraint"].values()),
+        "phase1_epochs": ppann["epochs"],
+        "phase1_converged": ppann["phase1_converged"],
+        "machine_sigma": ppann["machine_sigma"],
         "mc_mode": mode,
         "wall_s": report["wall_seconds"]["total"],
     }
-    if heldout is not None:
-        robust, nominal = heldout["profiles"]["robust"], heldout["profiles"]["nominal"]
+    if heldout is not None and loop in heldout["modes"]:
+        robust, nominal = heldout["profiles"][name][loop], heldout["profiles"]["nominal"][loop]
         row |= {
             "heldout_runs": heldout["runs"],
             "robust_heldout_rate": robust["rate"],
@@ -141,7 +158,7 @@ def run_study(
                     argv=[],
                 )
             except CrankError as exc:
-                row = {"seed": seed, "error": str(exc)}
+                row = {"seed": seed, "profile": "/".join(base.ocp.profiles), "error": str(exc)}
                 if isinstance(exc, BeyondStrokeError):  # the figures of "no open-loop profile"
                     row |= {
                         "refused_sample": exc.sample,
@@ -155,10 +172,10 @@ def run_study(
                 if on_row:
                     on_row(row)
                 continue
-        row = seed_row(seed, run_dir)
-        rows.append(row)
-        if on_row:
-            on_row(row)
+        for row in seed_rows(seed, run_dir):
+            rows.append(row)
+            if on_row:
+                on_row(row)
     study = {
         "format": "crank-study",
         "version": 1,
@@ -210,19 +227,24 @@ def markdown(study: dict[str, Any]) -> str:
         f"{study['config']['heldout_seed']}."
     )
     lines.append("")
-    loop = loop_of(study["config"]["ocp"]["feedback"])
-    if ok and "robust_heldout_rate" in ok[0]:
-        worst = max(r["robust_heldout_rate"] for r in ok)
-        holds = all(r["robust_heldout_rate"] <= study["target_heldout_rate"] for r in ok)
-        campaign = all(r["robust_100"] == 0 for r in ok)
+    for name in study["config"]["ocp"]["profiles"]:
+        mine = [r for r in rows if name in str(r.get("profile")).split("/")]
+        good = [r for r in mine if r.get("error") is None and "robust_heldout_rate" in r]
+        if not good:
+            continue
+        loop = loop_of(name)
+        worst = max(r["robust_heldout_rate"] for r in good)
+        holds = all(r["robust_heldout_rate"] <= study["target_heldout_rate"] for r in good)
+        campaign = all(r["robust_100"] == 0 for r in good)
+        every = len(good) == len(mine)
         lines.append(
-            f"- robust {loop} loop on held-out machines: worst seed {100 * worst:.2f} % "
+            f"- {name} {loop} loop on held-out machines: worst seed {100 * worst:.2f} % "
             f"(target <= {100 * study['target_heldout_rate']:.1f} %): "
-            f"**{'met' if holds and len(ok) == len(rows) else 'NOT met'}**"
+            f"**{'met' if holds and every else 'NOT met'}**"
         )
         lines.append(
-            f"- robust {loop} loop 0/100 campaign runs on every seed: "
-            f"**{'yes' if campaign and len(ok) == len(rows) else 'no'}**"
+            f"- {name} {loop} loop 0/100 campaign runs on every seed: "
+            f"**{'yes' if campaign and every else 'no'}**"
         )
     failed = [r for r in rows if r.get("error")]
     if failed:
@@ -230,6 +252,7 @@ def markdown(study: dict[str, Any]) -> str:
     lines += ["", "![violation rate and premium against seed](study.png)", ""]
     columns = [
         ("seed", "seed", ""),
+        ("profile", "profile", ""),
         ("robust_100", "robust /100", ""),
         ("nominal_100", "nominal /100", ""),
         ("robust_heldout_rate", "robust held-out", ".2%"),
@@ -245,7 +268,7 @@ def markdown(study: dict[str, Any]) -> str:
     lines.append("|" + "---|" * len(columns))
     for r in rows:
         if r.get("error"):
-            lines.append(f"| {r['seed']} | error: {r['error']} |")
+            lines.append(f"| {r['seed']} | {r.get('profile', '')} | error: {r['error']} |")
             continue
         lines.append("| " + " | ".join(_cell(r.get(key), spec) for key, _, spec in columns) + " |")
     return "\n".join(lines) + "\n"
@@ -260,20 +283,27 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     fig = Figure(figsize=(10, 3 * panels), layout="constrained")
     axes = fig.subplots(panels, 1, sharex=True)
     top, bottom = axes[0], axes[1]
-    seeds = [r["seed"] for r in ok]
-    rate = [100 * r["robust_heldout_rate"] for r in ok]
-    upper = [100 * r["robust_heldout_upper_95"] for r in ok]
-    top.bar(seeds, rate, color="C0", label="robust, held-out violation rate")
-    top.scatter(seeds, upper, color="C3", marker="_", s=300, label="95 % upper bound")
+    names = list(dict.fromkeys(r["profile"] for r in ok))
+    width = 0.8 / max(1, len(names))
+    upper: list[float] = []
+    for i, name in enumerate(names):  # side by side per seed
+        mine = [r for r in ok if r["profile"] == name]
+        x = [r["seed"] + (i - (len(names) - 1) / 2) * width for r in mine]
+        bounds = [100 * r["robust_heldout_upper_95"] for r in mine]
+        upper += bounds
+        color = PROFILE_COLORS.get(name, "C0")
+        label = f"{name} ({loop_of(name)} loop)"
+        top.bar(x, [100 * r["robust_heldout_rate"] for r in mine], width, color=color, label=label)
+        top.scatter(x, bounds, color="k", marker="_", s=200 * width)
+        bottom.bar(x, [100 * r["premium"] for r in mine], width, color=color, label=label)
+    top.scatter([], [], color="k", marker="_", label="95 % upper bound")
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1, label="target 0.5 %")
-    failed = [r["seed"] for r in rows if r.get("error")]
+    failed = sorted({r["seed"] for r in rows if r.get("error")})
     for s in failed:
         top.axvline(s, color="C3", alpha=0.3, lw=8)
     top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.05)
-    loops = {r.get("loop", "open") for r in ok} or {"open"}
-    top.set_ylabel(f"{'/'.join(sorted(loops))}-loop violations [%]")
+    top.set_ylabel("held-out violations [%]")
     top.legend(fontsize=8)
-    bottom.bar(seeds, [100 * r["premium"] for r in ok], color="C1")
     bottom.set_ylim(bottom=0)
     bottom.set_ylabel("robust cost premium [%]")
     if not ok:
@@ -304,7 +334,7 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
         )
         axis.set_ylabel(f"no profile: sample {refused[0]['refused_sample']} [mm]")
         axis.legend(fontsize=8)
-    axes[-1].set_xticks([r["seed"] for r in rows])
+    axes[-1].set_xticks(sorted({r["seed"] for r in rows}))
     axes[-1].set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
     fig.suptitle("Robust torque per training seed")
     return fig

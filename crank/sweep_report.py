@@ -13,39 +13,45 @@ from matplotlib.figure import Figure
 from common.atomic import atomic_path
 from common.figures import save_figure
 from crank import stages
-from crank.study import TARGET_HELDOUT_RATE, run_row, write_csv
+from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
 from crank.sweep_spec import KINDS, Leaf
 
 Records = list[tuple[Leaf, list[dict[str, Any]]]]
 
 
 def rows_of(records: Records, out: Path) -> list[dict[str, Any]]:
-    """One row per leaf: its options, the first failed step's error or the chain's figures, and
-    each step's wall time (the step may be shared with other leaves)."""
+    """One row per leaf and robust profile: its options, the first failed step's error or the
+    chain's figures, and each step's wall time (the step may be shared with other leaves)."""
     rows = []
     for leaf, steps in records:
         row: dict[str, Any] = {"leaf": leaf.name, **leaf.options}
         row["campaign_runs"] = leaf.config.replay.runs
         failed = next((s for s in steps if s.get("error")), None)
         if failed is not None:
-            row |= {"error": failed["error"], "failed_step": failed["kind"]}
-        else:
-            by_kind = dict(zip(KINDS, steps, strict=True))
-            leaf_dir = out / "leaf" / by_kind["leaf"]["key"]
-            ocp = out / "solve" / by_kind["solve"]["key"] / stages.OCP
-            row |= run_row(leaf_dir, ocp)
-            row |= {f"{kind}_s": step["seconds"] for kind, step in by_kind.items()}
-            row |= {f"{kind}_key": step["key"] for kind, step in by_kind.items()}
-        rows.append(row)
+            profiles = "/".join(leaf.config.ocp.profiles)
+            rows.append(
+                row | {"profile": profiles, "error": failed["error"], "failed_step": failed["kind"]}
+            )
+            continue
+        by_kind = dict(zip(KINDS, steps, strict=True))
+        leaf_dir = out / "leaf" / by_kind["leaf"]["key"]
+        ocp = out / "solve" / by_kind["solve"]["key"] / stages.OCP
+        row |= {f"{kind}_s": step["seconds"] for kind, step in by_kind.items()}
+        row |= {f"{kind}_key": step["key"] for kind, step in by_kind.items()}
+        rows += [row | figures for figures in run_rows(leaf_dir, ocp)]
     return rows
 
 
 def groups(rows: list[dict[str, Any]], axes: list[str]) -> dict[str, list[dict[str, Any]]]:
-    """Rows by their options other than the seed (label "all" when the seed is the only axis)."""
+    """Rows by their options other than the seed, and by robust profile where a leaf has more
+    than one (label "all" when the seed is the only axis)."""
+    several = len({row.get("profile") for row in rows}) > 1
     out: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for row in rows:
-        label = " ".join(f"{a}={row[a]}" for a in axes if a != "seed") or "all"
-        out[label].append(row)
+        label = " ".join(f"{a}={row[a]}" for a in axes if a != "seed")
+        if several:
+            label = f"{label} profile={row.get('profile')}".strip()
+        out[label or "all"].append(row)
     return dict(out)
 
 

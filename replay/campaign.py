@@ -4,8 +4,8 @@ Every run is one machine of the product line: its friction, damping, backlash an
 drawn from the twin's `Variability`, how long it has been running before the replay (so where its
 warm-up drift stands), and its own white slider force. All runs start at rest at the OCP's θ₁.
 
-The same machines (same draws, start times and disturbances) serve both profiles and both modes,
-so nominal against robust and open against closed loop are paired comparisons.
+The same machines (same draws, start times and disturbances) serve every profile and mode, so
+nominal against robust and open against closed loop are paired comparisons.
 
 Modes:
   open    the torque as computed (the paper's experiment).
@@ -38,7 +38,7 @@ from control.config import lower_tail
 from control.mpc_config import MPCConfigError
 from control.ocp_file import OCPFile, Profile
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
-from replay.config import PROFILES, ReplayConfig
+from replay.config import ReplayConfig
 from twin.physics import SliderCrank
 from twin.stepping import simulate
 from twin.variability import MachineDraw
@@ -226,7 +226,7 @@ def play(
     Each machine's friction is evaluated once, at the middle of its replay (the warm-up time
     constant, 20 s, is 70× the 0.3 s replay).
     """
-    chosen: Profile = getattr(ocp, profile)
+    chosen: Profile = ocp.profiles[profile]
     n_runs, n_samples = config.runs, ocp.horizon
     state0 = physics.initial_state(ocp.config.theta_start, ocp.config.omega_start)
     feedback, record = None, None
@@ -277,13 +277,13 @@ def run_campaign(
     on_replay: Callable[[Replay], None] | None = None,
     model: PPANN | None = None,
 ) -> Campaign:
-    """Play both profiles in every configured mode on the same machines (default: drawn from
-    the config's seed); `on_replay` sees each (profile, mode) as soon as it is simulated (the
-    campaign log writes it then)."""
+    """Play every profile of `ocp` in every configured mode on the same machines (default:
+    drawn from the config's seed); `on_replay` sees each (profile, mode) as soon as it is
+    simulated (the campaign log writes it then)."""
     machines = machines if machines is not None else draw_machines(config, ocp.horizon)
     replays = {}
     simulating = 0.0
-    for profile in PROFILES:
+    for profile in ocp.names:
         for mode in config.modes:
             started = time.perf_counter()
             replay = play(

@@ -5,7 +5,7 @@ across episodes, a `run` metadata record and `model.xml`, so `read_dataset` load
 (one profile, one mode, one machine) is an episode; every message also carries
 
   run       index of the machine (0..runs-1), the same machine in every profile and mode
-  profile   "nominal" or "robust"
+  profile   "nominal", "robust" or "robust-fb"
   mode      "open", "closed" or "mpc"
   sample    the OCP's 1-based sample k (t within the run = (k - 1) Ts)
 
@@ -76,7 +76,7 @@ OCP_ATTACHMENT = "ocp.json"
 CONFIG_ATTACHMENT = "config.json"
 TAGS = {
     "run": {"type": "integer", "description": "machine index, shared by all profiles and modes"},
-    "profile": {"type": "string", "description": "torque profile: nominal or robust"},
+    "profile": {"type": "string", "description": "torque profile: nominal, robust or robust-fb"},
     "mode": {"type": "string", "description": "open, closed (plan + LQR or PD) or mpc"},
     "sample": {"type": "integer", "description": "the OCP's 1-based sample k, t_k = (k - 1) Ts"},
 }

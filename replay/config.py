@@ -11,7 +11,6 @@ from common.resources import check_memory
 from control.mpc_config import MPCConfig
 from twin.variability import Variability
 
-PROFILES = ("nominal", "robust")
 MODES = ("open", "closed", "mpc")
 DEFAULT_MODES = ("open", "closed")
 FEEDBACKS = ("lqr", "pd")

@@ -1,5 +1,5 @@
-"""Paper Fig. 12 for a campaign: every run's slider position against the constraint, nominal
-beside robust, one row per mode, and the torques actually applied."""
+"""Paper Fig. 12 for a campaign: every run's slider position against the constraint, one column
+per profile (nominal, robust, robust-fb), one row per mode, and the torques actually applied."""
 
 from __future__ import annotations
 
@@ -8,25 +8,23 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from control.figures import constraint_boxes, predicted_band
+from control.figures import COLORS, constraint_boxes, predicted_band
 from control.ocp_file import OCPFile
 from replay.campaign import Campaign
-from replay.config import PROFILES
-
-COLORS = {"nominal": "C0", "robust": "C3"}
 
 
 def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Figure:
-    """Rows: slider position per mode, then torque; columns: nominal, robust."""
+    """Rows: slider position per mode, then torque; columns: the profiles of `ocp`."""
     modes = campaign.config.modes
-    fig = Figure(figsize=(11, 3.2 * (len(modes) + 1)), layout="constrained")
-    axes = fig.subplots(len(modes) + 1, 2, sharex=True, squeeze=False)
+    names = ocp.names
+    fig = Figure(figsize=(5.5 * len(names), 3.2 * (len(modes) + 1)), layout="constrained")
+    axes = fig.subplots(len(modes) + 1, len(names), sharex=True, squeeze=False)
     t = np.arange(ocp.horizon) * ocp.dt
     k = ocp.config.k_sigma
     top = ocp.geometry.within_stroke
-    for col, profile in enumerate(PROFILES):
+    for col, profile in enumerate(names):
         color = COLORS[profile]
-        planned = getattr(ocp, profile)
+        planned = ocp.profiles[profile]
         for row, mode in enumerate(modes):
             ax = axes[row, col]
             replay = campaign.replays[profile, mode]

@@ -185,11 +185,19 @@ def _cube(
     }
 
 
+BODY_COLORS = {
+    "nominal": (0.3, 0.6, 0.9, 1.0),
+    "robust": (0.85, 0.6, 0.2, 1.0),
+    "robust-fb": (0.3, 0.75, 0.35, 1.0),
+}
+"""The mechanism's colour per profile, RGBA."""
+
+
 def scene_update(t: float, *, geometry: Geometry, height: float, profile: str) -> dict[str, Any]:
     """The mechanism's bodies, locked to their frames, and the constraint height."""
     l1, l2 = geometry.crank_length, geometry.rod_length
     base = slide_base(geometry)
-    body = (0.85, 0.6, 0.2, 1.0) if profile == "robust" else (0.3, 0.6, 0.9, 1.0)
+    body = BODY_COLORS.get(profile, BODY_COLORS["nominal"])
     parts = {
         "crank": ("crank", [_cube((0, 0, l1 / 2), (0.012, 0.012, l1), body)]),
         "rod": ("rod", [_cube((0, 0, l2 / 2), (0.008, 0.008, l2), body)]),
@@ -223,7 +231,7 @@ def scene_update(t: float, *, geometry: Geometry, height: float, profile: str) -
 
 def plan_rows(ocp: OCPFile, profile: str, mode: str) -> list[dict[str, float]]:
     """Per sample: the planned slider, the band of the run's loop and the height."""
-    planned = getattr(ocp, profile)
+    planned = ocp.profiles[profile]
     lower, upper = predicted_band(planned, mode, ocp.config.k_sigma, geometry=ocp.geometry)
     return [
         {"planned": p, "lower": lo, "upper": up, "height": ocp.config.height}

@@ -1,7 +1,8 @@
-"""The held-out check: both torques of an ocp.json, open or closed loop, on many machines drawn
-from streams no other stage uses (heldout_machines, heldout_noise), and the PPANN's calibration
-there. Closed loop, each machine runs under the profile's LQR gains (replay/campaign.py), and the
-PPANN's prediction is its closed-loop Monte-Carlo under the same law and saturation. Predicted
+"""The held-out check: every torque of an ocp.json, open loop, closed loop or under the MPC, on
+many machines drawn from streams no other stage uses (heldout_machines, heldout_noise), and the
+PPANN's calibration there. Closed loop, each machine runs under the profile's LQR gains
+(replay/campaign.py), and the PPANN's prediction is its closed-loop Monte-Carlo under the same
+law and saturation. Predicted
 slider positions include the model's transmission error (ppann/transmission.py), as the
 tightening does.
 
@@ -13,20 +14,22 @@ in every Monte-Carlo mode (same torque, same start state), and the same for θ a
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 1
-  runs, seed, streams    machines per profile, root seed, and the stream tree
-  mode                   open, closed or mpc (loop the profiles were played in)
+  format, version        "crank-heldout", 2
+  runs, seed, streams    machines per profile and mode, root seed, and the stream tree
+  modes                  the loops every profile was played in: open, closed, mpc
+  feedback               closed loop: lqr (each profile's gains) or pd (the fixed PD)
   variability, max_start_time
   mc_samples             trajectories of each predicted σ
-  target_rate            0.005: the robust profile's allowed violation rate
-  profiles.<nominal|robust>:
+  target_rate            0.005: a robust profile's allowed violation rate
+  profiles.<nominal|robust|robust-fb>.<mode>:
     mpc                  (mpc mode) the MPC steps' compute times, as in replay.stats.json
     violating_runs, rate, rate_upper_95
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_quantile (at Φ(-k_sigma)), skew,
                           predicted.<mode> {sigma, mean, ratio (predicted / observed σ)}}
     theta_final          {observed_sigma, predicted.<mode> {sigma, ratio}}
-  holds                  robust rate <= target_rate (null if no robust profile)
+  holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
+                         tightened for (open, or closed: its LQR gains), if that loop was played
   timing                 {simulate_s, monte_carlo_s}
 """
 
@@ -52,13 +55,13 @@ from ppann.modes import MODES
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
 from replay.campaign import draw_machines, play
-from replay.config import PROFILES, ReplayConfig, check_campaign_memory
+from replay.config import ReplayConfig, check_campaign_memory
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 1
+VERSION = 2
 TARGET_RATE = 0.005
 """Largest violation rate of the robust profile on held-out machines that counts as holding."""
 
@@ -84,12 +87,16 @@ def heldout_check(
     variability: Variability,
     max_start_time: float = 60.0,
     mc_samples: int = 1000,
-    mode: str = "open",
+    modes: tuple[str, ...] = ("open",),
     mpc: MPCConfig | None = None,
+    feedback: str = "lqr",
 ) -> dict[str, Any]:
-    """Play both profiles in `mode` on `runs` held-out machines; return heldout.json's content.
-    In mpc mode each machine runs the online MPC on `model` (settings `mpc`), and the prediction
-    beside it is the LQR closed loop's (the MPC's law while no bound is active).
+    """Play every profile in each of `modes` on the same `runs` held-out machines; return
+    heldout.json's content. Closed loop is each profile's LQR law, or with `feedback` "pd" the
+    replay's fixed PD (ReplayConfig kp, kd), and the prediction is the closed-loop Monte-Carlo
+    under that law. In mpc mode each machine runs the online MPC on `model` (settings `mpc`),
+    and the prediction beside it is the LQR closed loop's (the MPC's law while no bound is
+    active).
 
     Raises:
       GeometryError: the plan, the model and the twin are not all of one mechanism.
@@ -100,10 +107,11 @@ def heldout_check(
     config = ReplayConfig(
         runs=runs,
         seed=seed,
-        modes=(mode,),
+        modes=modes,
         variability=variability,
         max_start_time=max_start_time,
         mpc=mpc if mpc is not None else MPCConfig(),
+        feedback=feedback,
     )
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
@@ -115,29 +123,29 @@ def heldout_check(
         "ocp": str(ocp_path),
         "runs": runs,
         "seed": seed,
-        "mode": mode,
+        "modes": list(modes),
+        "feedback": feedback,
         "streams": streams.describe(seed, ("heldout_machines", "heldout_noise")),
         "variability": variability.as_dict(),
         "max_start_time": max_start_time,
         "mc_samples": mc_samples,
         "target_rate": TARGET_RATE,
-        "profiles": {},
+        "profiles": {name: {} for name in ocp.names},
     }
     simulate_s = mc_s = 0.0
-    for profile in PROFILES:
+    for profile, mode in ((p, m) for p in ocp.names for m in modes):
         t0 = time.perf_counter()
         replay = play(
             physics, ocp, profile=profile, mode=mode, machines=machines, config=config, model=model
         )
         simulate_s += time.perf_counter() - t0
-        planned = getattr(ocp, profile)
-        feedback = None
+        planned = ocp.profiles[profile]
+        law = None
         if mode in ("closed", "mpc"):
-            feedback = Feedback(
-                np.stack([planned.theta, planned.omega], axis=-1),
-                np.stack([planned.gain_theta, planned.gain_omega], axis=-1),
-                c.torque_limit,
-            )
+            gains = np.stack([planned.gain_theta, planned.gain_omega], axis=-1)
+            if mode == "closed" and config.feedback == "pd":
+                gains = np.tile([config.kp, config.kd], (len(gains), 1))
+            law = Feedback(np.stack([planned.theta, planned.omega], axis=-1), gains, c.torque_limit)
         t0 = time.perf_counter()
         predicted = {
             mc_mode: monte_carlo(
@@ -147,7 +155,7 @@ def heldout_check(
                 n_samples=mc_samples,
                 mode=mc_mode,
                 seed=streams.stream(c.mc_seed, "monte_carlo"),
-                feedback=feedback,
+                feedback=law,
             )
             for mc_mode in MODES
         }
@@ -185,7 +193,7 @@ def heldout_check(
             samples[str(k)] = entry
         theta_observed = float(replay.theta[:, -1].std(ddof=1))
         violating = int(below.sum())
-        out["profiles"][profile] = {
+        out["profiles"][profile][mode] = {
             **({} if replay.mpc is None else {"mpc": mpc_timing(replay)}),
             "violating_runs": violating,
             "rate": violating / runs,
@@ -202,7 +210,11 @@ def heldout_check(
                 },
             },
         }
-    out["holds"] = out["profiles"]["robust"]["rate"] <= TARGET_RATE
+    out["holds"] = {
+        name: out["profiles"][name][loop]["rate"] <= TARGET_RATE
+        for name in ocp.robust_names
+        if (loop := ocp.profiles[name].loop) in modes and (loop == "open" or feedback == "lqr")
+    }
     out["timing"] = {"simulate_s": simulate_s, "monte_carlo_s": mc_s}
     return out
 
@@ -217,15 +229,16 @@ def heldout_file(
     seed: int,
     variability: Variability,
     max_start_time: float = 60.0,
-    mode: str = "open",
+    modes: tuple[str, ...] = ("open",),
     model_path: str | Path = MODEL_PATH,
     mpc: MPCConfig | None = None,
+    feedback: str = "lqr",
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
     check_writable(out)
     horizon = read_ocp(ocp_path).horizon
-    check_campaign_memory(runs, modes=1, horizon=horizon, held_out=True)
-    if mode == "mpc":
+    check_campaign_memory(runs, modes=len(modes), horizon=horizon, held_out=True)
+    if "mpc" in modes:
         check_fits(mpc if mpc is not None else MPCConfig(), horizon)
     ppann, payload = load(model)
     if not isinstance(ppann, PPANN):
@@ -241,8 +254,9 @@ def heldout_file(
         seed=seed,
         variability=variability,
         max_start_time=max_start_time,
-        mode=mode,
+        modes=modes,
         mpc=mpc,
+        feedback=feedback,
     )
     result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder
     write_json(out, result)

@@ -39,7 +39,7 @@ from control.ocp_file import OCPFile
 from replay.campaign import Campaign
 
 APPLICATION_ID = "crank_replay"
-COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40)}
+COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40), "robust-fb": (44, 160, 44)}
 REFERENCE = (235, 235, 235)
 """The plan and the band: light grey on the dark theme."""
 HEIGHT = (255, 200, 0)
@@ -159,7 +159,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
         }
         _lines(rec, f"/slider/{loop}/runs", replay.slider_position, n=n, dt=dt, **run_style)
         _lines(rec, f"/torque/{loop}/runs", replay.tau, n=n, dt=dt, **run_style)
-        planned = getattr(ocp, profile)
+        planned = ocp.profiles[profile]
         _lines(
             rec,
             f"/slider/{loop}/band",
@@ -192,7 +192,7 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
             columns=rr.Scalars.columns(scalars=np.full(len(at), c.height)),
         )
     for profile in dict.fromkeys(p for p, _ in campaign.replays):
-        tau = getattr(ocp, profile).tau[None]
+        tau = ocp.profiles[profile].tau[None]
         _lines(
             rec,
             f"/torque/{profile}/planned",

@@ -3,12 +3,17 @@
 `<campaign>.stats.json` keys (stable; `version` changes if any meaning does):
 
   format, version         "crank-replay-stats", 1
-  ocp                     {path, height, constraint_samples (1-based), k_sigma, robust_cost_premium}
+  ocp                     {path, height, constraint_samples (1-based), k_sigma, premiums}:
+                          premiums {profile: its cost over the nominal's, minus 1} per robust
+                          profile
   config                  the resolved ReplayConfig (runs, seed, modes, gains, variability)
   claim                   {nominal_open_violating_runs, robust_open_violating_runs, holds}: the
                           paper's claim, robust open loop 0 runs below the height at any
-                          constraint sample and nominal open loop at least 10 of 100
-  profiles.<nominal|robust>.<open|closed>:
+                          constraint sample and nominal open loop at least 10 of 100 (holds
+                          null without the robust profile or the open mode)
+  claims                  {profile: {loop, violating_runs, runs, holds}} per robust profile
+                          played in the loop it was tightened for: 0 runs below the height
+  profiles.<nominal|robust|robust-fb>.<open|closed|mpc>:
     runs                  runs played
     violations            {sample: runs whose measured slider < height at that sample}
     violating_runs        runs below the height at any constraint sample
@@ -42,7 +47,6 @@ import numpy as np
 from common.jsonio import write_json
 from control.ocp_file import OCPFile
 from replay.campaign import Campaign, Replay
-from replay.config import PROFILES
 
 FORMAT = "crank-replay-stats"
 VERSION = 1
@@ -80,7 +84,7 @@ def mpc_timing(replay: Replay) -> dict[str, Any] | None:
 def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
     """The statistics of one profile in one mode (keys as in the module docstring)."""
     c = ocp.config
-    planned = getattr(ocp, replay.profile)
+    planned = ocp.profiles[replay.profile]
     slider = replay.slider_position
     k = c.k_sigma
     ddof = 1 if replay.runs > 1 else 0
@@ -139,11 +143,11 @@ def campaign_statistics(
 ) -> dict[str, Any]:
     """Every profile and mode, the claim, and what produced them."""
     c = ocp.config
-    profiles: dict[str, dict[str, Any]] = {p: {} for p in PROFILES}
+    profiles: dict[str, dict[str, Any]] = {p: {} for p in ocp.names}
     for (profile, mode), replay in campaign.replays.items():
         profiles[profile][mode] = replay_statistics(replay, ocp)
     claim: dict[str, Any] = {"holds": None}
-    if "open" in campaign.config.modes:
+    if "open" in campaign.config.modes and "robust" in ocp.names:
         nominal = profiles["nominal"]["open"]["violating_runs"]
         robust = profiles["robust"]["open"]["violating_runs"]
         needed = int(np.ceil(CLAIM_NOMINAL_MIN * campaign.config.runs / 100))
@@ -161,14 +165,33 @@ def campaign_statistics(
             "height": c.height,
             "constraint_samples": list(c.constraint_samples),
             "k_sigma": c.k_sigma,
-            "robust_cost_premium": ocp.robust.cost / ocp.nominal.cost - 1.0,
+            "premiums": {name: ocp.premium(name) for name in ocp.robust_names},
         },
         "config": campaign.config.as_dict(),
         "claim": claim,
+        "claims": _claims(profiles, ocp, lqr=campaign.config.feedback == "lqr"),
         "profiles": profiles,
         "timing": timing,
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
+
+
+def _claims(profiles: dict[str, dict[str, Any]], ocp: OCPFile, *, lqr: bool) -> dict[str, Any]:
+    """Each robust profile in the loop it was tightened for, if that loop was played (closed:
+    under the profile's LQR gains, not a PD)."""
+    claims = {}
+    for name in ocp.robust_names:
+        loop = ocp.profiles[name].loop
+        played = profiles[name].get(loop)
+        if played is None or (loop == "closed" and not lqr):
+            continue
+        claims[name] = {
+            "loop": loop,
+            "violating_runs": played["violating_runs"],
+            "runs": played["runs"],
+            "holds": played["violating_runs"] == 0,
+        }
+    return claims
 
 
 def write_statistics(path: str | Path, stats: dict[str, Any]) -> None:

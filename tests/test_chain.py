@@ -24,7 +24,13 @@ SHORT = RunConfig.for_seed(
     # A 12 s model is too uncertain for a 3σ profile; 0.5σ still exercises the robust loop. Its
     # 6 machines of 2 s leave the line too open for any allowance at the default confidence
     # (tests/test_tightening.py covers that), so this chain takes the fitted line as it is.
-    ocp={"k_sigma": 0.5, "mc_samples": 200, "confidence": 0.0},
+    # Both robust profiles: every stage then carries three (the held-out check two loops).
+    ocp={
+        "k_sigma": 0.5,
+        "mc_samples": 200,
+        "confidence": 0.0,
+        "profiles": ("robust", "robust-fb"),
+    },
     replay={"runs": 4},
     heldout_runs=20,
     baselines=False,
@@ -111,8 +117,13 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert config["streams"]["root_seed"] == 0
     assert config["heldout_streams"]["root_seed"] == SHORT.heldout_seed
     heldout = json.loads((a / "heldout.json").read_text())
-    assert heldout["runs"] == 20 and set(heldout["profiles"]) == {"nominal", "robust"}
-    for entry in heldout["profiles"].values():
+    assert heldout["runs"] == 20 and heldout["modes"] == ["open", "closed"]
+    assert list(heldout["profiles"]) == ["nominal", "robust", "robust-fb"]
+    assert set(heldout["holds"]) == {"robust", "robust-fb"}
+    for name, loop in (("robust", "open"), ("robust-fb", "closed")):
+        rate = heldout["profiles"][name][loop]["rate"]
+        assert heldout["holds"][name] == (rate <= heldout["target_rate"])
+    for entry in (e for played in heldout["profiles"].values() for e in played.values()):
         assert 0 <= entry["violating_runs"] <= 20
         assert entry["rate_upper_95"] >= entry["rate"]
         assert set(entry["samples"]["50"]["predicted"]) == {
@@ -129,7 +140,12 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     ocp = json.loads((a / "ocp.json").read_text())
     assert ocp["variability"]["name"] == "paper"
     assert ocp["config"]["mc_mode"] == "mixed"
-    assert len(ocp["robust"]["tightening"]) == 2
+    assert len(ocp["robust"]["tightening"]) == 2 and len(ocp["robust-fb"]["tightening"]) == 2
+    stats = json.loads((a / "replay.stats.json").read_text())
+    assert set(stats["claims"]) == {"robust", "robust-fb"}
+    assert stats["claims"]["robust-fb"]["loop"] == "closed"
+    text = (a / "report.md").read_text()
+    assert "The robust-fb torque" in text and "ocp.robust-fb.png" in text
     ppann = json.loads((a / "model.report.json").read_text())["models"]["ppann"]
     for name, estimate in ppann["machine_sigma"].items():  # a bound is above its estimate
         assert ppann["machine_sigma_upper"][name] > estimate
@@ -152,7 +168,7 @@ def test_same_seed_reproduces_every_artifact(two_runs) -> None:
     oa = json.loads((a / "ocp.json").read_text())
     ob = json.loads((b / "ocp.json").read_text())
     assert oa["model"]["sha256"] == ob["model"]["sha256"]
-    for profile in ("nominal", "robust"):
+    for profile in ("nominal", "robust", "robust-fb"):
         for key in ("tau", "slider", "slider_sigma", "tightening"):
             assert oa[profile][key] == ob[profile][key], (profile, key)
     sa = json.loads((a / "replay.stats.json").read_text())
@@ -181,9 +197,14 @@ def test_same_seed_gives_the_same_bytes_but_the_documented_wall_clock(two_runs) 
         else:
             assert (a / name).read_bytes() == (b / name).read_bytes(), name
         checked.append(name)
-    assert {"dataset.mcap", "model.pt", "ocp.json", "replay.stats.json", "ocp.robust.png"} <= set(
-        checked
-    )
+    assert {
+        "dataset.mcap",
+        "model.pt",
+        "ocp.json",
+        "replay.stats.json",
+        "ocp.robust.png",
+        "ocp.robust-fb.png",
+    } <= set(checked)
     ocp = json.loads((a / "ocp.json").read_text())
     assert ocp["model"]["path"] == "model.pt"  # relative to the run folder
 
@@ -205,3 +226,4 @@ def test_run_refuses_an_existing_folder(two_runs) -> None:
     a, _, _ = two_runs
     with pytest.raises(OutputError, match="already exists"):
         run_chain(SHORT, a)
+

@@ -13,7 +13,7 @@ from common.errors import CrankError
 from crank.chain import RunConfig
 from crank.cli_chain import FLAG_KEYS, flag_values, run_command
 from crank.config_file import build, defaults, merge, read_values, to_toml
-from crank.console import HELDOUT_RUNS, HELDOUT_SEED
+from crank.console import HELDOUT_RUNS, HELDOUT_SEED, profiles_list
 from twin import MODEL_PATH
 
 
@@ -32,6 +32,8 @@ def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
         for key in path:
             value = value[key]
         default = signature[flag].default
+        if flag == "profiles":  # given as comma-separated text
+            default = profiles_list(default)
         assert (str(default) if isinstance(default, Path) else default) == value, flag
 
 

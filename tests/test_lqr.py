@@ -65,9 +65,20 @@ def test_feedback_tolerances_must_be_positive_and_finite(field: str, value: floa
         OCPConfig(**{field: value})
 
 
-def test_unknown_feedback_is_refused() -> None:
-    with pytest.raises(OCPConfigError, match="feedback must be one of none, lqr, got 'pd'"):
-        OCPConfig(feedback="pd")
+@pytest.mark.parametrize(
+    ("profiles", "shown"),
+    [
+        (("robust", "pd"), "robust, pd"),
+        ((), "none"),
+        (("robust-fb", "robust-fb"), "robust-fb, robust-fb"),
+    ],
+)
+def test_unknown_empty_or_repeated_profiles_are_refused(profiles: tuple, shown: str) -> None:
+    with pytest.raises(
+        OCPConfigError,
+        match=f"profiles must be distinct names among robust, robust-fb, got {shown}$",
+    ):
+        OCPConfig(profiles=profiles)
 
 
 def _model():
@@ -93,13 +104,13 @@ def test_closed_loop_monte_carlo_with_zero_gains_or_no_authority_is_open_loop() 
 
 
 def test_tube_tightening_is_the_closed_loop_spread_and_far_below_the_open_loop() -> None:
-    """feedback="lqr": the robust loop settles on margins equal to the closed-loop Monte-Carlo's
+    """robust-fb: the robust loop settles on margins equal to the closed-loop Monte-Carlo's
     tightening under the robust plan's own LQR gains, and those margins are under a quarter of
     the open-loop ones (feedback shrinks the spread the tightening is sized for)."""
     model = _model()
     open_loop = solve_robust(model, OCPConfig())
-    config = OCPConfig(feedback="lqr")
-    tube = solve_robust(model, config)
+    config = OCPConfig()
+    tube = solve_robust(model, config, profile="robust-fb")
     last = tube.iterations[-1]
     np.testing.assert_array_less(np.abs(last.tightening - last.margin), config.margin_tolerance)
     again = slider_uncertainty(FusedHeads(model), tube.robust, config, gains=tube.robust_gains)

@@ -25,7 +25,7 @@ from control.ocp_file import OCPFile, read_ocp
 from ppann.checkpoint import CheckpointError, save
 from ppann.model import constant_ppann
 from replay.campaign import draw_machines, play
-from replay.config import PROFILES, ReplayConfig
+from replay.config import ReplayConfig
 from replay.files import replay_file
 from tests.test_replay import ocp, ocp_path  # noqa: F401  (the module fixtures, reused here)
 from twin.physics import SliderCrank
@@ -303,7 +303,7 @@ def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
     config = ReplayConfig(runs=runs, seed=7, modes=("open", "mpc"), mpc=MPCConfig(horizon=10))
     stats = replay_file(plan, tmp_path / "r.mcap", config=config)
     horizon = read_ocp(plan).horizon
-    for profile in PROFILES:
+    for profile in ("nominal", "robust"):
         mpc, open_loop = stats["profiles"][profile]["mpc"], stats["profiles"][profile]["open"]
         timing = mpc["mpc"]
         assert timing["steps"] == runs * (horizon - 1) and timing["horizon"] == 10
@@ -317,7 +317,7 @@ def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
     assert len(steps) == 2 * runs * (horizon - 1)
     assert {s["mode"] for s in steps} == {"mpc"} and all(s["step_ms"] > 0 for s in steps)
     assert sum(s["missed"] for s in steps) == sum(
-        stats["profiles"][p]["mpc"]["mpc"]["deadline_misses"] for p in PROFILES
+        stats["profiles"][p]["mpc"]["mpc"]["deadline_misses"] for p in ("nominal", "robust")
     )
     # the plan solved on another checkpoint
     raw["model"]["sha256"] = "0" * 64

@@ -18,7 +18,7 @@ from common.streams import stream
 from control.config import OCPConfig, OCPConfigError, lower_tail
 from control.ocp import NominalOCP, OCPError
 from control.ocp_file import OCPFileError, read_ocp
-from control.robust import solve_robust
+from control.robust import BeyondStrokeError, solve_robust
 from control.solve import figure_paths, solve_file
 from control.tightening import slider_uncertainty
 from ppann.checkpoint import CheckpointError, save
@@ -199,7 +199,8 @@ def test_bad_settings(change: dict, match: str) -> None:
 def solved(tmp_path_factory: pytest.TempPathFactory, model: PPANN) -> Path:
     folder = tmp_path_factory.mktemp("ocp")
     save(folder / "model.pt", model, kind="ppann", extra={})
-    solve_file(folder / "model.pt", folder / "ocp.json", config=OCPConfig())
+    config = OCPConfig(profiles=("robust", "robust-fb"))
+    solve_file(folder / "model.pt", folder / "ocp.json", config=config)
     return folder / "ocp.json"
 
 
@@ -207,13 +208,56 @@ def test_ocp_json_round_trips(solved: Path) -> None:
     raw = json.loads(solved.read_text())
     loaded = read_ocp(solved)
     assert loaded.horizon == 150 and loaded.dt == pytest.approx(1 / 500)
-    for name in ("nominal", "robust"):
-        profile = getattr(loaded, name)
+    assert loaded.names == ("nominal", "robust", "robust-fb") and loaded.refused == {}
+    for name in loaded.names:
+        profile = loaded.profiles[name]
         np.testing.assert_array_equal(profile.tau, raw[name]["tau"])
         np.testing.assert_array_equal(profile.slider_sigma, raw[name]["slider_sigma"])
         assert profile.cost == raw[name]["cost"]
-    assert loaded.robust.cost >= loaded.nominal.cost
-    assert all(p.stat().st_size > 10_000 for p in figure_paths(solved).values())
+    assert [loaded.profiles[n].loop for n in loaded.names] == ["open", "open", "closed"]
+    for name in loaded.robust_names:
+        assert loaded.profiles[name].cost >= loaded.nominal.cost
+        assert raw["robust_iterations"][-1 if name == "robust-fb" else 0]["profile"] == name
+    # the tube is sized for the closed loop's spread: a smaller premium than the open loop's
+    assert 0 <= loaded.premium("robust-fb") < loaded.premium("robust")
+    assert set(raw["timing"]["robust_loop_s"]) == {"robust", "robust-fb"}
+    paths = figure_paths(solved, loaded.names)
+    assert [p.name for p in paths.values()] == [
+        "ocp.nominal.png",
+        "ocp.robust.png",
+        "ocp.robust-fb.png",
+    ]
+    assert all(p.stat().st_size > 10_000 for p in paths.values())
+
+
+def test_each_profile_is_the_one_solved_alone(model: PPANN, solved: Path) -> None:
+    """Solving both robust profiles from one nominal plan gives each the torque it has when
+    solved alone (solve_robust), to the last bit."""
+    loaded = read_ocp(solved)
+    for name in loaded.robust_names:
+        alone = solve_robust(model, OCPConfig(), profile=name)
+        np.testing.assert_array_equal(loaded.profiles[name].tau, alone.robust.tau)
+        np.testing.assert_array_equal(loaded.profiles[name].gain_theta, alone.robust_gains[:, 0])
+
+
+def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
+    """On a line whose open-loop spread exceeds the stroke, `robust` is refused with its reason
+    and `robust-fb` (the LQR tube) is written alone; asked for alone, `robust` fails the solve
+    and leaves only ocp.failed.json."""
+    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.15, 0.25, 0.25))
+    save(tmp_path / "wide.pt", wide, kind="ppann", extra={})
+    config = OCPConfig(confidence=0.0, profiles=("robust", "robust-fb"))
+    solve_file(tmp_path / "wide.pt", tmp_path / "ocp.json", config=config)
+    loaded = read_ocp(tmp_path / "ocp.json")
+    assert loaded.names == ("nominal", "robust-fb")
+    assert "open loop cannot keep this spread" in loaded.refused["robust"]
+    assert loaded.nominal.loop == "closed"  # its bands are of the first profile solved
+    assert not (tmp_path / "ocp.robust.png").exists()
+    with pytest.raises(BeyondStrokeError):
+        solve_file(tmp_path / "wide.pt", tmp_path / "alone.json", config=OCPConfig(confidence=0.0))
+    assert not (tmp_path / "alone.json").exists()
+    failed = json.loads((tmp_path / "alone.failed.json").read_text())
+    assert {it["profile"] for it in failed["robust_iterations"]} == {"robust"}
 
 
 def _broken(solved: Path, tmp_path: Path, edit) -> Path:
@@ -228,6 +272,11 @@ def _broken(solved: Path, tmp_path: Path, edit) -> Path:
     ("edit", "match"),
     [
         (lambda r: r.pop("robust"), "missing key 'robust'"),
+        (lambda r: r.pop("robust-fb"), "missing key 'robust-fb'"),
+        (lambda r: r["profiles"].append("robust"), "profiles must be 'nominal' then distinct"),
+        (lambda r: r.__setitem__("profiles", ["robust"]), "profiles must be 'nominal' then"),
+        (lambda r: r["robust-fb"].__setitem__("loop", "mpc"), "robust-fb.loop must be open or"),
+        (lambda r: r.__setitem__("refused", {"robust": 3}), "refused must map profiles to"),
         (lambda r: r["nominal"].pop("tau"), "missing key 'nominal.tau'"),
         (lambda r: r["robust"]["tau"].pop(), "robust.tau has 149 values, expected 150"),
         (
@@ -263,7 +312,10 @@ def test_cli_solve_writes_ocp_json(solved: Path, tmp_path: Path) -> None:
     assert "robust cost" in result.stdout
     fresh, reference = read_ocp(out), read_ocp(solved)
     # the same checkpoint and settings give the same torques
-    np.testing.assert_allclose(fresh.robust.tau, reference.robust.tau, rtol=0, atol=1e-9)
+    assert fresh.names == ("nominal", "robust")  # the default: the paper's profile alone
+    np.testing.assert_allclose(
+        fresh.profiles["robust"].tau, reference.profiles["robust"].tau, rtol=0, atol=1e-9
+    )
 
 
 def test_solve_refuses_a_model_trained_at_another_sample_time(model: PPANN, tmp_path: Path) -> None:

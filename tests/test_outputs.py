@@ -204,7 +204,7 @@ def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Pa
     assert not list(tmp_path.glob("ocp*")), sorted(p.name for p in tmp_path.iterdir())
     rerun = crank("solve", "--model", str(ppann), "--out", str(ocp))
     assert rerun.returncode == 0, rerun.stderr
-    assert read_ocp(ocp).robust.cost > read_ocp(ocp).nominal.cost
+    assert read_ocp(ocp).premium("robust") > 0
 
 
 def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None:

@@ -22,11 +22,11 @@ from common.streams import stream
 from control.config import OCPConfig
 from control.figures import predicted_band
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
-from ppann.model import constant_ppann
+from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.campaign_log import partial_path
-from replay.config import PROFILES, ReplayConfig, ReplayConfigError
+from replay.config import ReplayConfig, ReplayConfigError
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_check
 from replay.recording import BAND_LINES, band_lines, check_recording
@@ -87,6 +87,7 @@ def _profile(tau: np.ndarray, states: np.ndarray, sigma: float) -> dict:
         "status": "Solve_Succeeded",
         "ipopt_iterations": 10,
         "wall_time_s": 0.1,
+        "loop": "open",
     }
 
 
@@ -106,6 +107,7 @@ def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> 
         "config": OCPConfig().as_dict(),
         "model": {"path": "synthetic", "sha256": "", "kind": "ppann"},
         "geometry": physics.geometry.as_dict(),
+        "profiles": ["nominal", "robust"],
     }
     for name, tau, sigma in (("nominal", base, 0.006), ("robust", 1.1 * base, 0.004)):
         payload[name] = _profile(tau, _nominal_twin_trajectory(physics, tau), sigma)
@@ -178,7 +180,9 @@ def test_batched_replay_equals_a_per_run_mj_step_loop(
     machines = draw_machines(config, N)
     replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
     for i in range(config.runs):
-        ref = _reference_run(physics, config, machines, i, ocp.robust, feedback=mode == "closed")
+        ref = _reference_run(
+            physics, config, machines, i, ocp.profiles["robust"], feedback=mode == "closed"
+        )
         np.testing.assert_array_equal(replay.theta[i], ref["theta"])
         np.testing.assert_array_equal(replay.slider_position[i], ref["slider"])
         np.testing.assert_array_equal(replay.tau[i], ref["tau"])
@@ -226,52 +230,87 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
     assert not np.array_equal(ocp.nominal.slider_sigma_open, ocp.nominal.slider_sigma_closed)
 
 
-@pytest.mark.parametrize("mode", ["open", "closed"])
+@pytest.mark.parametrize(
+    ("modes", "feedback"),
+    [(("open",), "lqr"), (("closed",), "lqr"), (("closed", "open"), "lqr"), (("closed",), "pd")],
+)
 def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
-    physics: SliderCrank, ocp_path: Path, ocp: OCPFile, mode: str
+    physics: SliderCrank, ocp_path: Path, ocp: OCPFile, modes: tuple[str, ...], feedback: str
 ) -> None:
-    """Both profiles of the held-out check are played in the loop asked for, and predicted by a
-    Monte-Carlo of that loop: the observed spread equals a direct replay's in that mode, and the
-    prediction equals a Monte-Carlo under the profile's gains (closed) or none (open). (A loop
-    variable once shadowed the mode, and the second profile was played open loop.)"""
+    """Every profile of the held-out check is played in each loop asked for, on the same
+    machines, and predicted by a Monte-Carlo of that loop: the observed spread equals a direct
+    replay's in that mode, and the prediction equals a Monte-Carlo under the profile's gains
+    (closed; the fixed PD's with feedback "pd") or none (open). (A loop variable once shadowed the
+    mode, and the second profile was played open loop.) The robust profile's verdict is of its
+    own loop, open, when played."""
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
     variability = Variability.scenario("paper")
     result = heldout_check(
-        physics, ocp_path, model, runs=8, seed=11, variability=variability, mc_samples=50, mode=mode
+        physics,
+        ocp_path,
+        model,
+        runs=8,
+        seed=11,
+        variability=variability,
+        mc_samples=50,
+        modes=modes,
+        feedback=feedback,
     )
-    assert result["mode"] == mode
-    config = ReplayConfig(runs=8, seed=11, modes=(mode,), variability=variability)
+    assert result["modes"] == list(modes) and result["feedback"] == feedback
+    assert list(result["holds"]) == (["robust"] if "open" in modes else [])
+    for mode, name in ((m, n) for m in modes for n in ocp.names):
+        entry = result["profiles"][name][mode]
+        _check_heldout_entry(physics, ocp, model, entry, name, mode, feedback=feedback)
+
+
+def _check_heldout_entry(
+    physics: SliderCrank,
+    ocp: OCPFile,
+    model: PPANN,
+    result: dict,
+    name: str,
+    mode: str,
+    *,
+    feedback: str,
+) -> None:
+    """One profile's held-out entry in `mode` against a direct replay and Monte-Carlo."""
+    variability = Variability.scenario("paper")
+    config = ReplayConfig(
+        runs=8, seed=11, modes=(mode,), variability=variability, feedback=feedback
+    )
     machines = draw_machines(config, N, held_out=True)
-    for name in PROFILES:
-        profile = getattr(ocp, name)
-        replay = play(physics, ocp, profile=name, mode=mode, machines=machines, config=config)
-        feedback = None
-        if mode == "closed":
-            feedback = Feedback(
-                np.stack([profile.theta, profile.omega], axis=-1),
-                np.stack([profile.gain_theta, profile.gain_omega], axis=-1),
-                ocp.config.torque_limit,
-            )
-        bands = monte_carlo(
-            model,
-            [profile.theta[0], profile.omega[0]],
-            profile.tau[:-1],
-            n_samples=50,
-            mode="mixed",
-            seed=stream(ocp.config.mc_seed, "monte_carlo"),
-            feedback=feedback,
+    profile = ocp.profiles[name]
+    replay = play(physics, ocp, profile=name, mode=mode, machines=machines, config=config)
+    law = None
+    if mode == "closed":
+        gains = np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
+        if feedback == "pd":
+            gains = np.tile([20.0, 0.5], (N - 1, 1))
+        law = Feedback(
+            np.stack([profile.theta, profile.omega], axis=-1), gains, ocp.config.torque_limit
         )
-        for k, entry in result["profiles"][name]["samples"].items():
-            x = replay.slider_position[:, int(k) - 1]
-            assert entry["observed_sigma"] == float(x.std(ddof=1))
-            predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
-            assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-12)
+    bands = monte_carlo(
+        model,
+        [profile.theta[0], profile.omega[0]],
+        profile.tau[:-1],
+        n_samples=50,
+        mode="mixed",
+        seed=stream(ocp.config.mc_seed, "monte_carlo"),
+        feedback=law,
+    )
+    for k, entry in result["samples"].items():
+        x = replay.slider_position[:, int(k) - 1]
+        assert entry["observed_sigma"] == float(x.std(ddof=1))
+        predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
+        assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-12)
 
 
 def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) -> None:
     config = ReplayConfig(runs=30, seed=4, modes=("open",))
     campaign = run_campaign(physics, ocp, config=config)
     stats = campaign_statistics(campaign, ocp, ocp_path="x", timing={})
+    assert set(stats["claims"]) == {"robust"} and stats["claims"]["robust"]["loop"] == "open"
+    assert stats["ocp"]["premiums"] == {"robust": ocp.premium("robust")}
     for profile in ("nominal", "robust"):
         replay = campaign.replays[profile, "open"]
         s = stats["profiles"][profile]["open"]

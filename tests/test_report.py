@@ -23,11 +23,11 @@ def _heldout(mode: str, ratio: float) -> dict:
     return {
         "runs": 1000,
         "seed": 7,
-        "mode": mode,
+        "modes": [mode],
         "mc_samples": 1000,
         "target_rate": 0.005,
-        "holds": True,
-        "profiles": {"nominal": entry, "robust": entry},
+        "holds": {"robust": True} if mode == "open" else {},
+        "profiles": {"nominal": {mode: entry}, "robust": {mode: entry}},
     }
 
 
@@ -41,8 +41,10 @@ def _heldout(mode: str, ratio: float) -> dict:
 )
 def test_heldout_says_the_loop_it_was_played_in(mode: str, words: str) -> None:
     text = "\n".join(heldout_lines(_heldout(mode, 1.1)))
-    assert f"streams no other stage draws from), {words}, the robust torque" in text
+    own = " (the loop it was tightened for)" if mode == "open" else ""
+    assert f"- {words}{own}, the robust torque left" in text
     assert (mode == "open") == ("open loop" in text)
+    assert "| robust | " + mode + " | 50 |" in text
 
 
 def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:

@@ -16,19 +16,24 @@ from tests.test_chain import SHORT
 def test_study_rows_resume_and_files(tmp_path) -> None:
     out = tmp_path / "study"
     study = run_study(SHORT, (0, 1), out)
-    rows = {r["seed"]: r for r in study["rows"]}
-    assert set(rows) == {0, 1}
-    assert rows[0]["error"] is None  # the configuration test_chain runs to the end
-    for seed, row in rows.items():
+    rows = {(r["seed"], r["profile"]): r for r in study["rows"]}
+    # one row per seed and robust profile, each judged in its own loop
+    assert set(rows) == {(s, p) for s in (0, 1) for p in ("robust", "robust-fb")}
+    assert rows[0, "robust"]["error"] is None  # the configuration test_chain runs to the end
+    for (seed, profile), row in rows.items():
         if row["error"] is not None:  # a 12 s toy model may not settle: then it says why
-            assert (out / f"seed-{seed}" / "error.txt").read_text().strip() == row["error"]
+            if (out / f"seed-{seed}" / "error.txt").exists():
+                assert (out / f"seed-{seed}" / "error.txt").read_text().strip() == row["error"]
             continue
+        loop = {"robust": "open", "robust-fb": "closed"}[profile]
+        assert row["loop"] == loop
         heldout = json.loads((out / f"seed-{seed}" / "heldout.json").read_text())
-        assert row["robust_heldout_rate"] == heldout["profiles"]["robust"]["rate"]
+        assert row["robust_heldout_rate"] == heldout["profiles"][profile][loop]["rate"]
         assert row["heldout_runs"] == 20
     for name in ("study.json", "study.csv", "study.md", "study.png"):
         assert (out / name).stat().st_size > 0
-    assert "| seed |" in (out / "study.md").read_text()
+    text = (out / "study.md").read_text()
+    assert "| seed | profile |" in text and "- robust-fb closed loop on held-out" in text
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
     with pytest.raises(ConfigError, match="already exists"):
         run_study(SHORT, (0, 1), out)
@@ -39,7 +44,7 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
 
 def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
     """k_sigma 3 on a 12 s model: no robust profile; the study records it and goes on."""
-    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0))
+    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0, profiles=("robust",)))
     study = run_study(failing, (0,), tmp_path / "study")
     (row,) = study["rows"]
     assert row["seed"] == 0 and "no robust profile" in row["error"]

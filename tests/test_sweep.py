@@ -22,7 +22,7 @@ from common.jsonio import without_wall_clock
 from common.resources import ResourceError
 from crank.chain import RunConfig, run_chain
 from crank.console import HELDOUT_SEED
-from crank.study import run_row
+from crank.study import run_rows
 from crank.sweep import RESULT, disk_estimate, execute, leaf_results, run_node, run_sweep
 from crank.sweep_report import rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
@@ -58,11 +58,11 @@ TASKS = [(50, 100), (60, 90)]
 
 def _chain_config(seed: int, samples: tuple[int, int]) -> RunConfig:
     """The chain a leaf of GRID stands for, built without the spec: SHORT at `seed` on the task
-    `samples`, checked on the default held-out machines (the spec's base does not set them)."""
+    `samples`, checked on the default held-out machines (the spec's base does not set them),
+    with the default robust profile alone (the spec's)."""
     config = SHORT.with_seed(seed)
-    return replace(
-        config, ocp=replace(config.ocp, constraint_samples=samples), heldout_seed=HELDOUT_SEED
-    )
+    ocp = replace(config.ocp, constraint_samples=samples, profiles=("robust",))
+    return replace(config, ocp=ocp, heldout_seed=HELDOUT_SEED)
 
 
 def _kill_first_training(out: Path, killed: list[int], stop: threading.Event) -> None:
@@ -117,7 +117,7 @@ def test_sweep_equals_the_four_chains_run_one_by_one(swept) -> None:
     for row in sweep["rows"]:
         samples = row["ocp.constraint_samples"]
         chain = chains / f"seed-{row['seed']}-{samples[0]}-{samples[1]}"
-        expected = run_row(chain, chain / "ocp.json")
+        (expected,) = run_rows(chain, chain / "ocp.json")
         got = {k: row[k] for k in expected}
         assert {k: v for k, v in got.items() if k != "wall_s"} == {
             k: v for k, v in expected.items() if k != "wall_s"

@@ -268,7 +268,7 @@ def test_no_profile_error_carries_its_figures() -> None:
     assert error.tightening > STROKE_SHARE * error.available
     assert error.line == 0.0
     assert f"({1e3 * error.tightening:.1f} mm;" in str(error)
-    assert "close the loop: open loop cannot keep this spread" in str(error)
+    assert "close the loop (robust-fb): open loop cannot keep this spread" in str(error)
 
 
 def test_no_tube_error_names_the_feedback_not_open_loop() -> None:
@@ -276,9 +276,9 @@ def test_no_tube_error_names_the_feedback_not_open_loop() -> None:
     line wider than the stroke, the refusal points at the feedback's authority, not at closing
     a loop already closed."""
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.3, 0.5, 0.5))
-    config = OCPConfig(confidence=0.0, feedback="lqr", feedback_theta=10.0, feedback_omega=100.0)
+    config = OCPConfig(confidence=0.0, feedback_theta=10.0, feedback_omega=100.0)
     with pytest.raises(BeyondStrokeError) as caught:
-        solve_robust(model, config)
+        solve_robust(model, config, profile="robust-fb")
     assert "a torque limit above 10 N·m or stiffer LQR weights" in str(caught.value)
     assert "open loop cannot" not in str(caught.value)
 

@@ -61,7 +61,7 @@ def test_transmission_widens_the_monte_carlo_slider_spread_as_it_should() -> Non
     variance grows by about (dx/dtheta)^2 (5 mrad)^2 over the motor-angle Monte-Carlo's (the two
     are independent), to 10 %; with zero quantiles the tightening is unchanged bit for bit."""
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
-    config = OCPConfig(feedback="lqr")  # closed loop: a spread of the order of the effect
+    config = OCPConfig()  # closed loop below: a spread of the order of the effect
     solution = NominalOCP(model, config).solve()
     heads = FusedHeads(model)
 
