@@ -1,4 +1,5 @@
-"""`crank sweep`: a grid of chains on Ray (crank/sweep.py), with a line per finished step."""
+"""`crank sweep`: a grid of chains on Ray (crank/sweep.py), with a line per finished step; and
+`crank compare` (crank/compare.py): the controllers of finished runs side by side."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from crank.console import app, one_line_errors
+from crank.console import HELDOUT_RUNS, HELDOUT_SEED, app, one_line_errors
 
 if TYPE_CHECKING:
     from crank.sweep_spec import Node
@@ -82,4 +83,45 @@ def sweep_command(
     typer.echo(
         f"wrote {folder / 'sweep.md'} ({len(sweep['rows'])} leaves, {failed} failed, "
         f"{sweep['wall_s'] / 60:.1f} min)"
+    )
+
+
+@app.command("compare", short_help="Every profile under every controller, per scenario run.")
+@one_line_errors
+def compare_command(
+    run_dirs: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="RUN_DIR...",
+            help="Finished run folders (crank run, best with --profiles robust,robust-fb), "
+            "one per variability scenario.",
+        ),
+    ],
+    out: Annotated[Path, typer.Option(help="Folder to write (must not exist).")] = Path(
+        "logs/compare"
+    ),
+    runs: Annotated[int, typer.Option(help="Campaign machines per profile and controller.")] = 100,
+    heldout_runs: Annotated[
+        int, typer.Option(help="Held-out machines per profile and controller.")
+    ] = HELDOUT_RUNS,
+    heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
+        HELDOUT_SEED
+    ),
+) -> None:
+    """Play every profile of each run's ocp.json open loop, under the fixed PD, under its LQR
+    law and under the online MPC, on campaign and held-out machines of the run's scenario;
+    write compare.md (a table per scenario), compare.json and compare.png."""
+    from crank.compare import compare_runs
+
+    result = compare_runs(
+        run_dirs,
+        out,
+        runs=runs,
+        heldout_runs=heldout_runs,
+        heldout_seed=heldout_seed,
+        on_stage=lambda text: typer.echo(text, err=True),
+    )
+    typer.echo(
+        f"wrote {out / 'compare.md'}, compare.json, compare.png "
+        f"({len(result['scenarios'])} scenarios, {result['wall_s'] / 60:.1f} min)"
     )

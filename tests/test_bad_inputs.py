@@ -463,6 +463,9 @@ CASES: list[tuple[str, str]] = [
     ("sweep {sw_ok.toml} --out {file}/S", "cannot write"),
     ("sweep --resume {dir}", "nothing to resume: "),
     ("sweep {sw_ok.toml} --resume {dir}", "give no spec"),
+    ("compare {dir} --out o/c", "is not a finished run folder (no config.json)"),
+    ("compare {dir}/absent --out o/c", "is not a finished run folder"),
+    ("compare {dir} {dir} --out o/c", "a run folder is named twice"),
 ]
 
 
@@ -503,5 +506,5 @@ def test_bad_input_is_one_line_and_writes_nothing(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study", "config", "sweep", "import"}
+    assert commands >= expected | {"run", "study", "config", "sweep", "import", "compare"}
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

@@ -227,3 +227,45 @@ def test_run_refuses_an_existing_folder(two_runs) -> None:
     with pytest.raises(OutputError, match="already exists"):
         run_chain(SHORT, a)
 
+
+def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: Path) -> None:
+    """`crank compare` on the short run: one row per profile and controller; on the run's own
+    campaign and held-out machines its open and LQR rows are the run's replay.stats.json and
+    heldout.json to the last digit; the MPC rows carry step times; compare.md has the verdict."""
+    from crank.compare import CONTROLLERS, compare_runs
+
+    a, _, _ = two_runs
+    result = compare_runs(
+        [a], tmp_path / "cmp", runs=4, heldout_runs=20, heldout_seed=SHORT.heldout_seed
+    )
+    (scenario,) = result["scenarios"]
+    rows = {(r["profile"], r["controller"]): r for r in scenario["rows"]}
+    names = ("nominal", "robust", "robust-fb")
+    assert set(rows) == {(p, c) for p in names for c in CONTROLLERS}
+    stats = json.loads((a / "replay.stats.json").read_text())
+    heldout = json.loads((a / "heldout.json").read_text())
+    for (profile, controller), row in rows.items():
+        mode = {"open": "open", "closed-LQR": "closed"}.get(controller)
+        if mode is None:
+            continue
+        played = stats["profiles"][profile][mode]
+        assert row["below_campaign"] == played["violating_runs"]
+        assert row["effort_applied"] == played["effort"]["applied_mean"]
+        held = heldout["profiles"][profile][mode]
+        assert row["heldout_rate"] == held["rate"]
+    for profile in names:
+        assert rows[profile, "mpc"]["mpc"]["steps"] == 4 * 149
+        assert (
+            rows[profile, "closed-PD"]["theta_rms_mrad"]
+            != rows[profile, "closed-LQR"]["theta_rms_mrad"]
+        )
+        assert rows[profile, "open"]["premium"] == rows[profile, "mpc"]["premium"]
+    assert scenario["spread"] == pytest.approx(0.05)
+    text = (tmp_path / "cmp" / "compare.md").read_text()
+    assert "- robust-fb under closed-LQR:" in text and "- robust-fb under mpc:" in text
+    assert (tmp_path / "cmp" / "compare.png").stat().st_size > 10_000
+    with pytest.raises(ConfigError, match="already exists"):
+        compare_runs([a], tmp_path / "cmp", runs=4, heldout_runs=20, heldout_seed=1)
+    with pytest.raises(ConfigError, match="not a finished run folder"):
+        compare_runs([tmp_path], tmp_path / "other", heldout_seed=1)
+    assert not (tmp_path / "other").exists()

@@ -1,0 +1,239 @@
+"""`crank compare`: every profile of a run under every controller, per product-line scenario.
+
+For each finished run folder (`crank run`, best with `--profiles robust,robust-fb`; one folder
+per variability scenario) the profiles of its ocp.json are played on the twin of the run's
+scenario under four controllers — open loop, the fixed PD, the profile's LQR law, and the online
+MPC on the run's PPANN — on the run's 100 campaign machines and on held-out machines (streams
+heldout_machines / heldout_noise of `heldout_seed`; every controller on the same machines). One
+row per scenario, profile and controller: violations, lowest run, the profile's cost premium,
+the Σu² applied against the nominal plan's, tracking RMS, saturation share, the final θ/ω error
+and, under the MPC, its step times.
+
+Files in `<out>/`: `compare.json` (the rows, each run's seeds and the settings), `compare.md` (a
+table per scenario, and the verdict against issue 12's targets: ≤ 0.5 % of held-out machines,
+Σu² within 10 % of the nominal plan's), `compare.png` (held-out violation rate and premium
+against the scenario's spread).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common import streams
+from common.atomic import writes
+from common.errors import ConfigError
+from common.jsonio import write_json
+from control.mpc_config import MPCConfig
+from crank.chain import RunConfig
+from twin.variability import Variability
+
+CONTROLLERS = {
+    "open": ("open", "lqr"),
+    "closed-PD": ("closed", "pd"),
+    "closed-LQR": ("closed", "lqr"),
+    "mpc": ("mpc", "lqr"),
+}
+"""Each column's replay mode and closed-loop law (replay/config.py)."""
+TARGET_RATE = 0.005
+TARGET_EFFORT = 0.10
+"""Issue 12: Σu² applied within 10 % of the nominal plan's."""
+SPREAD_KEYS = ("motor_frictionloss", "motor_damping", "slider_frictionloss", "slider_damping")
+
+
+def spread(variability: Variability) -> float:
+    """The scenario's spread: the largest half-range of friction and damping over its nominal
+    (0.05 for `paper`, 0.15 and 0.30 for `line-15`, `line-30`)."""
+    values = [getattr(variability, key) for key in SPREAD_KEYS]
+    return max((p.high - p.low) / (2 * p.nominal) for p in values)
+
+
+def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
+    """A finished run folder's configuration, ocp.json and model.pt; a ConfigError names what is
+    missing."""
+    for name in ("config.json", "ocp.json", "model.pt", "report.md"):
+        if not (run_dir / name).is_file():
+            raise ConfigError(f"{run_dir} is not a finished run folder (no {name})")
+    config = RunConfig.from_dict(json.loads((run_dir / "config.json").read_text()))
+    return config, run_dir / "ocp.json", run_dir / "model.pt"
+
+
+def compare_run(
+    run_dir: str | Path,
+    *,
+    runs: int,
+    heldout_runs: int,
+    heldout_seed: int,
+    mpc: MPCConfig,
+    on_stage: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Every profile of one run folder under every controller: {scenario, spread, seeds, rows}.
+
+    Raises:
+      ConfigError: not a finished run folder.
+    """
+    from control.ocp_file import read_ocp
+    from ppann.checkpoint import CheckpointError, load
+    from ppann.model import PPANN
+    from replay.campaign import run_campaign
+    from replay.config import ReplayConfig
+    from replay.heldout import heldout_check
+    from replay.statistics import campaign_statistics
+    from twin.physics import SliderCrank, load_model
+
+    run_dir = Path(run_dir)
+    stage = on_stage or (lambda _: None)
+    config, ocp_path, model_path = _run_folder(run_dir)
+    ocp = read_ocp(ocp_path)
+    model, payload = load(model_path)
+    if not isinstance(model, PPANN):
+        raise CheckpointError(f"{model_path}: a {payload['kind']} model; compare needs a PPANN")
+    physics = SliderCrank(load_model(config.model_path)[0])
+    variability = config.generation.variability
+    base = ReplayConfig(
+        runs=runs,
+        seed=config.replay.seed,
+        modes=("open", "closed", "mpc"),
+        max_start_time=config.replay.max_start_time,
+        variability=variability,
+        mpc=mpc,
+    )
+    pd = replace(base, modes=("closed",), feedback="pd")
+    stage(f"{run_dir.name}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
+    campaign = run_campaign(physics, ocp, config=base, model=model)
+    stats = {
+        "lqr": campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing={}),
+        "pd": campaign_statistics(
+            run_campaign(physics, ocp, config=pd, machines=campaign.machines),
+            ocp,
+            ocp_path=ocp_path,
+            timing={},
+        ),
+    }
+    held = {}
+    for feedback, modes in (("lqr", base.modes), ("pd", pd.modes)):
+        stage(f"{run_dir.name}: {heldout_runs} held-out machines, {', '.join(modes)} ({feedback})")
+        held[feedback] = heldout_check(
+            physics,
+            ocp_path,
+            model,
+            runs=heldout_runs,
+            seed=heldout_seed,
+            variability=variability,
+            max_start_time=base.max_start_time,
+            modes=modes,
+            mpc=mpc,
+            feedback=feedback,
+        )
+    nominal_effort = float(np.sum(ocp.nominal.tau**2))
+    rows = []
+    for name in ocp.names:
+        for controller, (mode, feedback) in CONTROLLERS.items():
+            s = stats[feedback]["profiles"][name][mode]
+            h = held[feedback]["profiles"][name][mode]
+            rows.append(
+                {
+                    "scenario": variability.name,
+                    "spread": spread(variability),
+                    "seed": config.seed,
+                    "profile": name,
+                    "loop": ocp.profiles[name].loop,
+                    "controller": controller,
+                    "below_campaign": s["violating_runs"],
+                    "campaign_runs": s["runs"],
+                    "lowest_campaign_mm": 1e3 * min(c["lowest"] for c in s["constraint"].values()),
+                    "heldout_rate": h["rate"],
+                    "heldout_upper_95": h["rate_upper_95"],
+                    "lowest_heldout_mm": 1e3 * min(e["lowest"] for e in h["samples"].values()),
+                    "premium": 0.0 if name == "nominal" else ocp.premium(name),
+                    "effort_applied": s["effort"]["applied_mean"],
+                    "effort_over_nominal": s["effort"]["applied_mean"] / nominal_effort - 1,
+                    "theta_rms_mrad": 1e3 * s["tracking"]["theta_rms"],
+                    "saturated_share": s["tracking"]["saturated_share"],
+                    "final_theta_error": s["final_error"]["theta"]["mean"],
+                    "final_omega_error": s["final_error"]["omega"]["mean"],
+                    "mpc": s.get("mpc"),
+                }
+            )
+    return {
+        "run": str(run_dir),
+        "scenario": variability.name,
+        "spread": spread(variability),
+        "seed": config.seed,
+        "replay_seed": base.seed,
+        "heldout_streams": streams.describe(heldout_seed, ("heldout_machines", "heldout_noise")),
+        "refused": ocp.refused,
+        "rows": rows,
+    }
+
+
+@writes("out", all_or_nothing=True)
+def compare_runs(
+    run_dirs: list[Path],
+    out: str | Path,
+    *,
+    runs: int = 100,
+    heldout_runs: int = 1000,
+    heldout_seed: int,
+    mpc: MPCConfig | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """`compare_run` for each run folder, written to `out`/compare.{json,md,png}.
+
+    Raises:
+      ConfigError: no run folder, a folder named twice or not a finished run, or `out` exists.
+    """
+    from common.figures import save_figure
+    from crank.compare_report import figure, markdown
+
+    out = Path(out)
+    if not run_dirs:
+        raise ConfigError("compare needs at least one run folder")
+    if len({p.resolve() for p in run_dirs}) != len(run_dirs):
+        raise ConfigError("a run folder is named twice")
+    from replay.config import ReplayConfig, check_campaign_memory
+
+    # every folder and count checked before any replay
+    horizon = max(_run_folder(run_dir)[0].ocp.horizon for run_dir in run_dirs)
+    ReplayConfig(runs=runs)
+    ReplayConfig(runs=heldout_runs)
+    check_campaign_memory(heldout_runs, modes=len(CONTROLLERS), horizon=horizon, held_out=True)
+    if out.exists():
+        raise ConfigError(f"compare folder already exists: {out}")
+    mpc = mpc or MPCConfig()
+    started = time.perf_counter()
+    results = [
+        compare_run(
+            p,
+            runs=runs,
+            heldout_runs=heldout_runs,
+            heldout_seed=heldout_seed,
+            mpc=mpc,
+            on_stage=on_stage,
+        )
+        for p in run_dirs
+    ]
+    compare = {
+        "format": "crank-compare",
+        "version": 1,
+        "runs": runs,
+        "heldout_runs": heldout_runs,
+        "heldout_seed": heldout_seed,
+        "controllers": {k: {"mode": m, "feedback": f} for k, (m, f) in CONTROLLERS.items()},
+        "mpc": mpc.as_dict(),
+        "target_rate": TARGET_RATE,
+        "target_effort": TARGET_EFFORT,
+        "scenarios": results,
+        "wall_s": time.perf_counter() - started,
+    }
+    out.mkdir(parents=True)
+    write_json(out / "compare.json", compare, indent=1)
+    (out / "compare.md").write_text(markdown(compare))
+    save_figure(figure(compare), out / "compare.png")
+    return compare
