@@ -125,7 +125,7 @@ def test_the_shipped_layout_names_only_what_the_log_has(
     paths = [
         p["value"] for config in layout["configById"].values() for p in config.get("paths", [])
     ]
-    assert len(paths) == 8
+    assert len(paths) == 9  # the runs of each profile, the plan, its band, the height
     for value in paths:  # /topic{field=="value"}.field
         topic, filters, field = re.fullmatch(r"(/[\w/]+)((?:\{[^}]*\})*)\.(\w+)", value).groups()
         assert field in fields[topic], value
