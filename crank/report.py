@@ -27,7 +27,7 @@ FIGURES = (
 
 LOOP_WORDS = {
     "open": "open loop",
-    "closed": "closed loop (each profile under its LQR gains)",
+    "closed": "closed loop under each profile's LQR gains",
     "mpc": "under the online MPC",
 }
 

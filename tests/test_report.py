@@ -35,7 +35,7 @@ def _heldout(mode: str, ratio: float) -> dict:
     ("mode", "words"),
     [
         ("open", "open loop"),
-        ("closed", "closed loop (each profile under its LQR gains)"),
+        ("closed", "closed loop under each profile's LQR gains"),
         ("mpc", "under the online MPC"),
     ],
 )
