@@ -183,6 +183,18 @@ def figure(compare: dict[str, Any]) -> Figure:
             label=f"{profile}: plan's cost premium (each seed)",
         )
     top.axhline(100 * compare["target_rate"], color="k", lw=1, ls="--", label="target 0.5 %")
+    refused: dict[float, set[str]] = {}
+    for scenario in compare["scenarios"]:
+        refused.setdefault(100 * scenario["spread"], set()).update(scenario["refused"])
+    for x, names in refused.items():
+        if names:
+            top.annotate(
+                "\n".join(f"{n}: refused" for n in sorted(names)),
+                (x, 0.02),
+                ha="center",
+                color="C3",
+                fontsize=8,
+            )
     top.set_yscale("symlog", linthresh=0.1)
     top.set_ylim(0, 110)
     top.set_ylabel("held-out machines below the height [%]\n(0 to 0.1 linear, log above)")
