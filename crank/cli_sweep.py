@@ -94,7 +94,7 @@ def compare_command(
         typer.Argument(
             metavar="RUN_DIR...",
             help="Finished run folders (crank run, best with --profiles robust,robust-fb), "
-            "one per variability scenario.",
+            "one per variability scenario; with --merge, compare folders to join.",
         ),
     ],
     out: Annotated[Path, typer.Option(help="Folder to write (must not exist).")] = Path(
@@ -107,12 +107,23 @@ def compare_command(
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
+    merge: Annotated[
+        bool,
+        typer.Option(
+            help="Join compare folders made apart (in parallel, elsewhere) with the same "
+            "settings into --out; no replay."
+        ),
+    ] = False,
 ) -> None:
     """Play every profile of each run's ocp.json open loop, under the fixed PD, under its LQR
     law and under the online MPC, on campaign and held-out machines of the run's scenario;
     write compare.md (a table per scenario), compare.json and compare.png."""
-    from crank.compare import compare_runs
+    from crank.compare import compare_runs, merge_compares
 
+    if merge:
+        result = merge_compares(run_dirs, out)
+        typer.echo(f"wrote {out / 'compare.md'} ({len(result['scenarios'])} scenarios)")
+        return
     result = compare_runs(
         run_dirs,
         out,

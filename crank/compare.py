@@ -12,7 +12,8 @@ and, under the MPC, its step times.
 Files in `<out>/`: `compare.json` (the rows, each run's seeds and the settings), `compare.md` (a
 table per scenario, and the verdict against issue 12's targets: ≤ 0.5 % of held-out machines,
 Σu² within 10 % of the nominal plan's), `compare.png` (held-out violation rate and premium
-against the scenario's spread).
+against the scenario's spread). `merge_compares` joins compare folders made apart (in parallel,
+or on other machines) with the same settings into one.
 """
 
 from __future__ import annotations
@@ -189,8 +190,6 @@ def compare_runs(
     Raises:
       ConfigError: no run folder, a folder named twice or not a finished run, or `out` exists.
     """
-    from common.figures import save_figure
-    from crank.compare_report import figure, markdown
 
     out = Path(out)
     if not run_dirs:
@@ -232,8 +231,55 @@ def compare_runs(
         "scenarios": results,
         "wall_s": time.perf_counter() - started,
     }
+    _write(compare, out)
+    return compare
+
+
+SETTINGS = ("runs", "heldout_runs", "heldout_seed", "controllers", "mpc", "target_rate")
+
+
+@writes("out", all_or_nothing=True)
+def merge_compares(folders: list[Path], out: str | Path) -> dict[str, Any]:
+    """One compare folder from several made with the same settings: their scenarios in order.
+
+    Raises:
+      ConfigError: fewer than two folders, one without compare.json, settings that differ, a
+        run in two of them, or `out` exists.
+    """
+    out = Path(out)
+    if len(folders) < 2:
+        raise ConfigError("--merge needs at least two compare folders")
+    parts = []
+    for folder in folders:
+        path = Path(folder) / "compare.json"
+        if not path.is_file():
+            raise ConfigError(f"{folder} is not a compare folder (no compare.json)")
+        parts.append(json.loads(path.read_text()))
+    for folder, part in zip(folders[1:], parts[1:], strict=True):
+        differ = [k for k in SETTINGS if part[k] != parts[0][k]]
+        if differ:
+            raise ConfigError(f"{folder} was compared with other settings: {', '.join(differ)}")
+    runs = [s["run"] for part in parts for s in part["scenarios"]]
+    if len(set(runs)) != len(runs):
+        raise ConfigError("a run is in two of the compare folders")
+    if out.exists():
+        raise ConfigError(f"compare folder already exists: {out}")
+    merged = {
+        **parts[0],
+        "scenarios": [s for part in parts for s in part["scenarios"]],
+        "wall_s": sum(part["wall_s"] for part in parts),
+        "merged_from": [str(f) for f in folders],
+    }
+    _write(merged, out)
+    return merged
+
+
+def _write(compare: dict[str, Any], out: Path) -> None:
+    """compare.json, compare.md and compare.png into the new folder `out`."""
+    from common.figures import save_figure
+    from crank.compare_report import figure, markdown
+
     out.mkdir(parents=True)
     write_json(out / "compare.json", compare, indent=1)
     (out / "compare.md").write_text(markdown(compare))
     save_figure(figure(compare), out / "compare.png")
-    return compare

@@ -269,3 +269,27 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
     with pytest.raises(ConfigError, match="not a finished run folder"):
         compare_runs([tmp_path], tmp_path / "other", heldout_seed=1)
     assert not (tmp_path / "other").exists()
+
+
+def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> None:
+    """Two compare folders (the same run made twice: a straight, b resumed) merge into one with
+    both scenarios, row for row as compared apart; other settings or one folder are refused."""
+    from crank.compare import compare_runs, merge_compares
+
+    a, b, _ = two_runs
+    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3}
+    parts = [compare_runs([run], tmp_path / run.name, **kwargs)["scenarios"] for run in (a, b)]
+    merged = merge_compares([tmp_path / "a", tmp_path / "b"], tmp_path / "ab")
+    assert merged["scenarios"] == parts[0] + parts[1]
+    assert [r["heldout_rate"] for r in parts[0][0]["rows"]] == [
+        r["heldout_rate"] for r in parts[1][0]["rows"]
+    ]  # the same run, resumed, plays the same
+    assert "## Every run pooled" in (tmp_path / "ab" / "compare.md").read_text()
+    compare_runs([a], tmp_path / "other", runs=3, heldout_runs=5, heldout_seed=3)
+    with pytest.raises(ConfigError, match="other settings: runs"):
+        merge_compares([tmp_path / "b", tmp_path / "other"], tmp_path / "bad")
+    with pytest.raises(ConfigError, match="at least two"):
+        merge_compares([tmp_path / "a"], tmp_path / "bad")
+    with pytest.raises(ConfigError, match="a run is in two"):
+        merge_compares([tmp_path / "a", tmp_path / "ab"], tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
