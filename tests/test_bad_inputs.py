@@ -466,6 +466,8 @@ CASES: list[tuple[str, str]] = [
     ("compare {dir} --out o/c", "is not a finished run folder (no config.json)"),
     ("compare {dir}/absent --out o/c", "is not a finished run folder"),
     ("compare {dir} {dir} --out o/c", "a run folder is named twice"),
+    ("compare {dir} --merge --out o/c", "--merge needs at least two compare folders"),
+    ("compare {dir} {dir}/absent --merge --out o/c", "is not a compare folder (no compare.json)"),
 ]
 
 
