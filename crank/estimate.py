@@ -90,36 +90,47 @@ MPC_STEP = (0.35e-3, 50e-6)
 (bench_mpc: 20 machines x 149 steps took 2.5 s at horizon 10 and 6.0 s at 30)."""
 
 
-def replay_time(*, runs: int, modes: int, horizon: int, mpc_horizon: int | None = None) -> Span:
-    """`mpc_horizon`: the MPC's, when the modes include mpc."""
-    seconds = REPLAY_FIXED + REPLAY_PER_SAMPLE * runs * 2 * modes * horizon
+def replay_time(
+    *, runs: int, modes: int, horizon: int, mpc_horizon: int | None = None, profiles: int = 2
+) -> Span:
+    """`mpc_horizon`: the MPC's, when the modes include mpc; `profiles`: nominal and the robust
+    ones."""
+    seconds = REPLAY_FIXED + REPLAY_PER_SAMPLE * runs * profiles * modes * horizon
     if mpc_horizon is not None:
         fixed, per = MPC_STEP
-        seconds += (fixed + per * mpc_horizon) * runs * 2 * horizon
+        seconds += (fixed + per * mpc_horizon) * runs * profiles * horizon
     return Span(seconds, seconds)
 
 
-def heldout_time(*, runs: int, horizon: int) -> Span:
-    seconds = HELDOUT_PER_SAMPLE * runs * 2 * horizon
+def heldout_time(*, runs: int, horizon: int, profiles: int = 2, modes: int = 1) -> Span:
+    seconds = HELDOUT_PER_SAMPLE * runs * profiles * modes * horizon
     return Span(seconds, seconds)
 
 
 def run_time(config: RunConfig) -> dict[str, Span]:
     """Per stage of `crank run`, and "total"."""
     horizon = config.ocp.horizon
+    profiles = 1 + len(config.ocp.profiles)
     stages = {
         "generate": generate_time(config.generation),
         "train": train_time(config.train, config.generation, baselines=config.baselines),
-        "solve": solve_time(horizon=horizon, mc_samples=config.ocp.mc_samples),
+        "solve": solve_time(horizon=horizon, mc_samples=config.ocp.mc_samples)
+        * len(config.ocp.profiles),
         "replay": replay_time(
             runs=config.replay.runs,
             modes=len(config.replay.modes),
             horizon=horizon,
             mpc_horizon=config.replay.mpc.horizon if "mpc" in config.replay.modes else None,
+            profiles=profiles,
         ),
     }
     if config.heldout_runs:
-        stages["heldout"] = heldout_time(runs=config.heldout_runs, horizon=horizon)
+        stages["heldout"] = heldout_time(
+            runs=config.heldout_runs,
+            horizon=horizon,
+            profiles=profiles,
+            modes=len(config.heldout_modes),
+        )
     total = Span(0.0, 0.0)
     for span in stages.values():
         total = total + span

@@ -49,6 +49,13 @@ def test_each_stage_scales_with_its_request() -> None:
     )
     fewer = solve_time(horizon=150, mc_samples=100)
     assert fewer.low < solve_time(horizon=150, mc_samples=1000).low
+    # both robust profiles: three profiles replayed, held out in two loops (open and closed)
+    both = RunConfig.for_seed(0, ocp={"profiles": ("robust", "robust-fb")}, heldout_runs=1000)
+    assert run_time(both)["heldout"].low == pytest.approx(3 * run_time(base)["heldout"].low)
+    assert run_time(both)["replay"].low - REPLAY_FIXED == pytest.approx(
+        1.5 * (run_time(base)["replay"].low - REPLAY_FIXED)
+    )
+    assert run_time(both)["solve"].low == pytest.approx(2 * run_time(base)["solve"].low)
 
 
 def test_training_range_runs_from_early_stopping_to_the_epoch_cap() -> None:
