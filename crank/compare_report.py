@@ -148,7 +148,7 @@ def markdown(compare: dict[str, Any]) -> str:
 def figure(compare: dict[str, Any]) -> Figure:
     """Held-out violation rate per profile and controller, and each robust profile's premium
     and Σu² applied over the nominal plan's, against the scenarios' spread."""
-    fig = Figure(figsize=(10, 8), layout="constrained")
+    fig = Figure(figsize=(13, 8), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
     rows = [r for s in compare["scenarios"] for r in s["rows"]]
     series: dict[tuple[str, str], dict[float, list[dict[str, Any]]]] = {}
@@ -198,14 +198,17 @@ def figure(compare: dict[str, Any]) -> Figure:
     top.set_yscale("symlog", linthresh=0.1)
     top.set_ylim(0, 110)
     top.set_ylabel("held-out machines below the height [%]\n(0 to 0.1 linear, log above)")
-    top.legend(fontsize=7, ncol=3)
+    top.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     bottom.axhline(100 * compare["target_effort"], color="k", lw=1, ls="--", label="target +10 %")
     bottom.set_ylabel("over the nominal plan [%]")
     bottom.set_xlabel("friction and damping spread of the scenario [±%]")
     spreads = {100 * s["spread"]: s["scenario"] for s in compare["scenarios"]}
     bottom.set_xticks(list(spreads), [f"{name}\n±{x:.0f} %" for x, name in spreads.items()])
     bottom.set_xlim(0, max(spreads) + 5)
-    bottom.legend(fontsize=7)
-    names = ", ".join(f"{s['scenario']} ±{100 * s['spread']:.0f} %" for s in compare["scenarios"])
-    fig.suptitle(f"Profiles × controllers on the twin: {names}")
+    bottom.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
+    names = dict.fromkeys(
+        f"{s['scenario']} ±{100 * s['spread']:.0f} %" for s in compare["scenarios"]
+    )
+    seeds = len(compare["scenarios"])
+    fig.suptitle(f"Profiles × controllers on the twin: {', '.join(names)} ({seeds} runs)")
     return fig
