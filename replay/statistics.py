@@ -2,7 +2,8 @@
 
 `<campaign>.stats.json` keys (stable; `version` changes if any meaning does):
 
-  format, version         "crank-replay-stats", 1
+  format, version         "crank-replay-stats", 2 (2: premiums and claims per robust profile,
+                          in place of robust_cost_premium)
   ocp                     {path, height, constraint_samples (1-based), k_sigma, premiums}:
                           premiums {profile: its cost over the nominal's, minus 1} per robust
                           profile
@@ -49,7 +50,7 @@ from control.ocp_file import OCPFile
 from replay.campaign import Campaign, Replay
 
 FORMAT = "crank-replay-stats"
-VERSION = 1
+VERSION = 2
 CLAIM_NOMINAL_MIN = 10
 """The nominal profile must break the constraint on at least this many of 100 open-loop runs."""
 

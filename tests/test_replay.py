@@ -552,7 +552,8 @@ def test_cli_replay_writes_every_file_and_view_explains(ocp_path: Path, tmp_path
     paths = output_paths(out)
     assert all(p.is_file() for p in paths.values())
     stats = json.loads(paths["stats"].read_text())
-    assert stats["format"] == "crank-replay-stats" and stats["config"]["runs"] == 3
+    assert stats["format"] == "crank-replay-stats" and stats["version"] == 2
+    assert stats["config"]["runs"] == 3
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     view = subprocess.run(
         [sys.executable, "-m", "crank", "view", str(paths["rrd"])],
