@@ -259,6 +259,9 @@ def heldout_command(
         feedback=feedback,
         model_path=mjcf,
         mpc=mpc,
+        on_played=lambda name, mode, entry: typer.echo(
+            f"  {name} {mode}: {entry['violating_runs']} of {runs} below the height", err=True
+        ),
     )
     print_heldout(result)
     typer.echo(f"wrote {out}")

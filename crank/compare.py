@@ -131,6 +131,10 @@ def compare_run(
             modes=modes,
             mpc=mpc,
             feedback=feedback,
+            on_played=lambda name, mode, entry, law=feedback: stage(
+                f"  {name} {'PD' if mode == 'closed' and law == 'pd' else mode}: "
+                f"{entry['violating_runs']} of {heldout_runs} below the height"
+            ),
         )
     nominal_effort = float(np.sum(ocp.nominal.tau**2))
     rows = []

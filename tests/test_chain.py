@@ -235,9 +235,17 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
     from crank.compare import CONTROLLERS, compare_runs
 
     a, _, _ = two_runs
+    said: list[str] = []
     result = compare_runs(
-        [a], tmp_path / "cmp", runs=4, heldout_runs=20, heldout_seed=SHORT.heldout_seed
+        [a],
+        tmp_path / "cmp",
+        runs=4,
+        heldout_runs=20,
+        heldout_seed=SHORT.heldout_seed,
+        on_stage=said.append,
     )
+    # progress: a line per profile and loop of the held-out check as it finishes
+    assert sum(line.startswith("  robust-fb ") for line in said) == 4
     (scenario,) = result["scenarios"]
     rows = {(r["profile"], r["controller"]): r for r in scenario["rows"]}
     names = ("nominal", "robust", "robust-fb")
