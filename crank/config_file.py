@@ -84,6 +84,13 @@ def read_values(path: str | Path) -> dict[str, Any]:
     return merge(defaults(), given, source=str(path))
 
 
+REPLACED = {
+    "ocp.feedback": 'replaced by ocp.profiles: feedback = "lqr" is profiles = ["robust-fb"], '
+    'and both are ["robust", "robust-fb"]',
+}
+"""Keys of earlier versions, with what took their place."""
+
+
 def merge(base: dict[str, Any], given: dict[str, Any], *, source: str) -> dict[str, Any]:
     """`base` with `given`'s values, checked key by key against `base` (dotted names in errors)."""
     return _merge(base, given, source, prefix="")
@@ -97,6 +104,8 @@ def _merge(base: dict[str, Any], given: dict[str, Any], source: str, prefix: str
             hint = ""
             if prefix[:-1] in SEEDED and key == SEEDED[prefix[:-1]]:
                 hint = " (every stage uses the top-level seed)"
+            elif name in REPLACED:
+                hint = f" ({REPLACED[name]})"
             raise ConfigError(f"{source}: unknown key {name!r}{hint}")
         default = base[key]
         if isinstance(default, dict):

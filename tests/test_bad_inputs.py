@@ -33,6 +33,7 @@ RANGES = {
     "negative": "[motor_damping]\nlow = -0.1\nhigh = 0.2\n",
     "broken": "[motor_damping\nlow = ",
     "cfg_unknown": "[ocp]\nheigth = 0.08\n",
+    "cfg_old": '[ocp]\nfeedback = "lqr"\n',
     "cfg_type": "[ocp]\nhorizon = 'x'\n",
     "cfg_range": "[ocp]\nhorizon = 2\n",
     "sw_ok": "[grid]\nseed = [0, 1]\n",
@@ -358,6 +359,7 @@ CASES: list[tuple[str, str]] = [
     ("run --logs L --config {dir}/absent.toml", "cannot read config"),
     ("run --logs L --config {folder}", "cannot read config"),
     ("config --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
+    ("run --logs L --config {cfg_old.toml}", "'ocp.feedback' (replaced by ocp.profiles: feedback"),
     ("config --config {cfg_range.toml}", "horizon must be >= 3 samples"),
     ("config --config {text.txt}", "is not TOML"),
     # --- study ---
