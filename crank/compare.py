@@ -229,6 +229,7 @@ def compare_runs(
         "heldout_runs": heldout_runs,
         "heldout_seed": heldout_seed,
         "controllers": {k: {"mode": m, "feedback": f} for k, (m, f) in CONTROLLERS.items()},
+        "pd": {"kp": ReplayConfig.kp, "kd": ReplayConfig.kd},
         "mpc": mpc.as_dict(),
         "target_rate": TARGET_RATE,
         "target_effort": TARGET_EFFORT,
@@ -239,7 +240,7 @@ def compare_runs(
     return compare
 
 
-SETTINGS = ("runs", "heldout_runs", "heldout_seed", "controllers", "mpc", "target_rate")
+SETTINGS = ("runs", "heldout_runs", "heldout_seed", "controllers", "pd", "mpc", "target_rate")
 
 
 @writes("out", all_or_nothing=True)

@@ -112,7 +112,8 @@ def markdown(compare: dict[str, Any]) -> str:
         "",
         f"Each profile on {compare['runs']} campaign machines (the run's replay seed) and "
         f"{compare['heldout_runs']} held-out machines (root seed {compare['heldout_seed']}), "
-        "the same machines for every controller: open loop, the fixed PD (Kp 20, Kd 0.5), the "
+        "the same machines for every controller: open loop, the fixed PD (Kp "
+        f"{compare['pd']['kp']:g}, Kd {compare['pd']['kd']:g}), the "
         "profile's LQR law, the online MPC on the run's PPANN (horizon "
         f"{compare['mpc']['horizon']}). Targets (issue 12): <= {100 * rate:.1f} % of held-out "
         f"machines below the height, Σu² applied within {100 * effort:.0f} % of the nominal "
