@@ -8,7 +8,8 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-PROFILE_COLORS = {"nominal": "C0", "robust": "C3", "robust-fb": "C2"}
+from control.figures import COLORS
+
 CONTROLLER_STYLES = {"open": "o-", "closed-PD": "s:", "closed-LQR": "^--", "mpc": "D-."}
 COLUMNS = (
     ("profile", "profile", ""),
@@ -160,7 +161,7 @@ def figure(compare: dict[str, Any]) -> Figure:
     for (profile, controller), by_spread in series.items():
         x = [100 * v for v in sorted(by_spread)]
         worst = [max(r["heldout_rate"] for r in by_spread[v]) for v in sorted(by_spread)]
-        style = {"color": PROFILE_COLORS.get(profile, "k"), "ms": 5}
+        style = {"color": COLORS[profile], "ms": 5}
         label = f"{profile}, {controller}" + (" (worst seed)" if len(rows) > len(series) else "")
         top.plot(x, [100 * w for w in worst], CONTROLLER_STYLES[controller], label=label, **style)
         if profile != "nominal" and controller in ("closed-LQR", "mpc"):
@@ -179,7 +180,7 @@ def figure(compare: dict[str, Any]) -> Figure:
             [100 * p for p, _ in points],
             [100 * v for _, v in points],
             "*",
-            color=PROFILE_COLORS.get(profile, "k"),
+            color=COLORS[profile],
             ms=10,
             label=f"{profile}: plan's cost premium (each seed)",
         )

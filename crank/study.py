@@ -30,12 +30,12 @@ from common.errors import ConfigError, CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
 from control.config import loop_of
+from control.figures import COLORS
 from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
+from replay.heldout import TARGET_RATE as TARGET_HELDOUT_RATE
 
-TARGET_HELDOUT_RATE = 0.005
-PROFILE_COLORS = {"robust": "C3", "robust-fb": "C2"}
 MAX_SEEDS = 1000
 
 
@@ -291,7 +291,7 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
         x = [r["seed"] + (i - (len(names) - 1) / 2) * width for r in mine]
         bounds = [100 * r["robust_heldout_upper_95"] for r in mine]
         upper += bounds
-        color = PROFILE_COLORS.get(name, "C0")
+        color = COLORS[name]
         label = f"{name} ({loop_of(name)} loop)"
         top.bar(x, [100 * r["robust_heldout_rate"] for r in mine], width, color=color, label=label)
         top.scatter(x, bounds, color="k", marker="_", s=200 * width)
