@@ -129,20 +129,27 @@ def draw_machines(config: ReplayConfig, n_samples: int, *, held_out: bool = Fals
     return Machines(draws=draws, start_times=np.array(starts), disturbance=np.array(forces))
 
 
+def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:
+    """The closed loop's gains on the angle and speed errors before samples 1..N-1, (N-1, 2):
+    the profile's LQR gains, or the fixed PD (kp, kd) of `config` at every sample. The twin's
+    law (`tracking_law`) and the held-out check's closed-loop Monte-Carlo both use these."""
+    if config.feedback == "pd":
+        return np.tile([config.kp, config.kd], (len(profile.gain_theta), 1))
+    return np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
+
+
 def tracking_law(
     physics: SliderCrank, profile: Profile, config: ReplayConfig
 ) -> Callable[[int, np.ndarray], np.ndarray]:
-    """Feedback on the encoder angle and speed, tracking the profile's predicted states with its
-    LQR gains (after the last gain, the last one is held) or the fixed PD of `config`."""
-    last = len(profile.gain_theta) - 1
+    """Feedback on the encoder angle and speed, tracking the profile's predicted states with
+    `closed_loop_gains` (after the last gain, the last one is held)."""
+    gains = closed_loop_gains(profile, config)
+    last = len(gains) - 1
 
     def law(k: int, states: np.ndarray) -> np.ndarray:
         theta = physics.qpos(states, "motor")
         omega = physics.qvel(states, "motor")
-        if config.feedback == "pd":
-            kp, kd = config.kp, config.kd
-        else:
-            kp, kd = profile.gain_theta[min(k, last)], profile.gain_omega[min(k, last)]
+        kp, kd = gains[min(k, last)]
         return kp * (profile.theta[k] - theta) + kd * (profile.omega[k] - omega)
 
     return law

@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +56,7 @@ from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import draw_machines, play
+from replay.campaign import closed_loop_gains, draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
@@ -116,6 +117,7 @@ def heldout_check(
         mpc=mpc if mpc is not None else MPCConfig(),
         feedback=feedback,
     )
+    lqr = replace(config, feedback="lqr")
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
     c = ocp.config
@@ -144,11 +146,12 @@ def heldout_check(
         simulate_s += time.perf_counter() - t0
         planned = ocp.profiles[profile]
         law = None
-        if mode in ("closed", "mpc"):
-            gains = np.stack([planned.gain_theta, planned.gain_omega], axis=-1)
-            if mode == "closed" and config.feedback == "pd":
-                gains = np.tile([config.kp, config.kd], (len(gains), 1))
-            law = Feedback(np.stack([planned.theta, planned.omega], axis=-1), gains, c.torque_limit)
+        if mode in ("closed", "mpc"):  # the MPC's law, no bound active, is the LQR's
+            law = Feedback(
+                np.stack([planned.theta, planned.omega], axis=-1),
+                closed_loop_gains(planned, config if mode == "closed" else lqr),
+                c.torque_limit,
+            )
         t0 = time.perf_counter()
         predicted = {
             mc_mode: monte_carlo(
