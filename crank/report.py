@@ -138,7 +138,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
             f"height in {c['violating_runs']} of {c['runs']} runs (cost premium "
             f"{premiums[name]:+.1%})."
         )
-    for name, why in ocp_refused(report).items():
+    for name, why in report["refused"].items():
         verdicts.append(f"No {name} torque: {why}")
     lines = [
         f"# crank run `{run_dir.name.removesuffix('.partial')}`",  # a sweep step's folder
@@ -181,15 +181,6 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "",
     ]
     return "\n".join(lines)
-
-
-def ocp_refused(report: dict[str, Any]) -> dict[str, str]:
-    """The robust profiles the OCP refused, with why (from report.json's ocp summary)."""
-    return {
-        name: why.removeprefix("refused: ")
-        for name, why in report["ocp"].items()
-        if isinstance(why, str) and why.startswith("refused: ")
-    }
 
 
 def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:

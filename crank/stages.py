@@ -114,6 +114,7 @@ def write_report(
         "dataset": dataset,
         "ppann": trained,
         "ocp": solve_summary(solved),
+        "refused": solved["refused"],  # robust profiles asked for that have no torque: why
         "replay": {
             "claim": stats["claim"],
             "claims": stats["claims"],
