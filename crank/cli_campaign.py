@@ -27,7 +27,7 @@ from crank.console import (
     print_heldout,
     print_replay,
 )
-from replay.config import ReplayConfig
+from replay.config import ReplayConfig, loop_label
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -260,7 +260,9 @@ def heldout_command(
         model_path=mjcf,
         mpc=mpc,
         on_played=lambda name, mode, entry: typer.echo(
-            f"  {name} {mode}: {entry['violating_runs']} of {runs} below the height", err=True
+            f"  {name} {loop_label(mode, feedback)}: {entry['violating_runs']} of {runs} below "
+            "the height",
+            err=True,
         ),
     )
     print_heldout(result)

@@ -82,7 +82,7 @@ def compare_run(
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
     from replay.campaign import run_campaign
-    from replay.config import ReplayConfig
+    from replay.config import ReplayConfig, loop_label
     from replay.heldout import heldout_check
     from replay.statistics import campaign_statistics
     from twin.physics import SliderCrank, load_model
@@ -131,7 +131,7 @@ def compare_run(
             mpc=mpc,
             feedback=feedback,
             on_played=lambda name, mode, entry, law=feedback: stage(
-                f"  {name} {'PD' if mode == 'closed' and law == 'pd' else mode}: "
+                f"  {name} {loop_label(mode, law)}: "
                 f"{entry['violating_runs']} of {heldout_runs} below the height"
             ),
         )

@@ -273,11 +273,12 @@ class EpochBars:
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:
+    from replay.config import loop_label
+
     typer.echo(f"held-out check ({heldout['runs']} machines per profile and loop):")
     for profile, played in heldout["profiles"].items():
-        for loop, entry in played.items():
-            if loop == "closed" and heldout.get("feedback") == "pd":
-                loop = "PD"
+        for mode, entry in played.items():
+            loop = loop_label(mode, heldout["feedback"])
             typer.echo(
                 f"  {profile:<9} {loop:<6} {entry['violating_runs']:>5} below the height "
                 f"({100 * entry['rate']:.2f} %, 95 % upper bound "

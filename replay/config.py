@@ -24,6 +24,12 @@ HELDOUT_BYTES = (0.45e9, 3400.0)
 (measured: 0.64 and 4.49 GB peak for 200 and 4000 machines, 2 profiles x 150 samples)."""
 
 
+def loop_label(mode: str, feedback: str) -> str:
+    """How a played loop is named in tables and progress lines: the mode, or "PD" for the
+    closed loop under the fixed PD."""
+    return "PD" if mode == "closed" and feedback == "pd" else mode
+
+
 def check_campaign_memory(runs: int, *, modes: int, horizon: int, held_out: bool = False) -> None:
     """Refuse a campaign (or held-out check) whose replays cannot fit in memory, before any
     simulation (common.resources.ResourceError, with both figures)."""
