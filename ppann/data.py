@@ -3,7 +3,10 @@ the measured angular acceleration used by the eq. 9 residual.
 
 Split (paper section 3.3.2): the first (1 - validation_fraction) of the samples train, the rest
 validate (87 s / 3 s of 90 s by default). A window of N steps starts at sample k and needs samples
-k .. k + N from one episode and one split, so no window crosses an episode boundary.
+k .. k + N from one episode and one split, so no window crosses an episode boundary. Early
+stopping scores the validation split (the paper's) or, with `TrainConfig(early_stopping=
+"machines")`, the last fraction of every training episode (`machine_split`), which leaves the
+validation split to the report alone.
 
 Acceleration: alpha is the forward difference (omega_{k+1} - omega_k) / dt within an episode,
 the acceleration forward Euler needs to reach the next sample; the last sample of each episode
@@ -12,6 +15,7 @@ has none and is left out of phase 2.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,12 +61,21 @@ def split_index(n_samples: int, validation_fraction: float) -> int:
 
 def windows(dataset: Dataset, *, start: int, stop: int, horizon: int) -> Windows:
     """Every window of `horizon` steps inside samples [start, stop) and inside one episode."""
-    first = np.arange(start, max(start, stop - horizon))
-    same = dataset.episode[first] == dataset.episode[first + horizon]
-    first = first[same]
+    return windows_over(dataset, [(start, stop)], horizon=horizon)
+
+
+def windows_over(dataset: Dataset, ranges: Sequence[tuple[int, int]], *, horizon: int) -> Windows:
+    """Every window of `horizon` steps inside one of the sample ranges [start, stop) and inside
+    one episode, in the order of the ranges."""
+    firsts = []
+    for start, stop in ranges:
+        first = np.arange(start, max(start, stop - horizon))
+        firsts.append(first[dataset.episode[first] == dataset.episode[first + horizon]])
+    first = np.concatenate(firsts) if firsts else np.zeros(0, dtype=int)
     if first.size == 0:
+        where = ", ".join(f"{a}..{b}" for a, b in ranges)
         raise DataError(
-            f"samples {start}..{stop} hold no window of {horizon} steps inside one episode; "
+            f"samples {where} hold no window of {horizon} steps inside one episode; "
             "the dataset is too short for the split or the horizon"
         )
     steps = first[:, None] + np.arange(1, horizon + 1)[None, :]
@@ -72,6 +85,29 @@ def windows(dataset: Dataset, *, start: int, stop: int, horizon: int) -> Windows
         tau=torch.from_numpy(dataset.tau[first[:, None] + np.arange(horizon)[None, :]]),
         target=torch.from_numpy(states[steps]),
     )
+
+
+def episode_ranges(dataset: Dataset, stop: int) -> list[tuple[int, int]]:
+    """[start, stop) of every episode's samples before `stop`, in order."""
+    episode = dataset.episode[:stop]
+    edges = np.flatnonzero(np.diff(episode) != 0) + 1
+    starts = np.concatenate([[0], edges]).astype(int)
+    stops = np.concatenate([edges, [len(episode)]]).astype(int)
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True) if b > a]
+
+
+def machine_split(
+    dataset: Dataset, stop: int, fraction: float
+) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Training and early-stopping ranges of the samples before `stop`: the last `fraction`
+    (at least one sample) of every episode there stops, the rest trains. Every machine of the
+    data is then in both, so the stop scores the mean model on the line, not on one machine."""
+    train, stopping = [], []
+    for start, end in episode_ranges(dataset, stop):
+        cut = end - max(1, round((end - start) * fraction))
+        train.append((start, cut))
+        stopping.append((cut, end))
+    return train, stopping
 
 
 def acceleration(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,15 @@ import numpy as np
 import torch
 
 from common.streams import torch_seed
-from ppann.data import Windows, acceleration, check_finite_data, split_index, windows
+from ppann.data import (
+    Windows,
+    acceleration,
+    check_finite_data,
+    machine_split,
+    split_index,
+    windows,
+    windows_over,
+)
 from ppann.losses import n_step_mse, propagated_terms
 from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets, white_nll
 from ppann.model import PPANN, n_step_prediction
@@ -57,14 +65,21 @@ class Splits:
     scale: torch.Tensor
     """Per-state loss scale (2,): std of one-step increments in the training split."""
     split: int
+    """First sample of the validation split; phase 2 fits on the samples before it."""
 
 
 def make_splits(dataset: Dataset, config: TrainConfig) -> Splits:
-    """Check the data and cut it into training and validation windows."""
+    """Check the data and cut it into phase 1's training windows and the windows its early
+    stopping scores (`TrainConfig.early_stopping`)."""
     check_finite_data(dataset)
     split = split_index(len(dataset), config.validation_fraction)
-    train = windows(dataset, start=0, stop=split, horizon=config.horizon)
-    validation = windows(dataset, start=split, stop=len(dataset), horizon=config.horizon)
+    if config.early_stopping == "machines":
+        heads, tails = machine_split(dataset, split, config.validation_fraction)
+        train = windows_over(dataset, heads, horizon=config.horizon)
+        validation = windows_over(dataset, tails, horizon=config.horizon)
+    else:
+        train = windows(dataset, start=0, stop=split, horizon=config.horizon)
+        validation = windows(dataset, start=split, stop=len(dataset), horizon=config.horizon)
     increments = train.target[:, 0] - train.x0
     return Splits(train, validation, increments.std(dim=0), split)
 

@@ -8,6 +8,9 @@ from dataclasses import asdict, dataclass
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
 
+EARLY_STOPPING = ("tail", "machines")
+"""What phase 1's early stopping scores (TrainConfig.early_stopping)."""
+
 
 class TrainConfigError(CrankError, ValueError):
     """A training option is out of range."""
@@ -30,6 +33,13 @@ class TrainConfig:
     sigma_lr: float = 5e-3
     sigma_epochs: int = 400
     validation_fraction: float = 3 / 90
+    early_stopping: str = "tail"
+    """What phase 1's early stopping (and learning-rate decay) scores. "tail" (the paper): the
+    validation split, the last validation_fraction of the data, which is one machine's last
+    seconds and is also what the report scores. "machines": the last validation_fraction of every
+    training episode (one machine each), held out of phase 1's windows; the validation split
+    is then scored by the report alone. On a wide line one machine's distance from the line's
+    mean floors the "tail" loss, and the stop reads that floor's noise."""
     seed: int = 0
     machine_model: bool = True
     """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""
@@ -58,6 +68,11 @@ class TrainConfig:
         check_seed("seed", self.seed, error=TrainConfigError)
         if not 0 < self.lr_decay <= 1:
             raise TrainConfigError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
+        if self.early_stopping not in EARLY_STOPPING:
+            raise TrainConfigError(
+                f"early_stopping must be one of {', '.join(EARLY_STOPPING)}, "
+                f"got {self.early_stopping!r}"
+            )
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"

@@ -34,6 +34,7 @@ RANGES = {
     "broken": "[motor_damping\nlow = ",
     "cfg_unknown": "[ocp]\nheigth = 0.08\n",
     "cfg_old": '[ocp]\nfeedback = "lqr"\n',
+    "cfg_stop": '[train]\nearly_stopping = "best"\n',
     "cfg_type": "[ocp]\nhorizon = 'x'\n",
     "cfg_range": "[ocp]\nhorizon = 2\n",
     "sw_ok": "[grid]\nseed = [0, 1]\n",
@@ -361,6 +362,7 @@ CASES: list[tuple[str, str]] = [
     ("config --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
     ("run --logs L --config {cfg_old.toml}", "'ocp.feedback' (replaced by ocp.profiles: feedback"),
     ("config --config {cfg_range.toml}", "horizon must be >= 3 samples"),
+    ("run --logs L --config {cfg_stop.toml}", "early_stopping must be one of tail, machines"),
     ("config --config {text.txt}", "is not TOML"),
     # --- study ---
     ("study --out S --seeds ''", "--seeds takes a range like 0-9"),
