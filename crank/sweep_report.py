@@ -126,7 +126,9 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     if failed:
         lines += ["", "## Errors", ""]
-        lines += [f"- {r['leaf']}: {r['failed_step']} step: {r['error']}" for r in failed]
+        for r in failed:  # a failed step, or one profile of a finished solve refused
+            where = f"{r['failed_step']} step" if "failed_step" in r else f"{r['profile']} refused"
+            lines.append(f"- {r['leaf']}: {where}: {r['error']}")
     return "\n".join(lines) + "\n"
 
 

@@ -317,6 +317,9 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     refused = {"leaf": "seed=2", "seed": 2, "error": "no robust profile", "failed_step": "solve"}
     text = markdown(sweep, [row(0, 0.001, 0.0047), row(1, 0.003, 0.0077), refused])
     assert "every robust torque returned (2 of 3 leaves)" in text
+    # one profile of a solve that wrote the others: run_rows' row has no failed step
+    one = {"leaf": "seed=3", "seed": 3, "profile": "robust", "error": "open loop cannot keep"}
+    assert "- seed=3: robust refused: open loop cannot keep" in markdown(sweep, [one])
     assert "worst leaf 0.30 % (seed=1), target <= 0.5 %: **met**" in text
     assert "- 1 of them with a 95 % bound above the target (worst 0.77 %)" in text
     assert "seed=2: solve step: no robust profile" in text
