@@ -156,6 +156,13 @@ def train_command(
     sigma_block: Annotated[
         int, typer.Option(help="Phase 2 fits the spread on residual sums over this many samples.")
     ] = TrainConfig.sigma_block,
+    early_stopping: Annotated[
+        str,
+        typer.Option(
+            help="What phase 1's early stopping scores: machines (the last 3/90 of every "
+            "training episode) or tail (the paper's: the validation split, one machine)."
+        ),
+    ] = TrainConfig.early_stopping,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -166,6 +173,7 @@ def train_command(
         sigma_epochs=sigma_epochs,
         horizon=horizon,
         sigma_block=sigma_block,
+        early_stopping=early_stopping,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

@@ -5,9 +5,9 @@ Each stage's time is a sum of unit costs times what the request asks for (datase
 × epochs, runs × samples), with the unit costs measured on an idle 2-core machine of the project's
 kind (`crank run` defaults, 2026-11-23: generate 6.1 s, train 139 s, solve 6.8 s, replay 8.0 s,
 held-out check 26.5 s). A busy machine takes longer: two chains side by side took 1.5-2.5× as
-long. Phase 1 of training stops early at a number of epochs nobody knows in advance (40-122 on
-the seed study's ten seeds), so the training estimate is a range: its low end at EARLY_EPOCHS, its
-high end at the epoch cap.
+long. Phase 1 of training stops early at a number of epochs nobody knows in advance (58-73 on
+seeds 0-4 of `paper`, 37-117 on `line-30`, with early stopping on every machine), so the training
+estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ SIGMA_SAMPLE_EPOCH = 0.48e-6
 """Phase-2 seconds per training sample and epoch."""
 VALIDATION = 20.0
 """Validation, Monte-Carlo bands and the 100-run twin calibration of the default dataset, s."""
-EARLY_EPOCHS = 40
-"""The fewest phase-1 epochs seen before early stopping (the seed study, seeds 0-9)."""
+EARLY_EPOCHS = 37
+"""The fewest phase-1 epochs seen before early stopping (seeds 0-4 of paper and line-30)."""
 SOLVE = 6.8
 """The nominal and robust OCP at the default horizon (150) and Monte-Carlo (1000), s."""
 REPLAY_FIXED, REPLAY_PER_SAMPLE = 2.0, 128e-6

@@ -3,10 +3,10 @@ the measured angular acceleration used by the eq. 9 residual.
 
 Split (paper section 3.3.2): the first (1 - validation_fraction) of the samples train, the rest
 validate (87 s / 3 s of 90 s by default). A window of N steps starts at sample k and needs samples
-k .. k + N from one episode and one split, so no window crosses an episode boundary. Early
-stopping scores the validation split (the paper's) or, with `TrainConfig(early_stopping=
-"machines")`, the last fraction of every training episode (`machine_split`), which leaves the
-validation split to the report alone.
+k .. k + N from one episode and one split, so no window crosses an episode boundary. Phase 1's
+early stopping scores the last fraction of every training episode (`machine_split`, held out of
+its windows; `TrainConfig.early_stopping = "machines"`, the default) or the validation split as
+the paper does ("tail").
 
 Acceleration: alpha is the forward difference (omega_{k+1} - omega_k) / dt within an episode,
 the acceleration forward Euler needs to reach the next sample; the last sample of each episode

@@ -33,13 +33,15 @@ class TrainConfig:
     sigma_lr: float = 5e-3
     sigma_epochs: int = 400
     validation_fraction: float = 3 / 90
-    early_stopping: str = "tail"
-    """What phase 1's early stopping (and learning-rate decay) scores. "tail" (the paper): the
-    validation split, the last validation_fraction of the data, which is one machine's last
-    seconds and is also what the report scores. "machines": the last validation_fraction of every
-    training episode (one machine each), held out of phase 1's windows; the validation split
-    is then scored by the report alone. On a wide line one machine's distance from the line's
-    mean floors the "tail" loss, and the stop reads that floor's noise."""
+    early_stopping: str = "machines"
+    """What phase 1's early stopping (and learning-rate decay) scores. "machines": the last
+    validation_fraction of every training episode (one machine each), held out of phase 1's
+    windows, so the stop sees every machine of the line and the validation split is scored by
+    the report alone. "tail" (the paper): the validation split itself, the last
+    validation_fraction of the data, one machine's last seconds. On a wide line that one
+    machine's distance from the line's mean floors the "tail" loss and the stop reads its noise:
+    on line-30 seed 3 it stopped at epoch 28 (machine sigma of J 0.115), "machines" at 117 (0.052),
+    and the tube's premium fell from 25.3 % to 4.7 %."""
     seed: int = 0
     machine_model: bool = True
     """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""

@@ -198,6 +198,7 @@ CASES: list[tuple[str, str]] = [
     ("train --data {ds.mcap} --out o/m.pt --seed -1", "seed must be"),
     ("train --data {ds.mcap} --out o/m.pt --seed 100000000000000000000000", "seed must be"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block 0", "sigma_block must be an integer"),
+    ("train --data {ds.mcap} --out o/m.pt --early-stopping best", "early_stopping must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block -3", "sigma_block must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --epochs 0", "epochs must be"),
     ("train --data {ds.mcap} --out o/m.pt --epochs -5", "epochs must be"),

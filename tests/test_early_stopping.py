@@ -54,9 +54,13 @@ def test_machines_windows_are_the_ranges_windows_and_never_cross() -> None:
     assert not read_train & read_stop
 
 
+def test_machines_is_the_default() -> None:
+    assert TrainConfig().early_stopping == "machines"
+
+
 def test_tail_is_the_papers_split() -> None:
     data = four_machines()
-    config = TrainConfig(validation_fraction=0.1, horizon=HORIZON)
+    config = TrainConfig(validation_fraction=0.1, horizon=HORIZON, early_stopping="tail")
     splits = make_splits(data, config)
     split = split_index(len(data), 0.1)
     assert torch.equal(splits.train.x0, windows(data, start=0, stop=split, horizon=HORIZON).x0)
