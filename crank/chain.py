@@ -135,9 +135,11 @@ class RunConfig:
             rep["mpc"] = MPCConfig(**rep.get("mpc", {}))  # runs of before the MPC: defaults
             options = {k: values[k] for k in ("seed", "heldout_runs", "heldout_seed")}
             options |= {k: values[k] for k in ("model_path", "baselines")}
+            train = dict(values["train"])
+            train.setdefault("early_stopping", "tail")  # runs of before the stop on every machine
             return cls(
                 generation=GenerationConfig(**gen),
-                train=TrainConfig(**values["train"]),
+                train=TrainConfig(**train),
                 ocp=OCPConfig(**values["ocp"]),
                 replay=ReplayConfig(**rep),
                 **options,

@@ -95,6 +95,11 @@ def test_run_config_round_trips_through_config_json(two_runs) -> None:
     broken = SHORT.as_dict() | {"ocp": {**SHORT.ocp.as_dict(), "heigth": 0.08}}
     with pytest.raises(ConfigError, match="heigth"):
         RunConfig.from_dict(broken)
+    # a config.json from before early stopping on every machine trained on the paper's tail
+    old = SHORT.as_dict()
+    del old["train"]["early_stopping"]
+    assert RunConfig.from_dict(old).train.early_stopping == "tail"
+    assert SHORT.train.early_stopping == "machines"
 
 
 def test_in_process_run_writes_every_artifact(two_runs) -> None:
