@@ -79,10 +79,13 @@ def sweep_command(
         on_start=started,
         on_done=done,
     )
-    failed = sum(1 for row in sweep["rows"] if row.get("error"))
+    rows = sweep["rows"]
+    leaves = len({row["leaf"] for row in rows})
+    failed = sum(1 for row in rows if row.get("error") and "failed_step" in row)
+    refused = sum(1 for row in rows if row.get("error") and "failed_step" not in row)
     typer.echo(
-        f"wrote {folder / 'sweep.md'} ({len(sweep['rows'])} leaves, {failed} failed, "
-        f"{sweep['wall_s'] / 60:.1f} min)"
+        f"wrote {folder / 'sweep.md'} ({leaves} leaves, {len(rows)} rows of a leaf and profile, "
+        f"{failed} failed, {refused} profiles refused, {sweep['wall_s'] / 60:.1f} min)"
     )
 
 

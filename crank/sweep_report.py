@@ -134,7 +134,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
 
 def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     """Per option group (x), each seed's held-out violation rate with its 95 % bound (top) and
-    cost premium (bottom); a red cross where a leaf failed."""
+    cost premium (bottom); a red cross where a leaf failed or a profile was refused."""
     grouped = groups(rows, axes)
     fig = Figure(figsize=(max(6.0, 1.2 * len(grouped) + 3), 6), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
@@ -170,7 +170,10 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     ticks = []
     for label, members in grouped.items():
         bad = sum(1 for r in members if r.get("error") or "robust_heldout_rate" not in r)
-        ticks.append(label + (f"\n({bad} of {len(members)} failed)" if bad else ""))
+        refused = sum(1 for r in members if r.get("error") and "failed_step" not in r)
+        counts = ((bad - refused, "failed"), (refused, "refused"))
+        notes = [f"{n} {word}" for n, word in counts if n]
+        ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
     bottom.set_xticks(range(len(grouped)), ticks, rotation=20, ha="right", fontsize=8)
     bottom.set_xlim(-0.5, len(grouped) - 0.5)
     fig.suptitle("Sweep: robust torque per option group (one dot per seed)")
