@@ -27,7 +27,7 @@ from crank.console import (
     print_heldout,
     print_replay,
 )
-from replay.config import ReplayConfig, loop_label
+from replay.config import ReplayConfig, played_line
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -260,8 +260,7 @@ def heldout_command(
         model_path=mjcf,
         mpc=mpc,
         on_played=lambda name, mode, entry: typer.echo(
-            f"  {name} {loop_label(mode, feedback)}: {entry['violating_runs']} of {runs} below "
-            "the height",
+            played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs),
             err=True,
         ),
     )

@@ -82,7 +82,7 @@ def compare_run(
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
     from replay.campaign import run_campaign
-    from replay.config import ReplayConfig, loop_label
+    from replay.config import ReplayConfig, played_line
     from replay.heldout import heldout_check
     from replay.statistics import campaign_statistics
     from twin.physics import SliderCrank, load_model
@@ -131,8 +131,9 @@ def compare_run(
             mpc=mpc,
             feedback=feedback,
             on_played=lambda name, mode, entry, law=feedback: stage(
-                f"  {name} {loop_label(mode, law)}: "
-                f"{entry['violating_runs']} of {heldout_runs} below the height"
+                played_line(
+                    name, mode, feedback=law, below=entry["violating_runs"], runs=heldout_runs
+                )
             ),
         )
     nominal_effort = float(np.sum(ocp.nominal.tau**2))

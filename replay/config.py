@@ -30,6 +30,11 @@ def loop_label(mode: str, feedback: str) -> str:
     return "PD" if mode == "closed" and feedback == "pd" else mode
 
 
+def played_line(profile: str, mode: str, *, feedback: str, below: int, runs: int) -> str:
+    """The progress line of one profile played in one loop of a held-out check."""
+    return f"  {profile} {loop_label(mode, feedback)}: {below} of {runs} below the height"
+
+
 def check_campaign_memory(runs: int, *, modes: int, horizon: int, held_out: bool = False) -> None:
     """Refuse a campaign (or held-out check) whose replays cannot fit in memory, before any
     simulation (common.resources.ResourceError, with both figures)."""
