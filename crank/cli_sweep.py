@@ -79,10 +79,12 @@ def sweep_command(
         on_start=started,
         on_done=done,
     )
+    from crank.sweep_report import failure
+
     rows = sweep["rows"]
     leaves = len({row["leaf"] for row in rows})
-    failed = sum(1 for row in rows if row.get("error") and "failed_step" in row)
-    refused = sum(1 for row in rows if row.get("error") and "failed_step" not in row)
+    failed = sum(1 for row in rows if failure(row) == "failed")
+    refused = sum(1 for row in rows if failure(row) == "refused")
     typer.echo(
         f"wrote {folder / 'sweep.md'} ({leaves} leaves, {len(rows)} rows of a leaf and profile, "
         f"{failed} failed, {refused} profiles refused, {sweep['wall_s'] / 60:.1f} min)"

@@ -55,6 +55,14 @@ def groups(rows: list[dict[str, Any]], axes: list[str]) -> dict[str, list[dict[s
     return dict(out)
 
 
+def failure(row: dict[str, Any]) -> str | None:
+    """Why a row has no figures: "failed" (a step of its leaf raised, `failed_step`), "refused"
+    (its profile has no torque in a solve that wrote the others), or None."""
+    if not row.get("error"):
+        return None
+    return "failed" if "failed_step" in row else "refused"
+
+
 def _pct(value: float | None, digits: int = 2) -> str:
     return "n/a" if value is None else f"{100 * value:.{digits}f} %"
 
@@ -126,8 +134,9 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     if failed:
         lines += ["", "## Errors", ""]
-        for r in failed:  # a failed step, or one profile of a finished solve refused
-            where = f"{r['failed_step']} step" if "failed_step" in r else f"{r['profile']} refused"
+        for r in failed:
+            refused = failure(r) == "refused"
+            where = f"{r['profile']} refused" if refused else f"{r['failed_step']} step"
             lines.append(f"- {r['leaf']}: {where}: {r['error']}")
     return "\n".join(lines) + "\n"
 
@@ -170,7 +179,7 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     ticks = []
     for label, members in grouped.items():
         bad = sum(1 for r in members if r.get("error") or "robust_heldout_rate" not in r)
-        refused = sum(1 for r in members if r.get("error") and "failed_step" not in r)
+        refused = sum(1 for r in members if failure(r) == "refused")
         counts = ((bad - refused, "failed"), (refused, "refused"))
         notes = [f"{n} {word}" for n, word in counts if n]
         ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
