@@ -73,7 +73,8 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     ok = [r for r in rows if not r.get("error") and "robust_heldout_rate" in r]
     failed = [r for r in rows if r.get("error")]
     lines = [
-        f"# Sweep: {len(rows)} leaves over {', '.join(axes) or 'one configuration'}",
+        f"# Sweep: {len({r['leaf'] for r in rows})} leaves over "
+        f"{', '.join(axes) or 'one configuration'}",
         "",
         f"Steps: {sweep['steps']} ({sweep['executor']}; {sweep['wall_s']:.0f} s wall; "
         f"{_estimate(sweep)}). "

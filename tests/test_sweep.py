@@ -320,6 +320,8 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     # one profile of a solve that wrote the others: run_rows' row has no failed step
     one = {"leaf": "seed=3", "seed": 3, "profile": "robust", "error": "open loop cannot keep"}
     assert "- seed=3: robust refused: open loop cannot keep" in markdown(sweep, [one])
+    # two profiles of one leaf are two rows, one leaf
+    assert markdown(sweep, [one, one | {"profile": "robust-fb"}]).startswith("# Sweep: 1 leaves")
     assert "worst leaf 0.30 % (seed=1), target <= 0.5 %: **met**" in text
     assert "- 1 of them with a 95 % bound above the target (worst 0.77 %)" in text
     assert "seed=2: solve step: no robust profile" in text
