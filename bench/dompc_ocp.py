@@ -103,6 +103,7 @@ class DoMPCOCP:
             mpc.opt_x_num["_u", k, 0] = 0.0
         x0 = np.array([self.config.theta_start, self.config.omega_start])
         mpc.x0 = x0
+        mpc.u0 = np.zeros(1)  # the rate penalty's u_0: make_step keeps the last call's u_1
         mpc.flags["set_initial_guess"] = True  # ours, set above (its own would overwrite it)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # do-mpc's NumPy deprecation notices
