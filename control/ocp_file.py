@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import CrankError
-from control.config import ROBUST_PROFILES, OCPConfig
+from control.config import ROBUST_PROFILES, OCPConfig, predicted_loop
 from twin.geometry import Geometry, GeometryError
 
 FORMAT = "crank-ocp"
@@ -128,9 +128,9 @@ class Profile:
 
     def sigma_in(self, mode: str) -> np.ndarray:
         """Monte-Carlo slider std of the plan played in `mode`, (N,), m: open loop, or closed
-        loop under the LQR gains ("closed"; also the prediction shown for "mpc", whose
-        unsaturated law is that LQR's: control/mpc.py)."""
-        return self.slider_sigma_closed if mode in ("closed", "mpc") else self.slider_sigma_open
+        loop under the LQR gains (control/config.py predicted_loop)."""
+        closed = predicted_loop(mode) == "closed"
+        return self.slider_sigma_closed if closed else self.slider_sigma_open
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,7 @@ from scipy import stats as scistats
 from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
-from control.config import lower_tail
+from control.config import lower_tail, predicted_loop
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
@@ -146,7 +146,7 @@ def heldout_check(
         simulate_s += time.perf_counter() - t0
         planned = ocp.profiles[profile]
         law = None
-        if mode in ("closed", "mpc"):  # the MPC's law, no bound active, is the LQR's
+        if predicted_loop(mode) == "closed":
             law = Feedback(
                 np.stack([planned.theta, planned.omega], axis=-1),
                 closed_loop_gains(planned, config if mode == "closed" else lqr),

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from common.streams import stream
-from control.config import OCPConfig
+from control.config import OCPConfig, predicted_loop
 from control.figures import predicted_band
 from control.ocp_file import FORMAT, INDEX_CONVENTION, VERSION, OCPFile, read_ocp
 from ppann.model import PPANN, constant_ppann
@@ -119,6 +119,17 @@ def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> 
 @pytest.fixture(scope="module")
 def ocp(ocp_path: Path) -> OCPFile:
     return read_ocp(ocp_path)
+
+
+def test_each_mode_is_predicted_by_its_loops_monte_carlo(ocp: OCPFile) -> None:
+    """open plays the open-loop spread; closed and mpc (the MPC's unsaturated law is the LQR's)
+    the closed loop's, which the fixture makes a tenth of it."""
+    robust = ocp.profiles["robust"]
+    np.testing.assert_array_equal(robust.sigma_in("open"), np.full(N, 0.004))
+    for mode in ("closed", "mpc"):
+        assert predicted_loop(mode) == "closed"
+        np.testing.assert_array_equal(robust.sigma_in(mode), np.full(N, 0.0004))
+    assert predicted_loop("open") == "open"
 
 
 def _reference_run(physics, config, machines, i, profile, *, feedback: bool) -> dict:
