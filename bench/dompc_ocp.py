@@ -15,6 +15,7 @@ them back before importing it; nothing of the project depends on do-mpc (`pip in
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import casadi as ca
@@ -25,8 +26,6 @@ from control.ocp import NominalOCP
 
 def load_do_mpc() -> Any:
     """do-mpc, importable with this CasADi."""
-    import warnings
-
     import casadi.tools as tools
     import casadi.tools.structure as structure
 
@@ -87,13 +86,14 @@ class DoMPCOCP:
             template["_tvp", k, "turn"] = turns[min(k, n - 2)]
             template["_tvp", k, "height"] = c.height if k + 1 in c.constraint_samples else -1.0
         mpc.set_tvp_fun(lambda _: template)
-        mpc.setup()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # do-mpc's own NumPy calls on CasADi values
+            mpc.setup()
         self.mpc = mpc
 
     def solve(self) -> tuple[float, int, str, np.ndarray]:
         """One solve from the initial guess: (seconds, IPOPT iterations, status, torques)."""
         import time
-        import warnings
 
         mpc, n = self.mpc, self.n
         states = self.guess[: 2 * n].reshape(n, 2)
