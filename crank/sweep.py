@@ -374,6 +374,7 @@ def run_sweep(
         "step_counts": counts,
         "disk_estimate_bytes": disk,
         "serial_seconds_estimate": time_estimate(todo).as_list(),
+        "steps_run": len(todo),  # this invocation's; the others were found finished (resume)
         "heldout_seeds": sorted({leaf.config.heldout_seed for leaf in leaves}),
         "leaves": [
             {

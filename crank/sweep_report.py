@@ -76,8 +76,8 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         f"# Sweep: {len({r['leaf'] for r in rows})} leaves over "
         f"{', '.join(axes) or 'one configuration'}",
         "",
-        f"Steps: {sweep['steps']} ({sweep['executor']}; {sweep['wall_s']:.0f} s wall; "
-        f"{_estimate(sweep)}). "
+        f"Steps: {sweep['steps']}{_ran(sweep)} ({sweep['executor']}; {sweep['wall_s']:.0f} s "
+        f"wall; {_estimate(sweep)}). "
         f"Held-out seed {sweep['heldout_seeds']}. Spec: `sweep.toml`; one row per leaf: "
         "`sweep.csv`.",
         "",
@@ -86,8 +86,8 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         worst = max(ok, key=lambda r: r["robust_heldout_rate"])
         holds = worst["robust_heldout_rate"] <= TARGET_HELDOUT_RATE
         lines.append(
-            f"- every robust torque returned ({len(ok)} of {len(rows)} leaves) on held-out "
-            f"machines: worst leaf {_pct(worst['robust_heldout_rate'])} ({worst['leaf']}), "
+            f"- every robust torque returned ({len(ok)} of {len(rows)} profiles of a leaf) on "
+            f"held-out machines: worst {_pct(worst['robust_heldout_rate'])} ({_named(worst)}), "
             f"target <= {_pct(TARGET_HELDOUT_RATE, 1)}: **{'met' if holds else 'NOT met'}**"
         )
         unsure = [r for r in ok if r["robust_heldout_upper_95"] > TARGET_HELDOUT_RATE]
@@ -98,7 +98,9 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
                 "machines are too few to confirm it"
             )
     if failed:
-        lines.append(f"- {len(failed)} leaf/leaves gave no robust torque or no result: why, below")
+        lines.append(
+            f"- {len(failed)} profile(s) of a leaf gave no robust torque or no result: why, below"
+        )
     lines += ["", "![held-out violation rate and premium per option group](sweep.png)", ""]
     head = [
         "options",
@@ -198,6 +200,21 @@ def write_results(out: Path, sweep: dict[str, Any], records: Records) -> list[di
     with atomic_path(out / "sweep.md") as tmp:
         tmp.write_text(markdown(sweep, rows))
     return rows
+
+
+def _named(row: dict[str, Any]) -> str:
+    """A row's leaf, and its profile if it has one."""
+    return f"{row['leaf']}, {row['profile']}" if row.get("profile") else row["leaf"]
+
+
+def _ran(sweep: dict[str, Any]) -> str:
+    """How many steps this invocation made, if a resume found some finished (sweeps made before
+    it was recorded say nothing)."""
+    run = sweep.get("steps_run")
+    total = sum(sweep.get("step_counts", {}).values())
+    if run is None or run == total:
+        return ""
+    return f"; {total - run} found finished by a resume, {run} made by it"
 
 
 def _estimate(sweep: dict[str, Any]) -> str:

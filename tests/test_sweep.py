@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -234,6 +235,10 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     assert not list(out.glob("*/*.partial"))
     rows = (out / "sweep.csv").read_text().splitlines()
     assert len(rows) == 3 and "wrote" in resumed.stdout
+    # sweep.md says what the resume found and what it made (1 data, 1 model, 2 solves, 2 leaves)
+    report = (out / "sweep.md").read_text()
+    found = re.search(r"; (\d+) found finished by a resume, (\d+) made by it", report)
+    assert found is not None and int(found[1]) >= 2 and int(found[1]) + int(found[2]) == 6
 
 
 def test_the_graph_shares_each_step_between_the_leaves_that_agree_on_it() -> None:
@@ -305,6 +310,7 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
         return {
             "leaf": f"seed={seed}",
             "seed": seed,
+            "profile": "robust",
             "robust_heldout_rate": rate,
             "robust_heldout_upper_95": upper,
             "heldout_runs": 1000,
@@ -316,15 +322,15 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     sweep = {"axes": ["seed"], "steps": "", "executor": "ray", "wall_s": 1.0, "heldout_seeds": [7]}
     refused = {"leaf": "seed=2", "seed": 2, "error": "no robust profile", "failed_step": "solve"}
     text = markdown(sweep, [row(0, 0.001, 0.0047), row(1, 0.003, 0.0077), refused])
-    assert "every robust torque returned (2 of 3 leaves)" in text
+    assert "every robust torque returned (2 of 3 profiles of a leaf)" in text
     # one profile of a solve that wrote the others: run_rows' row has no failed step
     one = {"leaf": "seed=3", "seed": 3, "profile": "robust", "error": "open loop cannot keep"}
     assert "- seed=3: robust refused: open loop cannot keep" in markdown(sweep, [one])
     # two profiles of one leaf are two rows, one leaf
     assert markdown(sweep, [one, one | {"profile": "robust-fb"}]).startswith("# Sweep: 1 leaves")
-    assert "worst leaf 0.30 % (seed=1), target <= 0.5 %: **met**" in text
+    assert "worst 0.30 % (seed=1, robust), target <= 0.5 %: **met**" in text
     assert "- 1 of them with a 95 % bound above the target (worst 0.77 %)" in text
     assert "seed=2: solve step: no robust profile" in text
     text = markdown(sweep, [row(0, 0.006, 0.011)])
-    assert "worst leaf 0.60 % (seed=0), target <= 0.5 %: **NOT met**" in text
+    assert "worst 0.60 % (seed=0, robust), target <= 0.5 %: **NOT met**" in text
     assert "| all | 1 | 6/1000 (0.60 %) |" in text
