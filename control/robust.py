@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.errors import CrankError
+from common.errors import NoSolutionError
 from control.config import OCPConfig, loop_of
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
@@ -70,7 +70,7 @@ STROKE_SHARE = 0.95
 dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so."""
 
 
-class RobustError(CrankError, RuntimeError):
+class RobustError(NoSolutionError, RuntimeError):
     """The robust iteration did not reach a margin that its own Monte-Carlo confirms. Raised by
     solve_robust with `partial` set: what was solved before it failed; by solve_profiles, when
     every profile failed, with `partials` set too: each profile's."""

@@ -64,7 +64,8 @@ def sweep_command(
         where = f"[{count}/{total}] {node.kind} {node.key} ({node.leaves[0]}"
         where += f" and {len(node.leaves) - 1} more)" if len(node.leaves) > 1 else ")"
         if result.get("error"):
-            typer.echo(f"{where}: error: {result['error']}", err=True)
+            what = "refused" if result.get("refused") else "error"
+            typer.echo(f"{where}: {what}: {result['error']}", err=True)
         else:
             typer.echo(f"{where}: {result['seconds']:.1f} s", err=True)
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_path
-from common.errors import ConfigError, CrankError
+from common.errors import ConfigError, CrankError, NoSolutionError
 from common.jsonio import write_json
 from crank import stages
 from crank.chain import Hooks
@@ -58,7 +58,8 @@ def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[st
         return json.loads((final / RESULT).read_text())
     lost = next((a for a in ancestors if a.get("error")), None)
     if lost is not None:
-        error = f"not run: its {lost['kind']} step failed"
+        why = "has no robust torque" if lost.get("refused") else "failed"
+        error = f"not run: its {lost['kind']} step {why}"
         return {"kind": node.kind, "key": node.key, "error": error, "upstream": True}
     final.parent.mkdir(parents=True, exist_ok=True)
     with (out / node.kind / f"{node.key}.attempts").open("a") as log:
@@ -77,6 +78,8 @@ def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[st
         error = str(exc) if isinstance(exc, CrankError) else repr(exc)
         error = error.splitlines()[0].replace(str(partial), str(failed))  # its files are kept
         record = {"kind": node.kind, "key": node.key, "error": error}
+        if isinstance(exc, NoSolutionError):  # the model's answer, not a fault: refused
+            record["refused"] = True
         if not isinstance(exc, CrankError):
             record["traceback"] = traceback.format_exc()
         (partial / "worker.pid").unlink()

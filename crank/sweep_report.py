@@ -29,9 +29,8 @@ def rows_of(records: Records, out: Path) -> list[dict[str, Any]]:
         failed = next((s for s in steps if s.get("error")), None)
         if failed is not None:
             profiles = "/".join(leaf.config.ocp.profiles)
-            rows.append(
-                row | {"profile": profiles, "error": failed["error"], "failed_step": failed["kind"]}
-            )
+            row |= {"profile": profiles, "error": failed["error"], "failed_step": failed["kind"]}
+            rows.append(row | ({"refused": True} if failed.get("refused") else {}))
             continue
         by_kind = dict(zip(KINDS, steps, strict=True))
         leaf_dir = out / "leaf" / by_kind["leaf"]["key"]
@@ -56,11 +55,12 @@ def groups(rows: list[dict[str, Any]], axes: list[str]) -> dict[str, list[dict[s
 
 
 def failure(row: dict[str, Any]) -> str | None:
-    """Why a row has no figures: "failed" (a step of its leaf raised, `failed_step`), "refused"
-    (its profile has no torque in a solve that wrote the others), or None."""
+    """Why a row has no figures: "refused" (the model has no robust torque for its profile: a
+    solve step that raised NoSolutionError, or one profile of a solve that wrote the others),
+    "failed" (a step of its leaf raised anything else, `failed_step`), or None."""
     if not row.get("error"):
         return None
-    return "failed" if "failed_step" in row else "refused"
+    return "refused" if row.get("refused") or "failed_step" not in row else "failed"
 
 
 def _pct(value: float | None, digits: int = 2) -> str:

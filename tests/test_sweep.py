@@ -25,8 +25,10 @@ from crank.chain import RunConfig, run_chain
 from crank.console import HELDOUT_SEED
 from crank.study import run_rows
 from crank.sweep import RESULT, disk_estimate, execute, leaf_results, run_node, run_sweep
-from crank.sweep_report import rows_of
+from crank.sweep_report import failure, markdown, rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
+from ppann.checkpoint import save
+from ppann.model import constant_ppann
 from tests.test_chain import SHORT
 
 SPEC = """
@@ -193,6 +195,35 @@ def test_a_failing_step_is_recorded_and_the_sweep_goes_on(tmp_path: Path) -> Non
         (broken / "solve" / f"{n.key}.error.json").is_file() for n in nodes if n.kind == "solve"
     )
     assert run_node(model, broken)["key"] == model.key  # a finished step is found, not redone
+
+
+def test_a_solve_without_a_robust_torque_is_refused_not_failed(tmp_path: Path) -> None:
+    """A model whose open-loop spread exceeds the stroke (test_ocp's wide line, k 3): the solve
+    step is recorded as refused with the model's reason, the leaf after it is not run because
+    the solve has no robust torque, and the row counts as refused, not failed."""
+    base = _spec_tables()["base"]
+    base["ocp"] = {"confidence": 0.0}  # k 3, 1000 mixed trajectories
+    leaves = leaves_of({"base": base, "grid": {"seed": [0]}}, source="test")
+    nodes = graph(leaves)
+    out = tmp_path / "out"
+    for node in (n for n in nodes if n.kind in ("data", "model")):  # made by hand
+        (out / node.kind / node.key).mkdir(parents=True)
+        (out / node.kind / node.key / RESULT).write_text(
+            json.dumps({"kind": node.kind, "key": node.key, "summary": {}, "seconds": 0.0})
+        )
+    model = next(n for n in nodes if n.kind == "model")
+    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.15, 0.25, 0.25))
+    save(out / "model" / model.key / "model.pt", wide, kind="ppann", extra={})
+    results = execute(nodes, out, executor="sequential")
+    (solve,) = [results[n.id] for n in nodes if n.kind == "solve"]
+    assert solve["refused"] is True and "open loop cannot keep this spread" in solve["error"]
+    (leaf,) = [results[n.id] for n in nodes if n.kind == "leaf"]
+    assert leaf["error"] == "not run: its solve step has no robust torque"
+    rows = rows_of(leaf_results(leaves, out), out)
+    assert [failure(r) for r in rows] == ["refused"]
+    sweep = {"axes": ["seed"], "steps": "", "executor": "sequential", "wall_s": 1.0}
+    text = markdown(sweep | {"heldout_seeds": [7]}, rows)
+    assert "- seed=0: robust refused: the model's tightening of the slider" in text
 
 
 def _spec_tables() -> dict:
