@@ -66,6 +66,8 @@ def sweep_command(
         if result.get("error"):
             what = "refused" if result.get("refused") else "error"
             typer.echo(f"{where}: {what}: {result['error']}", err=True)
+        elif result.get("found"):
+            typer.echo(f"{where}: found finished (made in {result['seconds']:.1f} s)", err=True)
         else:
             typer.echo(f"{where}: {result['seconds']:.1f} s", err=True)
 

@@ -54,8 +54,8 @@ def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[st
     that fails, it returns {"error": ...}. `ancestors` are the results of the steps before it."""
     out = Path(out)
     final = folder(out, node.kind, node.key)
-    if (final / RESULT).is_file():
-        return json.loads((final / RESULT).read_text())
+    if (final / RESULT).is_file():  # made by an earlier invocation (a resume): found
+        return json.loads((final / RESULT).read_text()) | {"found": True}
     lost = next((a for a in ancestors if a.get("error")), None)
     if lost is not None:
         why = "has no robust torque" if lost.get("refused") else "failed"

@@ -194,7 +194,8 @@ def test_a_failing_step_is_recorded_and_the_sweep_goes_on(tmp_path: Path) -> Non
     assert all(
         (broken / "solve" / f"{n.key}.error.json").is_file() for n in nodes if n.kind == "solve"
     )
-    assert run_node(model, broken)["key"] == model.key  # a finished step is found, not redone
+    found = run_node(model, broken)  # a finished step is found, not redone
+    assert found["key"] == model.key and found["found"] is True
 
 
 def test_a_solve_without_a_robust_torque_is_refused_not_failed(tmp_path: Path) -> None:
@@ -266,6 +267,8 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     assert not list(out.glob("*/*.partial"))
     rows = (out / "sweep.csv").read_text().splitlines()
     assert len(rows) == 3 and "wrote" in resumed.stdout
+    # its progress line says it was found, not made
+    assert re.search(rf"model {model.name} \(.*\): found finished \(made in", resumed.stderr)
     # sweep.md says what the resume found and what it made (1 data, 1 model, 2 solves, 2 leaves)
     report = (out / "sweep.md").read_text()
     found = re.search(r"; (\d+) found finished by a resume, (\d+) made by it", report)
