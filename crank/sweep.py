@@ -60,7 +60,8 @@ def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[st
     if lost is not None:
         why = "has no robust torque" if lost.get("refused") else "failed"
         error = f"not run: its {lost['kind']} step {why}"
-        return {"kind": node.kind, "key": node.key, "error": error, "upstream": True}
+        record = {"kind": node.kind, "key": node.key, "error": error, "upstream": True}
+        return record | ({"refused": True} if lost.get("refused") else {})
     final.parent.mkdir(parents=True, exist_ok=True)
     with (out / node.kind / f"{node.key}.attempts").open("a") as log:
         log.write(f"{time.time():.3f} {socket.gethostname()} {os.getpid()}\n")
