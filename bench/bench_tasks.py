@@ -78,7 +78,7 @@ def main() -> None:
                 "premium": solved["robust"]["cost"] / solved["nominal"]["cost"] - 1,
                 "heldout_rate": robust["rate"],
                 "heldout_upper_95": robust["rate_upper_95"],
-                "nominal_heldout_rate": heldout["profiles"]["nominal"]["rate"],
+                "nominal_heldout_rate": heldout["profiles"]["nominal"]["open"]["rate"],
                 "seconds": time.perf_counter() - started,
             }
             rows.append(row)
