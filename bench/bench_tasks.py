@@ -2,7 +2,7 @@
 Monte-Carlo seeds and every returned robust torque checked on held-out machines.
 
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
-        [--only "horizon 200"] [--out tasks.json]
+        [--mc-samples 1000] [--only "horizon 200"] [--out tasks.json]
 
 Per task and Monte-Carlo seed: the verdict (a robust torque, or the one-line reason there is
 none), the margins and their standard errors, the cost premium, and the held-out violation rate
@@ -39,6 +39,7 @@ def main() -> None:
     parser.add_argument("--model", required=True)
     parser.add_argument("--runs", type=int, default=1000)
     parser.add_argument("--mc-seeds", default="0-4")
+    parser.add_argument("--mc-samples", type=int, default=OCPConfig().mc_samples)
     parser.add_argument("--heldout-seed", type=int, default=HELDOUT_SEED)
     parser.add_argument("--only", default="", help="run the tasks whose name contains this")
     parser.add_argument("--out", default="tasks.json", help="file name beside the model")
@@ -51,7 +52,7 @@ def main() -> None:
         if args.only not in task:
             continue
         for mc_seed in parse_seeds(args.mc_seeds):
-            config = OCPConfig(**options, mc_seed=mc_seed)
+            config = OCPConfig(**options, mc_seed=mc_seed, mc_samples=args.mc_samples)
             ocp_path = work / f"task{t}-mc{mc_seed}.json"
             row = {"task": task, "mc_seed": mc_seed}
             started = time.perf_counter()
