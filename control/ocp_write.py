@@ -16,7 +16,8 @@ from common.jsonio import write_json
 from control.config import OCPConfig, loop_of
 from control.ocp import Solution
 from control.ocp_file import FAILED_FORMAT, FORMAT, INDEX_CONVENTION, VERSION
-from control.robust import Partial, RobustResult, Solved
+from control.profiles import Solved
+from control.robust import Partial, RobustResult
 from control.tightening import Uncertainty
 from twin import __version__
 from twin.geometry import Geometry
@@ -55,6 +56,7 @@ def profile_dict(
         "tightening_se": [float(v) for v in uncertainty.tightening_se],
         "population": [float(v) for v in uncertainty.population],
         "sampling": [float(v) for v in uncertainty.sampling],
+        "mc_samples": uncertainty.samples,
         "gain_theta": [float(v) for v in gains[:, 0]],
         "gain_omega": [float(v) for v in gains[:, 1]],
         "cost": solution.cost,

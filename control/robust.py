@@ -84,13 +84,22 @@ class BeyondStrokeError(RobustError):
     no open-loop profile exists for this model and task. Carries the figures, m."""
 
     def __init__(
-        self, message: str, *, sample: int, tightening: float, available: float, line: float
+        self,
+        message: str,
+        *,
+        sample: int,
+        tightening: float,
+        available: float,
+        line: float,
+        se: float = 0.0,
     ) -> None:
         super().__init__(message)
         self.sample = sample
         self.tightening = tightening
         self.available = available
         self.line = line
+        self.se = se
+        """The tightening's Monte-Carlo standard error, m."""
 
 
 @dataclass(frozen=True)
@@ -110,6 +119,8 @@ class Iteration:
     """A draft solve (one loose pass) rather than a full one."""
     profile: str = "robust"
     """The robust profile (control/config.py ROBUST_PROFILES) this solve was for."""
+    samples: int = 0
+    """Trajectories of its Monte-Carlo (control/profiles.py may draw more than configured)."""
 
 
 @dataclass(frozen=True)
@@ -232,6 +243,7 @@ def solve_robust(
                     damping=beta,
                     draft=draft,
                     profile=profile,
+                    samples=config.mc_samples,
                 )
             )
             if on_iteration is not None:
@@ -289,50 +301,6 @@ def solve_robust(
         raise
 
 
-@dataclass(frozen=True)
-class Solved:
-    """The robust profiles of config.profiles on one nominal plan: those solved and, for those
-    refused, why."""
-
-    results: dict[str, RobustResult]
-    refused: dict[str, RobustError]
-
-
-def solve_profiles(
-    model: PPANN,
-    config: OCPConfig,
-    *,
-    ocp: NominalOCP | None = None,
-    on_iteration: Callable[[Iteration], None] | None = None,
-) -> Solved:
-    """The nominal plan once, then each robust profile of `config.profiles` from it
-    (solve_robust). A profile that has no robust torque is refused and the others go on.
-
-    Raises:
-      OCPError: the nominal OCP itself fails.
-      RobustError: every profile was refused: the first one's error, naming the others', with
-        `partials` (each profile's Partial).
-    """
-    ocp = ocp or NominalOCP(model, config)
-    nominal = ocp.solve()
-    results: dict[str, RobustResult] = {}
-    refused: dict[str, RobustError] = {}
-    for profile in config.profiles:
-        try:
-            results[profile] = solve_robust(
-                model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
-            )
-        except RobustError as exc:
-            refused[profile] = exc
-    if not results:
-        first = next(iter(refused.values()))
-        if len(refused) > 1:
-            first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
-        first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
-        raise first
-    return Solved(results=results, refused=refused)
-
-
 def _beyond_stroke(
     config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray, *, available: float, loop: str
 ) -> BeyondStrokeError:
@@ -361,6 +329,7 @@ def _beyond_stroke(
         f"robust profile (train on more machines, lower k_sigma or height, {hint})",
         sample=sample,
         tightening=float(unc.tightening[k]),
+        se=float(unc.tightening_se[k]),
         available=float(available),
         line=float(unc.population[k]),
     )

@@ -17,7 +17,8 @@ from control.figures import nominal_figure, robust_figure
 from control.ocp import NominalOCP
 from control.ocp_file import read_ocp
 from control.ocp_write import write_failed, write_ocp
-from control.robust import Iteration, RobustError, solve_profiles
+from control.profiles import solve_profiles
+from control.robust import Iteration, RobustError
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN
 

@@ -190,6 +190,9 @@ class Uncertainty:
     sampling: np.ndarray
     """The part of `tightening` that allows for the Monte-Carlo's finite sample, about z times
     `tightening_se`, m (module docstring); zeros at confidence 0."""
+    samples: int
+    """Trajectories the Monte-Carlo drew (control/profiles.py may have drawn more than the
+    configured count)."""
 
 
 def slider_uncertainty(
@@ -247,4 +250,5 @@ def slider_uncertainty(
         tightening_se=standard_error,
         population=population,
         sampling=sampling,
+        samples=n,
     )

@@ -298,7 +298,8 @@ def show_iteration(it: Iteration) -> None:
     )
     kind = "draft" if it.draft else "full "
     typer.echo(
-        f"  {it.profile} iteration ({kind}): margin [{margin}] mm -> tightening [{k_sigma}] mm, "
+        f"  {it.profile} iteration ({kind}, {it.samples} trajectories): margin [{margin}] mm -> "
+        f"tightening [{k_sigma}] mm, "
         f"cost {it.cost:.5g}, {it.ipopt_iterations} IPOPT iterations",
         err=True,
     )

@@ -244,12 +244,13 @@ def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
     """On a line whose open-loop spread exceeds the stroke, `robust` is refused with its reason
     and `robust-fb` (the LQR tube) is written alone; asked for alone, `robust` fails the solve
     and leaves only ocp.failed.json."""
-    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.15, 0.25, 0.25))
+    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.2, 0.35, 0.35))
     save(tmp_path / "wide.pt", wide, kind="ppann", extra={})
     config = OCPConfig(confidence=0.0, profiles=("robust", "robust-fb"))
     solve_file(tmp_path / "wide.pt", tmp_path / "ocp.json", config=config)
     loaded = read_ocp(tmp_path / "ocp.json")
     assert loaded.names == ("nominal", "robust-fb")
+    assert loaded.raw["robust-fb"]["mc_samples"] == config.mc_samples  # decided at once
     assert "open loop cannot keep this spread" in loaded.refused["robust"]
     assert loaded.nominal.loop == "closed"  # its bands are of the first profile solved
     assert not (tmp_path / "ocp.robust.png").exists()

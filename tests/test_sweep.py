@@ -213,7 +213,7 @@ def test_a_solve_without_a_robust_torque_is_refused_not_failed(tmp_path: Path) -
             json.dumps({"kind": node.kind, "key": node.key, "summary": {}, "seconds": 0.0})
         )
     model = next(n for n in nodes if n.kind == "model")
-    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.15, 0.25, 0.25))
+    wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.2, 0.35, 0.35))
     save(out / "model" / model.key / "model.pt", wide, kind="ppann", extra={})
     results = execute(nodes, out, executor="sequential")
     (solve,) = [results[n.id] for n in nodes if n.kind == "solve"]

@@ -1,0 +1,128 @@
+"""Every robust profile of a task on one nominal plan, each with a verdict that does not hang on
+the Monte-Carlo's draws.
+
+A robust torque exists where the tightening, allowances included, fits under the share of the
+stroke a margin may take (control/robust.py STROKE_SHARE). The tightening is a Monte-Carlo
+estimate with a standard error se (control/tightening.py), so where it sits within a few se of
+that cap, whether a torque comes back depends on the draws. Measured on training seed 1 of the
+paper line, task horizon 200 / samples 70, 130 (README, *Early stopping on every machine*): a
+torque on three of five Monte-Carlo seeds at 1000 trajectories (18.5-18.9 mm asked against
+19.0, se ~0.55 mm), on all five at 4000 (se 0.26-0.29 mm). A verdict that close, a torque
+or a refusal, is therefore decided again with ESCALATION times the trajectories, at most
+MAX_ESCALATIONS times: the band where the draws decide narrows like 1/sqrt(n), and only the
+tasks inside it pay for the precision. It cannot vanish: a tightening exactly at the cap stays
+a coin toss at any finite count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from control.config import OCPConfig
+from control.ocp import NominalOCP, Solution
+from control.robust import (
+    STROKE_SHARE,
+    BeyondStrokeError,
+    Iteration,
+    RobustError,
+    RobustResult,
+    solve_robust,
+)
+from ppann.model import PPANN
+
+DECISION_BAND = 2.0
+"""A verdict whose tightening is within this many standard errors of the cap is decided again
+with more trajectories."""
+ESCALATION = 4
+"""Each re-decision draws this many times the trajectories (the se halves)."""
+MAX_ESCALATIONS = 2
+"""At most this many re-decisions: up to 16x the configured trajectories."""
+
+
+@dataclass(frozen=True)
+class Solved:
+    """The robust profiles of config.profiles on one nominal plan: those solved and, for those
+    refused, why."""
+
+    results: dict[str, RobustResult]
+    refused: dict[str, RobustError]
+
+
+def undecided(tightening: np.ndarray, se: np.ndarray, cap: float) -> bool:
+    """Whether a tightening (per constraint sample, m) is within DECISION_BAND standard errors
+    of the cap at any sample."""
+    return bool(np.any(np.abs(np.asarray(tightening) - cap) < DECISION_BAND * np.asarray(se)))
+
+
+def solve_decided(
+    model: PPANN,
+    config: OCPConfig,
+    *,
+    profile: str,
+    ocp: NominalOCP,
+    nominal: Solution,
+    on_iteration: Callable[[Iteration], None] | None = None,
+) -> RobustResult:
+    """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
+    as many while its verdict is undecided (module docstring). The result's uncertainties say
+    how many trajectories the last decision drew (`Uncertainty.samples`).
+
+    Raises:
+      RobustError: no robust torque (or none confirmed) at the last trajectory count tried.
+    """
+    cap = STROKE_SHARE * (model.geometry.stroke_top - config.height)
+    samples = config.mc_samples
+    for attempt in range(MAX_ESCALATIONS + 1):
+        trial = replace(config, mc_samples=samples)
+        final = attempt == MAX_ESCALATIONS
+        try:
+            result = solve_robust(
+                model, trial, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+            )
+        except BeyondStrokeError as exc:
+            if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):
+                raise
+        else:
+            unc = result.robust_uncertainty
+            if final or not undecided(unc.tightening, unc.tightening_se, cap):
+                return result
+        samples *= ESCALATION
+    raise AssertionError("unreachable: the last attempt returns or raises")
+
+
+def solve_profiles(
+    model: PPANN,
+    config: OCPConfig,
+    *,
+    ocp: NominalOCP | None = None,
+    on_iteration: Callable[[Iteration], None] | None = None,
+) -> Solved:
+    """The nominal plan once, then each robust profile of `config.profiles` from it
+    (solve_decided). A profile that has no robust torque is refused and the others go on.
+
+    Raises:
+      OCPError: the nominal OCP itself fails.
+      RobustError: every profile was refused: the first one's error, naming the others', with
+        `partials` (each profile's Partial).
+    """
+    ocp = ocp or NominalOCP(model, config)
+    nominal = ocp.solve()
+    results: dict[str, RobustResult] = {}
+    refused: dict[str, RobustError] = {}
+    for profile in config.profiles:
+        try:
+            results[profile] = solve_decided(
+                model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+            )
+        except RobustError as exc:
+            refused[profile] = exc
+    if not results:
+        first = next(iter(refused.values()))
+        if len(refused) > 1:
+            first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
+        first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
+        raise first
+    return Solved(results=results, refused=refused)
