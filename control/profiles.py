@@ -68,13 +68,14 @@ def solve_decided(
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
     as many while its verdict is undecided (module docstring). The result's uncertainties say
-    how many trajectories the last decision drew (`Uncertainty.samples`).
+    how many trajectories the last decision drew (`Uncertainty.samples`), its iterations are
+    the last decision's, its wall time is all of them.
 
     Raises:
       RobustError: no robust torque (or none confirmed) at the last trajectory count tried.
     """
     cap = STROKE_SHARE * (model.geometry.stroke_top - config.height)
-    samples = config.mc_samples
+    samples, spent = config.mc_samples, 0.0
     for attempt in range(MAX_ESCALATIONS + 1):
         trial = replace(config, mc_samples=samples)
         final = attempt == MAX_ESCALATIONS
@@ -85,10 +86,13 @@ def solve_decided(
         except BeyondStrokeError as exc:
             if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):
                 raise
+            spent += exc.partial.wall_time if exc.partial is not None else 0.0
         else:
             unc = result.robust_uncertainty
             if final or not undecided(unc.tightening, unc.tightening_se, cap):
-                return result
+                # the loop's time is every decision's, not only the last one's
+                return replace(result, wall_time=spent + result.wall_time)
+            spent += result.wall_time
         samples *= ESCALATION
     raise AssertionError("unreachable: the last attempt returns or raises")
 

@@ -15,7 +15,7 @@ from ppann.model import constant_ppann
 
 NARROW = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
 WIDE = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.2, 0.35, 0.35))
-CONFIG = OCPConfig(mc_samples=200, confidence=0.0)
+CONFIG = OCPConfig(mc_samples=100, confidence=0.0)
 
 
 def test_undecided_is_within_the_band_of_the_cap() -> None:
@@ -44,9 +44,15 @@ def test_an_undecided_verdict_draws_more_trajectories(monkeypatch: pytest.Monkey
     monkeypatch.setattr(profiles, "DECISION_BAND", 1e9)
     most = CONFIG.mc_samples * ESCALATION**MAX_ESCALATIONS
     ocp = NominalOCP(NARROW, CONFIG)
-    result = solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=ocp.solve())
+    seen: list = []
+    result = solve_decided(
+        NARROW, CONFIG, profile="robust", ocp=ocp, nominal=ocp.solve(), on_iteration=seen.append
+    )
     assert result.robust_uncertainty.samples == most
     assert result.nominal_uncertainty.samples == most
+    assert sorted({it.samples for it in seen}) == [100, 400, 1600]
+    # the loop's time is the three decisions', not only the last one's
+    assert result.wall_time >= sum(it.solve_time + it.monte_carlo_time for it in seen)
     wide = NominalOCP(WIDE, CONFIG)
     with pytest.raises(BeyondStrokeError) as refused:
         solve_decided(WIDE, CONFIG, profile="robust", ocp=wide, nominal=wide.solve())
