@@ -298,7 +298,10 @@ def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> 
         r["heldout_rate"] for r in parts[1][0]["rows"]
     ]  # the same run, resumed, plays the same
     assert "## Every run pooled" in (tmp_path / "ab" / "compare.md").read_text()
-    compare_runs([a], tmp_path / "other", runs=3, heldout_runs=5, heldout_seed=3)
+    # a folder compared with 3 runs: the merge reads only compare.json, so one is made by hand
+    other = json.loads((tmp_path / "a" / "compare.json").read_text()) | {"runs": 3}
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "compare.json").write_text(json.dumps(other))
     with pytest.raises(ConfigError, match="other settings: runs"):
         merge_compares([tmp_path / "b", tmp_path / "other"], tmp_path / "bad")
     with pytest.raises(ConfigError, match="at least two"):
