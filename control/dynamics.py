@@ -11,6 +11,15 @@ as `casadi.Function`s, equal to the torch model to 1e-9 (tests/test_control_dyna
 theta_mod is theta - 2 pi floor(theta / 2 pi), as in torch (`torch.remainder`); it is
 discontinuous at multiples of 2 pi. `step_on_turn` is smooth in x: an OCP fixes each sample's turn
 floor(theta / 2 pi) and checks it after the solve (control/ocp.py), where it equals `step`.
+
+The networks of the angle alone (the mean z_J and z_K, and the sigma z_J and z_K unless the
+sigma networks see the speed) are, by default, cubic B-splines of the torch model's own outputs
+on ANGLE_KNOTS points per turn (`angle_splines`), evaluated at theta mod 2 pi: equal to the
+networks to ~1e-13 and the step's Jacobian to ~1e-11 (tests/test_control_dynamics.py), and a lookup
+instead of a tanh layer in every function IPOPT calls. The nominal solve of the seed-0 model took
+272 ms with the networks and 144 ms with the splines in CasADi's virtual machine, 103 and 52 ms
+compiled, same iterations and torques to 5e-12 (measured beside other work; README, Benchmarks).
+`splines=False` keeps the networks: the reference the splines are tested against.
 """
 
 from __future__ import annotations
@@ -19,9 +28,15 @@ import math
 
 import casadi as ca
 import numpy as np
+import torch
 from torch import nn
 
 from ppann.model import PPANN, Z_NAMES
+
+ANGLE_KNOTS = 4096
+"""Spline points per turn of the angle-only networks (64 miss the step's Jacobian by ~1e-6)."""
+ANGLE_PAD = 8
+"""Points beyond each end of the turn, so that the spline's end conditions fall outside it."""
 
 
 def mlp(net: nn.Sequential, features: ca.SX) -> ca.SX:
@@ -37,10 +52,34 @@ def softplus(x: ca.SX) -> ca.SX:
     return ca.fmax(x, 0) + ca.log1p(ca.exp(-ca.fabs(x)))
 
 
-class CasadiPPANN:
-    """SX functions of a trained PPANN's mean, sigma and one-step dynamics."""
+def angle_splines(model: PPANN) -> dict[str, ca.Function]:
+    """Cubic B-splines of the networks that see only the angle, keyed "mean J", "sigma K", ...,
+    each a function of theta in [0, 2 pi) tabulated from the torch model itself."""
+    h = 2 * math.pi / ANGLE_KNOTS
+    grid = np.arange(-ANGLE_PAD, ANGLE_KNOTS + ANGLE_PAD + 1) * h
+    angle = torch.from_numpy(grid)
+    with torch.no_grad():
+        outputs = {
+            "mean": model.z_mean(angle, torch.zeros_like(angle)).numpy(),
+            "sigma": model.z_sigma(angle, torch.zeros_like(angle)).numpy(),
+        }
+    angle_only = {"mean": ("J", "K"), "sigma": () if model.config.sigma_speed else ("J", "K")}
+    if not model.config.use_networks:
+        angle_only["mean"] = ()
+    return {
+        f"{kind} {name}": ca.interpolant(
+            f"{kind}_{name}", "bspline", [grid], outputs[kind][:, Z_NAMES.index(name)]
+        )
+        for kind, names in angle_only.items()
+        for name in names
+    }
 
-    def __init__(self, model: PPANN) -> None:
+
+class CasadiPPANN:
+    """SX functions of a trained PPANN's mean, sigma and one-step dynamics; `splines` replaces
+    the networks of the angle alone by their B-splines (module docstring)."""
+
+    def __init__(self, model: PPANN, *, splines: bool = True) -> None:
         c = model.config
         self.dt = c.dt
         j, b, k = (float(v) for v in model.physical.detach())
@@ -51,14 +90,25 @@ class CasadiPPANN:
             "B": ca.vertcat(s, co, omega / c.omega_scale),
             "K": ca.vertcat(s, co),
         }
+        wrapped = theta - 2 * math.pi * ca.floor(theta / (2 * math.pi))
+        tables = angle_splines(model) if splines else {}
         if c.use_networks:
-            mean = ca.vertcat(*(mlp(model.mean_nets[n], features[n]) for n in Z_NAMES))
+            mean = ca.vertcat(
+                *(
+                    tables[f"mean {n}"](wrapped)
+                    if f"mean {n}" in tables
+                    else mlp(model.mean_nets[n], features[n])
+                    for n in Z_NAMES
+                )
+            )
         else:
             mean = ca.SX.zeros(3)
         sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else features
         sigma = ca.vertcat(
             *(
-                softplus(mlp(model.sigma_nets[n], sigma_features[n])) + c.sigma_floor
+                tables[f"sigma {n}"](wrapped)
+                if f"sigma {n}" in tables
+                else softplus(mlp(model.sigma_nets[n], sigma_features[n])) + c.sigma_floor
                 for n in Z_NAMES
             )
         )
@@ -69,7 +119,7 @@ class CasadiPPANN:
                 j * (1 + mean[0])
             )
 
-        alpha = alpha_at(theta - 2 * math.pi * ca.floor(theta / (2 * math.pi)))
+        alpha = alpha_at(wrapped)
         alpha_turn = alpha_at(theta - 2 * math.pi * turn)
         x = ca.vertcat(theta, omega)
         self.z_mean = ca.Function("z_mean", [theta, omega], [mean], ["theta", "omega"], ["z"])
