@@ -21,6 +21,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from control.dynamics import CasadiPPANN
 from control.ocp import NominalOCP
 
 
@@ -40,9 +41,11 @@ def load_do_mpc() -> Any:
 
 
 class DoMPCOCP:
-    """The nominal OCP in do-mpc, on the turns of the project's initial guess (its first pass)."""
+    """The nominal OCP in do-mpc, on the turns of the project's initial guess (its first pass);
+    `dynamics` is the PPANN's CasADi form it is given (default the OCP's own, with the angle
+    splines of control/dynamics.py; `CasadiPPANN(model, splines=False)` gives it the networks)."""
 
-    def __init__(self, ocp: NominalOCP) -> None:
+    def __init__(self, ocp: NominalOCP, *, dynamics: CasadiPPANN | None = None) -> None:
         do_mpc = load_do_mpc()
         c, n = ocp.config, ocp.config.horizon
         self.n, self.config = n, c
@@ -54,7 +57,7 @@ class DoMPCOCP:
         tau = model.set_variable("_u", "tau")
         turn = model.set_variable("_tvp", "turn")
         height = model.set_variable("_tvp", "height")
-        nxt = ocp.dynamics.step_on_turn(ca.vertcat(theta, omega), tau, turn)
+        nxt = (dynamics or ocp.dynamics).step_on_turn(ca.vertcat(theta, omega), tau, turn)
         model.set_rhs("theta", nxt[0])
         model.set_rhs("omega", nxt[1])
         model.set_expression("slider", ocp.geometry.slider_position(theta, lib=ca))
