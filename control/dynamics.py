@@ -17,8 +17,9 @@ sigma networks see the speed) are, by default, cubic B-splines of the torch mode
 on ANGLE_KNOTS points per turn (`angle_splines`), evaluated at theta mod 2 pi: equal to the
 networks to ~1e-13 and the step's Jacobian to ~1e-11 (tests/test_control_dynamics.py), and a lookup
 instead of a tanh layer in every function IPOPT calls. The nominal solve of the seed-0 model took
-272 ms with the networks and 144 ms with the splines in CasADi's virtual machine, 103 and 52 ms
-compiled, same iterations and torques to 5e-12 (measured beside other work; README, Benchmarks).
+176 ms with the networks and 136 ms with the splines in CasADi's virtual machine, 82 and 45 ms
+compiled (build 3.5 and 1.5 s, compiled 6.9 and 2.4 s), same iterations and torques to 6e-12
+(idle, median of 5; README, Benchmarks).
 `splines=False` keeps the networks: the reference the splines are tested against.
 """
 
