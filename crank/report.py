@@ -230,6 +230,26 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
                     f"| {profile} | {loop} | {sample} | {1e3 * e['observed_sigma']:.2f} | "
                     f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
                 )
+    if "theta" not in next(iter(first["samples"].values())):
+        return [*lines, ""]  # a heldout.json of version 2
+    lines += [
+        "",
+        "The same for the crank angle θ (near top dead centre the slider's σ magnifies an error "
+        "in θ's):",
+        "",
+        "| profile | loop | sample | observed θ σ mrad | " + " | ".join(modes) + " |",
+        "|" + "---|" * (4 + len(modes)),
+    ]
+    for profile, played in profiles.items():
+        for loop, entry in played.items():
+            thetas = [(k, e["theta"]) for k, e in entry["samples"].items()]
+            for sample, e in [*thetas, ("last", entry["theta_final"])]:
+                ratios = [_ratio(e["predicted"][m]["ratio"]) for m in modes]
+                lines.append(
+                    f"| {profile} | {loop} | {sample} | {1e3 * e['observed_sigma']:.1f} | "
+                    + " | ".join(ratios)
+                    + " |"
+                )
     return [*lines, ""]
 
 

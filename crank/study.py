@@ -118,6 +118,8 @@ def _profile_row(
             row[f"pred_{k:g}sigma_{sample}_mm"] = 1e3 * k * predicted["sigma"]
             row[f"obs_{k:g}sigma_{sample}_mm"] = 1e3 * k * entry["observed_sigma"]
             row[f"ratio_{sample}"] = predicted["ratio"]
+            if "theta" in entry:  # heldout.json version 3
+                row[f"theta_ratio_{sample}"] = entry["theta"]["predicted"][mode]["ratio"]
     return row
 
 
@@ -264,6 +266,8 @@ def markdown(study: dict[str, Any]) -> str:
     ]
     ratio_keys = sorted({k for r in ok for k in r if k.startswith("ratio_")})
     columns += [(k, f"pred/obs σ @{k.split('_')[1]}", ".2f") for k in ratio_keys]
+    theta_keys = sorted({k for r in ok for k in r if k.startswith("theta_ratio_")})
+    columns += [(k, f"θ pred/obs @{k.split('_')[2]}", ".2f") for k in theta_keys]
     lines.append("| " + " | ".join(c[1] for c in columns) + " |")
     lines.append("|" + "---|" * len(columns))
     for r in rows:

@@ -10,11 +10,13 @@ tightening does.
 profile on `runs` (default 1000) machines and reports the violation rate with its exact
 (Clopper-Pearson) 95 % upper bound. Beside it, calibration under the OCP's own torque: the slider's
 observed σ, k·σ and one-sided quantile at each constraint sample against the PPANN's prediction
-in every Monte-Carlo mode (same torque, same start state), and the same for θ at the last sample.
+in every Monte-Carlo mode (same torque, same start state), and the same for θ at each constraint
+sample and at the last one. Near top dead centre the slider is a flat function of θ, so its σ
+there magnifies an error in θ's: θ's ratio says which of the two the model gets wrong.
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 2
+  format, version        "crank-heldout", 3 (3: samples.<k>.theta)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's gains) or pd (the fixed PD)
@@ -26,7 +28,8 @@ in every Monte-Carlo mode (same torque, same start state), and the same for θ a
     violating_runs, rate, rate_upper_95
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_quantile (at Φ(-k_sigma)), skew,
-                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ)}}
+                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ)},
+                          theta {observed_sigma, predicted.<mode> {sigma, ratio}}}
     theta_final          {observed_sigma, predicted.<mode> {sigma, ratio}}
   holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
                          tightened for (open, or closed: its LQR gains), if that loop was played
@@ -54,7 +57,7 @@ from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
-from ppann.montecarlo import Feedback, monte_carlo
+from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw
 from replay.campaign import closed_loop_gains, draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
@@ -63,7 +66,7 @@ from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 2
+VERSION = 3
 TARGET_RATE = 0.005
 """Largest violation rate of the robust profile on held-out machines that counts as holding."""
 
@@ -77,6 +80,20 @@ def rate_upper(violations: int, runs: int, *, confidence: float = 0.95) -> float
 
 def _ratio(predicted: float, observed: float) -> float | None:
     return predicted / observed if observed > 0 and math.isfinite(predicted) else None
+
+
+def _theta_calibration(
+    observed: np.ndarray, predicted: dict[str, Bands], index: int
+) -> dict[str, Any]:
+    """θ's observed σ over the machines at one sample and each mode's predicted σ there."""
+    sigma = float(observed.std(ddof=1))
+    return {
+        "observed_sigma": sigma,
+        "predicted": {
+            mode: {"sigma": float(b.std[index, 0]), "ratio": _ratio(float(b.std[index, 0]), sigma)}
+            for mode, b in predicted.items()
+        },
+    }
 
 
 def heldout_check(
@@ -196,8 +213,8 @@ def heldout_check(
                     "mean": float(np.mean(slider)),
                     "ratio": _ratio(sigma, observed),
                 }
+            entry["theta"] = _theta_calibration(replay.theta[:, k - 1], predicted, k - 1)
             samples[str(k)] = entry
-        theta_observed = float(replay.theta[:, -1].std(ddof=1))
         violating = int(below.sum())
         out["profiles"][profile][mode] = {
             **({} if replay.mpc is None else {"mpc": mpc_timing(replay)}),
@@ -205,16 +222,7 @@ def heldout_check(
             "rate": violating / runs,
             "rate_upper_95": rate_upper(violating, runs),
             "samples": samples,
-            "theta_final": {
-                "observed_sigma": theta_observed,
-                "predicted": {
-                    mc_mode: {
-                        "sigma": float(b.std[-1, 0]),
-                        "ratio": _ratio(float(b.std[-1, 0]), theta_observed),
-                    }
-                    for mc_mode, b in predicted.items()
-                },
-            },
+            "theta_final": _theta_calibration(replay.theta[:, -1], predicted, -1),
         }
         if on_played is not None:
             on_played(profile, mode, out["profiles"][profile][mode])

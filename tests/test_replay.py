@@ -314,6 +314,16 @@ def _check_heldout_entry(
         assert entry["observed_sigma"] == float(x.std(ddof=1))
         predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
         assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-12)
+        theta = replay.theta[:, int(k) - 1].std(ddof=1)
+        assert entry["theta"]["observed_sigma"] == float(theta)
+        theta_predicted = bands.samples[:, int(k) - 1, 0].std(ddof=1)
+        assert entry["theta"]["predicted"]["mixed"]["sigma"] == pytest.approx(
+            theta_predicted, rel=1e-12
+        )
+        assert entry["theta"]["predicted"]["mixed"]["ratio"] == pytest.approx(
+            theta_predicted / theta, rel=1e-12
+        )
+    assert result["theta_final"]["observed_sigma"] == float(replay.theta[:, -1].std(ddof=1))
 
 
 def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) -> None:

@@ -65,3 +65,24 @@ def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
     rows = train_summary(report)
     assert rows["σ predicted/observed (trajectory)"] == "θ diverged (1.5e+68), slider 1.00"
     assert rows["σ predicted/observed (mixed)"] == "θ 0.90, slider 1.00"
+
+
+def test_theta_is_calibrated_at_each_constraint_sample_and_the_last() -> None:
+    heldout = _heldout("open", 1.1)
+    entry = heldout["profiles"]["robust"]["open"] = dict(heldout["profiles"]["robust"]["open"])
+    sample = dict(entry["samples"]["50"])
+    sample["theta"] = {
+        "observed_sigma": 0.012,
+        "predicted": {"mixed": {"ratio": 1.07}, "trajectory": {"ratio": 3.5}},
+    }
+    entry["samples"] = {"50": sample}
+    entry["theta_final"] = {
+        "observed_sigma": 0.2,
+        "predicted": {"mixed": {"ratio": 0.98}, "trajectory": {"ratio": 9.0}},
+    }
+    heldout["profiles"] = {"robust": {"open": entry}}
+    text = "\n".join(heldout_lines(heldout))
+    assert "| robust | open | 50 | 12.0 | 1.07 | 3.50 |" in text
+    assert "| robust | open | last | 200.0 | 0.98 | 9.00 |" in text
+    # a version-2 file (no θ at the samples) gets the slider's table only
+    assert "θ σ mrad" not in "\n".join(heldout_lines(_heldout("open", 1.1)))
