@@ -29,8 +29,9 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_quantile (at Φ(-k_sigma)), skew,
                           predicted.<mode> {sigma, mean, ratio (predicted / observed σ)},
-                          theta {observed_sigma, predicted.<mode> {sigma, ratio}}}
-    theta_final          {observed_sigma, predicted.<mode> {sigma, ratio}}
+                          theta {observed_sigma, observed_mean,
+                                 predicted.<mode> {sigma, mean, ratio}}}
+    theta_final          as samples.<k>.theta, at the last sample
   holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
                          tightened for (open, or closed: its LQR gains), if that loop was played
   timing                 {simulate_s, monte_carlo_s}
@@ -85,12 +86,18 @@ def _ratio(predicted: float, observed: float) -> float | None:
 def _theta_calibration(
     observed: np.ndarray, predicted: dict[str, Bands], index: int
 ) -> dict[str, Any]:
-    """θ's observed σ over the machines at one sample and each mode's predicted σ there."""
+    """θ's observed mean and σ over the machines at one sample and each mode's predicted mean
+    and σ there."""
     sigma = float(observed.std(ddof=1))
     return {
         "observed_sigma": sigma,
+        "observed_mean": float(observed.mean()),
         "predicted": {
-            mode: {"sigma": float(b.std[index, 0]), "ratio": _ratio(float(b.std[index, 0]), sigma)}
+            mode: {
+                "sigma": float(b.std[index, 0]),
+                "mean": float(b.mean[index, 0]),
+                "ratio": _ratio(float(b.std[index, 0]), sigma),
+            }
             for mode, b in predicted.items()
         },
     }

@@ -323,6 +323,10 @@ def _check_heldout_entry(
         assert entry["theta"]["predicted"]["mixed"]["ratio"] == pytest.approx(
             theta_predicted / theta, rel=1e-12
         )
+        assert entry["theta"]["observed_mean"] == float(replay.theta[:, int(k) - 1].mean())
+        assert entry["theta"]["predicted"]["mixed"]["mean"] == pytest.approx(
+            bands.samples[:, int(k) - 1, 0].mean(), rel=1e-12
+        )
     assert result["theta_final"]["observed_sigma"] == float(replay.theta[:, -1].std(ddof=1))
 
 
