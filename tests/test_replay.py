@@ -541,6 +541,7 @@ def _broken_ocp(ocp_path: Path, tmp_path: Path, edit) -> Path:
     ("edit", "match"),
     [
         (lambda r: r["robust"].pop("tau"), "missing key 'robust.tau'"),
+        (lambda r: r["robust"].pop("gain_omega"), "missing key 'robust.gain_omega'"),
         (lambda r: r["nominal"]["theta"].pop(), "nominal.theta has 149 values, expected 150"),
         (lambda r: r["nominal"]["tau"].__setitem__(3, float("inf")), "non-finite value at index 3"),
         (
