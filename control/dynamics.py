@@ -59,10 +59,10 @@ def angle_splines(model: PPANN) -> dict[str, ca.Function]:
     h = 2 * math.pi / ANGLE_KNOTS
     grid = np.arange(-ANGLE_PAD, ANGLE_KNOTS + ANGLE_PAD + 1) * h
     angle = torch.from_numpy(grid)
-    with torch.no_grad():
+    with torch.no_grad():  # the angle unwrapped, so that the pads continue each function
         outputs = {
             "mean": model.z_mean(angle, torch.zeros_like(angle)).numpy(),
-            "sigma": model.z_sigma(angle, torch.zeros_like(angle)).numpy(),
+            "sigma": model.z_sigma(angle, torch.zeros_like(angle), wrap=False).numpy(),
         }
     angle_only = {"mean": ("J", "K"), "sigma": () if model.config.sigma_speed else ("J", "K")}
     if not model.config.use_networks:
@@ -104,7 +104,9 @@ class CasadiPPANN:
             )
         else:
             mean = ca.SX.zeros(3)
-        sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else features
+        sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else dict(features)
+        if c.sigma_wrap:
+            sigma_features["K"] = ca.vertcat(s, co, wrapped / (2 * math.pi))
         sigma = ca.vertcat(
             *(
                 tables[f"sigma {n}"](wrapped)

@@ -69,6 +69,12 @@ class PPANNConfig:
     """The sigma networks of z_J and z_K see omega too (beyond the paper, whose z_J and z_K
     networks see the angle alone): the residual's spread at one angle can depend on the speed.
     A checkpoint without this key is of the paper's architecture (False)."""
+    sigma_wrap: bool = False
+    """The sigma network of z_K also sees theta_mod / 2 pi (beyond the paper): its white noise
+    enters eq. 14 as K z_K theta_mod, which jumps from ~2 pi K to 0 at the wrap (top dead
+    centre), and a network of (sin, cos) alone must give it one σ on both sides; with the
+    wrapped angle it can make the noise small just before the wrap. Not with `sigma_speed`.
+    A checkpoint without this key is of the paper's architecture (False)."""
 
     def __post_init__(self) -> None:
         for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
@@ -77,6 +83,8 @@ class PPANNConfig:
         for name in ("mean_hidden", "sigma_hidden"):
             if getattr(self, name) < 1:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.sigma_wrap and self.sigma_speed:
+            raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -117,7 +125,7 @@ class PPANN(nn.Module):
             {
                 "J": _mlp(angle_inputs, c.sigma_hidden),
                 "B": _mlp(3, c.sigma_hidden),
-                "K": _mlp(angle_inputs, c.sigma_hidden),
+                "K": _mlp(angle_inputs + c.sigma_wrap, c.sigma_hidden),
             }
         )
         # Spread of the per-machine log-factors of inertia, damping and stiffness (phase 2,
@@ -141,15 +149,21 @@ class PPANN(nn.Module):
         return self.prior * self.physical_factor
 
     def _features(
-        self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False
+        self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False, wrap: bool = True
     ) -> dict[str, torch.Tensor]:
-        """Each network's input: (sin, cos) or (sin, cos, omega / omega_scale)."""
+        """Each network's input: (sin, cos) or (sin, cos, omega / omega_scale); with
+        `sigma_wrap` the sigma network of z_K's (sin, cos, theta_mod / 2 pi), or with `wrap`
+        False (sin, cos, theta / 2 pi), for tables that must not wrap at their ends."""
         s, c = torch.sin(theta), torch.cos(theta)
         angle = torch.stack([s, c], dim=-1)
         speed = torch.stack([s, c, omega / self.config.omega_scale], dim=-1)
         if sigma and self.config.sigma_speed:
             angle = speed
-        return {"J": angle, "B": speed, "K": angle}
+        stiffness = angle
+        if sigma and self.config.sigma_wrap:
+            turn = (theta_mod(theta) if wrap else theta) / (2 * math.pi)
+            stiffness = torch.cat([angle, turn.unsqueeze(-1)], dim=-1)
+        return {"J": angle, "B": speed, "K": stiffness}
 
     def z_mean(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
         """Mean network outputs, shape (..., 3) in the order J, B, K (zero without networks)."""
@@ -158,9 +172,11 @@ class PPANN(nn.Module):
         g = self._features(theta, omega)
         return torch.cat([self.mean_nets[n](g[n]) for n in Z_NAMES], dim=-1)
 
-    def z_sigma(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
-        """Sigma network outputs, shape (..., 3), each >= sigma_floor."""
-        g = self._features(theta, omega, sigma=True)
+    def z_sigma(
+        self, theta: torch.Tensor, omega: torch.Tensor, *, wrap: bool = True
+    ) -> torch.Tensor:
+        """Sigma network outputs, shape (..., 3), each >= sigma_floor (`wrap`: `_features`)."""
+        g = self._features(theta, omega, sigma=True, wrap=wrap)
         raw = torch.cat([self.sigma_nets[n](g[n]) for n in Z_NAMES], dim=-1)
         return nn.functional.softplus(raw) + self.config.sigma_floor
 
@@ -227,8 +243,9 @@ class FusedHeads:
     """All six networks in NumPy, for fast simulation.
 
     The networks of the angle alone (the mean networks of z_J and z_K, and their sigma networks
-    unless `sigma_speed`) are a table over theta mod 2 pi, ANGLE_TABLE cells evaluated in
-    float64 once, interpolated linearly: within ~1e-7 of the networks on trained models
+    unless `sigma_speed`; with `sigma_wrap` z_K's sigma network, of theta mod 2 pi too) are a
+    table over theta mod 2 pi, ANGLE_TABLE cells evaluated in float64 once, its last row the
+    limit from below, interpolated linearly: within ~1e-7 of the networks on trained models
     (h² max|f''| / 8, h = 2 pi / 16384), and a few array operations per step instead of 220 of
     the 330 hidden tanh per sample (tanh is what the Monte-Carlo spends its time on: ~3 ns an
     element with NumPy's float32 tanh on an AVX2 machine, which vectorises it only with
@@ -255,14 +272,18 @@ class FusedHeads:
         self.geometry = model.geometry
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         # outputs 0-2 the means, 3-5 the sigmas; of the angle alone (a table) or of the state
-        self.angle_outputs = [i for i, net in enumerate(nets) if net[0].in_features == 2]
-        self.speed_outputs = [i for i, net in enumerate(nets) if net[0].in_features == 3]
+        self.speed_outputs = [1, 4] if not c.sigma_speed else [1, 3, 4, 5]
+        self.angle_outputs = [i for i in range(6) if i not in self.speed_outputs]
         with torch.no_grad():
             grid = torch.arange(ANGLE_TABLE + 1, dtype=torch.float64) * (2 * math.pi / ANGLE_TABLE)
             both = torch.cat(
-                [model.z_mean(grid, torch.zeros_like(grid)), model.z_sigma(grid, grid * 0)], dim=1
+                [
+                    model.z_mean(grid, torch.zeros_like(grid)),
+                    model.z_sigma(grid, grid * 0, wrap=False),
+                ],
+                dim=1,
             )
-        # row ANGLE_TABLE is 2 pi (= row 0)
+        # row ANGLE_TABLE is 2 pi: row 0 again, or with `sigma_wrap` the limit from below
         self.table = both[:, self.angle_outputs].numpy().copy()
         self.cell = ANGLE_TABLE / (2 * math.pi)
         hidden = sum(nets[i][0].out_features for i in self.speed_outputs)

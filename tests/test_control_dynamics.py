@@ -25,7 +25,14 @@ def _trained_like(seed: int, **config) -> PPANN:
 
 @pytest.mark.parametrize("splines", [True, False])
 @pytest.mark.parametrize(
-    "config", [{}, {"trainable_physics": True}, {"use_networks": False}, {"sigma_speed": True}]
+    "config",
+    [
+        {},
+        {"trainable_physics": True},
+        {"use_networks": False},
+        {"sigma_speed": True},
+        {"sigma_wrap": True},
+    ],
 )
 def test_networks_and_dynamics_equal_torch(config: dict, splines: bool) -> None:
     model = _trained_like(0, **config)

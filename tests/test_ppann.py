@@ -13,7 +13,14 @@ import torch
 from ppann.checkpoint import CheckpointError, load, save
 from ppann.data import DataError
 from ppann.losses import propagated_nll
-from ppann.model import PPANN, FusedHeads, PPANNConfig, n_step_prediction, rollout
+from ppann.model import (
+    PPANN,
+    FusedHeads,
+    ModelConfigError,
+    PPANNConfig,
+    n_step_prediction,
+    rollout,
+)
 from ppann.montecarlo import monte_carlo
 from ppann.train import History, TrainConfig, make_splits, train_mean, train_sigma
 from twin.dataset import Dataset
@@ -142,10 +149,10 @@ def test_monte_carlo_collapses_to_the_mean_at_the_sigma_floor() -> None:
         np.testing.assert_allclose(bands.mean, mean, rtol=0, atol=1e-5)
 
 
-@pytest.mark.parametrize("sigma_speed", [False, True])
-def test_fused_heads_equal_the_networks(sigma_speed: bool) -> None:
+@pytest.mark.parametrize("config", [{}, {"sigma_speed": True}, {"sigma_wrap": True}])
+def test_fused_heads_equal_the_networks(config: dict) -> None:
     torch.manual_seed(2)
-    model = PPANN(PPANNConfig(sigma_speed=sigma_speed))
+    model = PPANN(PPANNConfig(**config))
     rng = np.random.default_rng(0)
     theta, omega = rng.uniform(-10, 10, 200), rng.uniform(-80, 80, 200)
     # the ends of the angle table's turn, and turns far from the first
@@ -204,14 +211,19 @@ def test_checkpoint_round_trip_and_rejections(tmp_path) -> None:
     assert payload["history"] == {"train": [1.0]}
     assert torch.load(path, weights_only=True)["kind"] == "ppann"
 
-    # a checkpoint saved before `sigma_speed` existed is of the paper's architecture
+    # a checkpoint saved before `sigma_speed` and `sigma_wrap` existed is of the paper's
+    # architecture
     old = torch.load(path, weights_only=True)
-    del old["config"]["sigma_speed"]
+    del old["config"]["sigma_speed"], old["config"]["sigma_wrap"]
     torch.save(old, tmp_path / "old.pt")
     assert load(tmp_path / "old.pt")[0].config.sigma_speed is False
     wide = PPANN(PPANNConfig(mean_hidden=20, sigma_speed=True))
     save(tmp_path / "wide.pt", wide, kind="ppann", extra={"history": {}})
     assert load(tmp_path / "wide.pt")[0].sigma_nets["K"][0].in_features == 3
+    assert load(tmp_path / "old.pt")[0].config.sigma_wrap is False
+    wrapped = PPANN(PPANNConfig(mean_hidden=20, sigma_wrap=True))
+    save(tmp_path / "wrapped.pt", wrapped, kind="ppann", extra={"history": {}})
+    assert load(tmp_path / "wrapped.pt")[0].sigma_nets["K"][0].in_features == 3
 
     other = torch.load(path, weights_only=True)
     other["config"]["mean_hidden"] = 30
@@ -231,3 +243,21 @@ def test_checkpoint_round_trip_and_rejections(tmp_path) -> None:
         load(tmp_path / "tensor.pt")
     with pytest.raises(CheckpointError, match="checkpoint not found"):
         load(tmp_path / "absent.pt")
+
+
+def test_sigma_wrap_gives_z_k_its_own_noise_on_each_side_of_the_wrap() -> None:
+    """With `sigma_wrap` z_K's σ just below 2 pi and at 0 differ (the network sees theta_mod);
+    without it they are equal (sin and cos are periodic); with sigma_speed it is refused."""
+    for wrap in (False, True):
+        torch.manual_seed(4)
+        model = PPANN(PPANNConfig(sigma_wrap=wrap))
+        with torch.no_grad():
+            model.sigma_nets["K"][2].weight.mul_(5.0)
+            theta = torch.tensor(
+                [2 * math.pi - 1e-9, 2 * math.pi, 4 * math.pi - 1e-9], dtype=torch.float64
+            )
+            sigma = model.z_sigma(theta, torch.zeros_like(theta))[:, 2].numpy()
+        assert (abs(sigma[0] - sigma[1]) > 1e-3) == wrap
+        assert sigma[0] == pytest.approx(sigma[2], abs=1e-6)  # one turn is like another
+    with pytest.raises(ModelConfigError, match="cannot be combined"):
+        PPANNConfig(sigma_wrap=True, sigma_speed=True)
