@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -39,6 +39,8 @@ def fit(
     splits = splits or make_splits(dataset, config)
     torch.manual_seed(torch_seed(config.seed, "training"))
     spec = model_kind(kind)
+    if kind == "ppann" and config.sigma_wrap:  # asked for in the training config
+        ppann_config = replace(ppann_config or PPANNConfig(), sigma_wrap=True)
     model = spec.new(ppann_config if kind == "ppann" else None)
     if hasattr(model, "geometry"):
         model.geometry = dataset.geometry

@@ -53,6 +53,11 @@ class TrainConfig:
     time scale the mean is fitted on: the L-step variance ratio of the seed-0 data is lowest
     there (0.55), and rises beyond it as the mean model's slow, excitation-bound errors, which a
     replay under another torque sees as bias rather than spread, add power."""
+    sigma_wrap: bool = False
+    """The PPANN's sigma network of z_K also sees theta_mod / 2 pi (`PPANNConfig.sigma_wrap`,
+    beyond the paper): on seeds 0-4 it lowered the robust torque's predicted / observed slider
+    σ at sample 100 on every seed (README, the calibration at sample 100); off by default until
+    the held-out tables are re-run on it."""
 
     def __post_init__(self) -> None:
         for name in (

@@ -261,3 +261,20 @@ def test_sigma_wrap_gives_z_k_its_own_noise_on_each_side_of_the_wrap() -> None:
         assert sigma[0] == pytest.approx(sigma[2], abs=1e-6)  # one turn is like another
     with pytest.raises(ModelConfigError, match="cannot be combined"):
         PPANNConfig(sigma_wrap=True, sigma_speed=True)
+
+
+def test_the_training_config_asks_for_sigma_wrap_and_phase_2_fits_it() -> None:
+    """`TrainConfig(sigma_wrap=True)` trains a PPANN whose z_K sigma network sees theta_mod;
+    phase 2 moves its weights, and the saved model reloads with the option."""
+    from ppann.fit import fit
+
+    data = synthetic(seconds=3.0)
+    config = TrainConfig(max_epochs=1, sigma_epochs=20, validation_fraction=0.2, sigma_wrap=True)
+    fitted = fit(data, kind="ppann", config=config)
+    model = fitted.model
+    assert model.config.sigma_wrap and model.sigma_nets["K"][0].in_features == 3
+    assert fitted.history.sigma[-1] < fitted.history.sigma[0]
+    plain = fit(data, kind="ppann", config=replace(config, sigma_wrap=False)).model
+    assert not plain.config.sigma_wrap and plain.sigma_nets["K"][0].in_features == 2
+    # the physics-only baseline has no sigma networks to widen
+    assert not fit(data, kind="physics", config=config).model.config.sigma_wrap
