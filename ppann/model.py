@@ -272,8 +272,12 @@ class FusedHeads:
         self.geometry = model.geometry
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         # outputs 0-2 the means, 3-5 the sigmas; of the angle alone (a table) or of the state
-        self.speed_outputs = [1, 4] if not c.sigma_speed else [1, 3, 4, 5]
-        self.angle_outputs = [i for i in range(6) if i not in self.speed_outputs]
+        outputs = [(kind, name) for kind in ("mean", "sigma") for name in Z_NAMES]
+        sees_speed = {("mean", "B"), ("sigma", "B")}
+        if c.sigma_speed:
+            sees_speed |= {("sigma", name) for name in Z_NAMES}
+        self.speed_outputs = [i for i, out in enumerate(outputs) if out in sees_speed]
+        self.angle_outputs = [i for i, out in enumerate(outputs) if out not in sees_speed]
         with torch.no_grad():
             grid = torch.arange(ANGLE_TABLE + 1, dtype=torch.float64) * (2 * math.pi / ANGLE_TABLE)
             both = torch.cat(
