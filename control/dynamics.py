@@ -29,10 +29,9 @@ import math
 
 import casadi as ca
 import numpy as np
-import torch
 from torch import nn
 
-from ppann.model import PPANN, Z_NAMES
+from ppann.model import OUTPUTS, PPANN, Z_NAMES, sees_angle_alone, tabulate
 
 ANGLE_KNOTS = 4096
 """Spline points per turn of the angle-only networks (64 miss the step's Jacobian by ~1e-6)."""
@@ -56,23 +55,14 @@ def softplus(x: ca.SX) -> ca.SX:
 def angle_splines(model: PPANN) -> dict[str, ca.Function]:
     """Cubic B-splines of the networks that see only the angle, keyed "mean J", "sigma K", ...,
     each a function of theta in [0, 2 pi) tabulated from the torch model itself."""
-    h = 2 * math.pi / ANGLE_KNOTS
-    grid = np.arange(-ANGLE_PAD, ANGLE_KNOTS + ANGLE_PAD + 1) * h
-    angle = torch.from_numpy(grid)
-    with torch.no_grad():  # the angle unwrapped, so that the pads continue each function
-        outputs = {
-            "mean": model.z_mean(angle, torch.zeros_like(angle)).numpy(),
-            "sigma": model.z_sigma(angle, torch.zeros_like(angle), wrap=False).numpy(),
-        }
-    angle_only = {"mean": ("J", "K"), "sigma": () if model.config.sigma_speed else ("J", "K")}
-    if not model.config.use_networks:
-        angle_only["mean"] = ()
+    grid = np.arange(-ANGLE_PAD, ANGLE_KNOTS + ANGLE_PAD + 1) * (2 * math.pi / ANGLE_KNOTS)
+    values = tabulate(model, grid)  # unwrapped: the pads continue each function
     return {
         f"{kind} {name}": ca.interpolant(
-            f"{kind}_{name}", "bspline", [grid], outputs[kind][:, Z_NAMES.index(name)]
+            f"{kind}_{name}", "bspline", [grid], values[:, OUTPUTS.index((kind, name))]
         )
-        for kind, names in angle_only.items()
-        for name in names
+        for kind, name in sees_angle_alone(model.config)
+        if kind == "sigma" or model.config.use_networks  # without networks the mean is 0
     }
 
 

@@ -224,6 +224,31 @@ def constant_ppann(
     return model.eval()
 
 
+OUTPUTS: tuple[tuple[str, str], ...] = tuple((k, n) for k in ("mean", "sigma") for n in Z_NAMES)
+"""The six network outputs in order, (kind, z): the means of J, B, K, then their sigmas."""
+
+
+def sees_angle_alone(config: PPANNConfig) -> tuple[tuple[str, str], ...]:
+    """The outputs (of OUTPUTS) whose networks see the angle alone, the ones a table over one turn
+    can stand for (FusedHeads, control/dynamics.py): z_J's and z_K's, except the sigmas with
+    `sigma_speed`."""
+    speed = {("mean", "B"), ("sigma", "B")}
+    if config.sigma_speed:
+        speed |= {("sigma", name) for name in Z_NAMES}
+    return tuple(out for out in OUTPUTS if out not in speed)
+
+
+def tabulate(model: PPANN, theta: np.ndarray) -> np.ndarray:
+    """The six outputs (OUTPUTS order) at angles `theta` (n,) and omega 0, (n, 6); theta is not
+    wrapped (`sigma_wrap`'s feature theta / 2 pi), so a table running past either end of a turn
+    continues each function there."""
+    angle = torch.from_numpy(np.asarray(theta, dtype=np.float64))
+    zero = torch.zeros_like(angle)
+    with torch.no_grad():
+        both = torch.cat([model.z_mean(angle, zero), model.z_sigma(angle, zero, wrap=False)], 1)
+    return both.numpy()
+
+
 def n_step_prediction(model: nn.Module, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
     """States after 1..N mean-model steps of any model with `step(x, tau)`, from x0 (..., 2) under
     tau (..., N), all windows at once: (..., N, 2)."""
@@ -272,23 +297,12 @@ class FusedHeads:
         self.geometry = model.geometry
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         # outputs 0-2 the means, 3-5 the sigmas; of the angle alone (a table) or of the state
-        outputs = [(kind, name) for kind in ("mean", "sigma") for name in Z_NAMES]
-        sees_speed = {("mean", "B"), ("sigma", "B")}
-        if c.sigma_speed:
-            sees_speed |= {("sigma", name) for name in Z_NAMES}
-        self.speed_outputs = [i for i, out in enumerate(outputs) if out in sees_speed]
-        self.angle_outputs = [i for i, out in enumerate(outputs) if out not in sees_speed]
-        with torch.no_grad():
-            grid = torch.arange(ANGLE_TABLE + 1, dtype=torch.float64) * (2 * math.pi / ANGLE_TABLE)
-            both = torch.cat(
-                [
-                    model.z_mean(grid, torch.zeros_like(grid)),
-                    model.z_sigma(grid, grid * 0, wrap=False),
-                ],
-                dim=1,
-            )
+        angle_alone = sees_angle_alone(c)
+        self.angle_outputs = [i for i, out in enumerate(OUTPUTS) if out in angle_alone]
+        self.speed_outputs = [i for i, out in enumerate(OUTPUTS) if out not in angle_alone]
+        grid = np.arange(ANGLE_TABLE + 1) * (2 * math.pi / ANGLE_TABLE)
         # row ANGLE_TABLE is 2 pi: row 0 again, or with `sigma_wrap` the limit from below
-        self.table = both[:, self.angle_outputs].numpy().copy()
+        self.table = tabulate(model, grid)[:, self.angle_outputs].copy()
         self.cell = ANGLE_TABLE / (2 * math.pi)
         hidden = sum(nets[i][0].out_features for i in self.speed_outputs)
         self.w_in = np.zeros((4, hidden), dtype=np.float32)  # row 3: the biases
