@@ -55,9 +55,9 @@ class TrainConfig:
     replay under another torque sees as bias rather than spread, add power."""
     sigma_wrap: bool = False
     """The PPANN's sigma network of z_K also sees theta_mod / 2 pi (`PPANNConfig.sigma_wrap`,
-    beyond the paper): on seeds 0-4 it lowered the robust torque's predicted / observed slider
-    σ at sample 100 on every seed (README, the calibration at sample 100); off by default until
-    the held-out tables are re-run on it."""
+    beyond the paper): on paper seeds 0-9 it lowered the robust torque's predicted / observed
+    slider σ at sample 100 on every seed, every verdict kept (README, the calibration at sample
+    100); off by default until the held-out tables are re-run on it."""
 
     def __post_init__(self) -> None:
         for name in (
