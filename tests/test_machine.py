@@ -190,6 +190,11 @@ def fitted_line():
     dataset, truth_model, eta = _machines_dataset(
         episodes=40, seconds=2.0, inertia_sigma=spread, seed=3
     )
+    # the sigma networks' initial weights come from torch's global generator, which the tests
+    # before this one advance; unseeded, phase 2 here depended on the test order: on 1 of 40
+    # initialisations it left the damping's machine σ at 0.001 where its profile NLL is 360
+    # lower at 0.005, and the likelihood-ratio bound read off that profile was the grid's end
+    torch.manual_seed(0)
     model = PPANN(PPANNConfig(sigma_hidden=4))
     model.load_state_dict(
         {k: v for k, v in truth_model.state_dict().items() if not k.startswith("sigma_nets")}
