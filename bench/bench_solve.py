@@ -4,7 +4,8 @@ Monte-Carlo (1000 mixed trajectories, gaussian tightening, the line allowance at
 the same at confidence 0, the same sized for the LQR closed loop (robust-fb, a tube), for
 reference in the same run the paper's (100 step trajectories, confidence 0), and the default with
 the NLP compiled to C (`--compiled`: every solve ~3x faster, the Monte-Carlo not, so the ratio
-rises).
+rises); last, one draft's Monte-Carlo with the rollout compiled (ppann/kernel.py, the default
+where a C compiler is found) beside the NumPy rollout, in the same run.
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
 
@@ -19,14 +20,17 @@ judged on a trained model (`crank run` writes logs/<run>/model.pt). The CasADi/I
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
 from control.config import OCPConfig
-from control.ocp import NominalOCP
+from control.ocp import NominalOCP, Solution
 from control.robust import solve_robust
+from control.tightening import slider_uncertainty
+from ppann import kernel
 from ppann.checkpoint import load
-from ppann.model import constant_ppann
+from ppann.model import PPANN, FusedHeads, constant_ppann
 
 
 def main() -> None:
@@ -90,6 +94,32 @@ def main() -> None:
             f"{min(ratios):.2f}-{max(ratios):.2f}"
         )
         print(f"{profile} cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
+    monte_carlo_paths(model, result.robust, OCPConfig(), repeat=args.repeat)
+
+
+def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, repeat: int) -> None:
+    """One draft's Monte-Carlo (the robust loop's unit: simulation, transmission draws,
+    tightening, line allowance) with the rollout compiled (ppann/kernel.py) and in NumPy."""
+    heads = FusedHeads(model)
+    times = {}
+    for compiled in (True, False):
+        os.environ["CRANK_KERNEL"] = "1" if compiled else "0"
+        kernel.load.cache_clear()
+        slider_uncertainty(heads, solution, config, constraints_only=True)
+        runs = []
+        for _ in range(max(repeat, 5)):
+            started = time.perf_counter()
+            slider_uncertainty(heads, solution, config, constraints_only=True)
+            runs.append(time.perf_counter() - started)
+        times[compiled] = statistics.median(runs)
+    os.environ.pop("CRANK_KERNEL")
+    kernel.load.cache_clear()
+    print(
+        f"-- one draft's Monte-Carlo ({config.mc_samples} {config.mc_mode}, "
+        f"{max(config.constraint_samples) - 1} steps, with the allowances): compiled rollout "
+        f"{times[True] * 1e3:.1f} ms, NumPy rollout {times[False] * 1e3:.1f} ms "
+        f"({times[False] / times[True]:.2f}x)"
+    )
 
 
 if __name__ == "__main__":

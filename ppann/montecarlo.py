@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ppann import kernel
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MONTE_CARLO_MODES, check_mode
 
@@ -61,12 +62,15 @@ def monte_carlo(
     seed: int | np.random.SeedSequence = 0,
     machine_sigma: npt.ArrayLike | None = None,
     feedback: Feedback | None = None,
+    compiled: bool = True,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
     machine_sigma: the spread of the machine draws (3,) in place of the model's (e.g. its upper
     confidence bound, control/robust.py); the same standard normals are scaled either way.
     feedback: simulate the closed loop under this tracking law (None: open loop).
+    compiled: the rollout in C where it builds (`rollout`); False: NumPy's, bit for bit the
+    per-step arithmetic of FusedHeads.
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -90,7 +94,14 @@ def monte_carlo(
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma
         factors = machine_factors(spread, n_samples, np.random.default_rng(machine_seq))
     samples = rollout(
-        heads, x0, tau, n_samples=n_samples, eps=eps, factors=factors, feedback=feedback
+        heads,
+        x0,
+        tau,
+        n_samples=n_samples,
+        eps=eps,
+        factors=factors,
+        feedback=feedback,
+        compiled=compiled,
     )
     with np.errstate(over="ignore", invalid="ignore"):
         return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
@@ -118,11 +129,27 @@ def rollout(
     eps: np.ndarray | None = None,
     factors: np.ndarray | None = None,
     feedback: Feedback | None = None,
+    compiled: bool = True,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
     mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine), open loop
-    or under `feedback`."""
+    or under `feedback`. `compiled`: by the C kernel of ppann/kernel.py where it builds (the
+    same numbers to float32 rounding), else by the NumPy loop below."""
+    if compiled:
+        samples = kernel.rollout(
+            heads,
+            np.asarray(x0, dtype=float),
+            np.asarray(tau, dtype=float),
+            n_samples=n_samples,
+            eps=eps,
+            factors=factors,
+            plan=None if feedback is None else feedback.plan,
+            gains=None if feedback is None else feedback.gains,
+            limit=0.0 if feedback is None else feedback.limit,
+        )
+        if samples is not None:
+            return samples
     steps = tau.shape[0]
     per_step = eps is not None and eps.shape[0] == steps and steps > 1
     samples = np.empty((n_samples, steps + 1, 2))

@@ -1,0 +1,129 @@
+"""The Monte-Carlo's compiled rollout (ppann/kernel.py) against NumPy's (ppann/montecarlo.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from ppann import kernel
+from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
+from ppann.montecarlo import Feedback, monte_carlo, rollout
+
+pytestmark = pytest.mark.skipif(kernel.load() is None, reason="no C compiler on this machine")
+
+
+def _trained_like(config: PPANNConfig) -> PPANN:
+    """A PPANN with random (seeded) networks of trained magnitude: z_mean of a few tenths, z_sigma
+    of a few hundredths, every network bent by its tanh."""
+    torch.manual_seed(7)
+    model = PPANN(config)
+    with torch.no_grad():
+        for nets, scale, bias in ((model.mean_nets, 0.05, 0.0), (model.sigma_nets, 0.3, -3.0)):
+            for net in nets.values():
+                net[0].weight.mul_(3.0)
+                net[2].weight.mul_(scale)
+                net[2].bias.fill_(bias)
+        model.machine_sigma.copy_(torch.tensor([0.02, 0.05, 0.03]))
+    return model.eval()
+
+
+CASES = {
+    "paper": PPANNConfig(),
+    "sigma_wrap": PPANNConfig(sigma_wrap=True),
+    "sigma_speed": PPANNConfig(sigma_speed=True),
+    "physics": PPANNConfig(use_networks=False),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize("mode", ["step", "mixed", "machine"])
+def test_compiled_rollout_equals_numpy_to_float32_rounding(name: str, mode: str) -> None:
+    """Every architecture and Monte-Carlo mode, open loop: the two paths agree to ~1e-6 over 250
+    steps across the 2 pi wrap (the speed networks run in float32 on both, summed in another
+    order), and the compiled one is deterministic bit for bit."""
+    heads = FusedHeads(_trained_like(CASES[name]))
+    tau = 1.5 * np.sin(np.linspace(0, 9, 250)) + 0.4
+    args = ([5.9, 8.0], tau)
+    options = {"n_samples": 257, "mode": mode, "seed": 3}
+    compiled = monte_carlo(heads, *args, **options)
+    again = monte_carlo(heads, *args, **options)
+    assert np.array_equal(compiled.samples, again.samples)
+    crossed = compiled.samples[:, -1, 0] - compiled.samples[:, 0, 0]
+    assert np.abs(crossed).min() > 2 * np.pi  # every run goes over the wrap
+    rng = np.random.default_rng(0)
+    eps = rng.standard_normal((250, 257, 3)) if mode != "machine" else None
+    factors = np.exp(0.05 * rng.standard_normal((257, 3))) if mode != "step" else None
+    fast, slow = (
+        rollout(heads, [5.9, 8.0], tau, n_samples=257, eps=eps, factors=factors, compiled=c)
+        for c in (True, False)
+    )
+    assert np.all(np.isfinite(fast))
+    np.testing.assert_allclose(fast[..., 0], slow[..., 0], rtol=0, atol=2e-6)
+    np.testing.assert_allclose(fast[..., 1], slow[..., 1], rtol=0, atol=5e-5)
+
+
+def test_compiled_rollout_under_feedback_and_saturation_equals_numpy() -> None:
+    """Closed loop under a tracking law whose torque saturates on some samples."""
+    heads = FusedHeads(_trained_like(PPANNConfig(sigma_wrap=True)))
+    tau = np.full(120, 0.8)
+    plan = np.stack([np.linspace(1.0, 6.0, 121), np.full(121, 20.0)], axis=1)
+    law = Feedback(plan, np.tile([30.0, 1.0], (121, 1)), 2.0)
+    eps = np.random.default_rng(1).standard_normal((120, 64, 3))
+    fast, slow = (
+        rollout(heads, plan[0], tau, n_samples=64, eps=eps, feedback=law, compiled=c)
+        for c in (True, False)
+    )
+    torque = tau[0] - 30.0 * (slow[:, :-1, 0] - plan[:-1, 0]) - (slow[:, :-1, 1] - plan[:-1, 1])
+    assert np.mean(np.abs(torque) > 2.0) > 0.05  # the clip is exercised
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=5e-5)
+
+
+def test_a_diverging_draw_is_nan_from_where_it_diverges_on_both_paths() -> None:
+    """A trajectory draw with negative effective damping runs away; both paths agree while it
+    is still a number one can compute with (below 1e6 rad/s), leave it non-finite at the end and,
+    on the compiled path, from its first non-finite state on; the other rows are kept. (Where
+    each path overflows, ~1e308, depends on how each rounds numbers of that size.)"""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.6, 0.01))
+    heads = FusedHeads(model)
+    eps = np.zeros((1, 4, 3))
+    eps[0, 0, 1] = -5.0  # damping factor 1 - 3: runs away, x1.13 a step
+    tau = np.full(8000, 1.0)
+    fast, slow = (
+        rollout(heads, [0.5, 1.0], tau, n_samples=4, eps=eps, compiled=c) for c in (True, False)
+    )
+    bad_fast = ~np.isfinite(fast[0, :, 0])
+    bad_slow = ~np.isfinite(slow[0, :, 0])
+    assert bad_fast.any() and bad_slow.any()
+    assert bad_fast[-1] and bad_slow[-1]
+    assert np.all(bad_fast[np.argmax(bad_fast) :])
+    tame = np.abs(slow[0, :, 1]) < 1e6
+    assert tame.sum() > 50
+    np.testing.assert_allclose(fast[0, tame], slow[0, tame], rtol=1e-6)
+    np.testing.assert_allclose(fast[1:], slow[1:], rtol=0, atol=1e-6)
+
+
+def test_without_the_kernel_the_numpy_path_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """CRANK_KERNEL=0 (or no compiler) gives NumPy's numbers exactly."""
+    heads = FusedHeads(_trained_like(PPANNConfig()))
+    tau = np.full(50, 1.0)
+    reference = rollout(heads, [0.0, 0.0], tau, n_samples=8, compiled=False)
+    monkeypatch.setenv("CRANK_KERNEL", "0")
+    kernel.load.cache_clear()
+    try:
+        assert kernel.load() is None
+        assert np.array_equal(rollout(heads, [0.0, 0.0], tau, n_samples=8), reference)
+    finally:
+        monkeypatch.delenv("CRANK_KERNEL")
+        kernel.load.cache_clear()
+    assert kernel.load() is not None
+
+
+def test_loading_the_kernel_leaves_the_process_arithmetic_alone() -> None:
+    """A library linked with -ffast-math sets flush-to-zero for the whole process when it loads
+    (GCC's crtfastmath.o); the kernel is linked without it, so subnormals survive NumPy's (and
+    MuJoCo's) arithmetic after it loaded."""
+    assert kernel.load() is not None
+    tiny = np.array([1e-310, 3e-320])
+    assert np.all(tiny * np.array([1.0, 1.0]) == tiny)
+    assert np.all(np.array([2.2250738585072014e-308]) / 4 > 0)
