@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.streams import rng, stream
+from common.streams import PrefixDraws, rng, stream
 from control.config import OCPConfig, lower_tail
 from control.ocp import Solution
 from ppann.confidence import confidence_quantile
@@ -22,6 +22,9 @@ from ppann.model import FusedHeads
 from ppann.modes import MONTE_CARLO_MODES
 from ppann.montecarlo import Feedback, monte_carlo, rollout
 from ppann.transmission import draw
+
+_DELTA = PrefixDraws()
+"""The transmission angles drawn for the Monte-Carlo's slider positions (a prefix per draft)."""
 
 
 def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | None, float]:
@@ -232,7 +235,11 @@ def slider_uncertainty(
     # The crank's angle to the motor (ppann/transmission.py): zero if the model has none. Drawn
     # time-major so that a shorter run's draws are a prefix of a longer one's (the drafts).
     n, length = bands.samples.shape[:2]
-    delta = draw(heads.transmission, (length, n), rng(config.mc_seed, "transmission")).T
+    delta = _DELTA.get(
+        (config.mc_seed, n, heads.transmission.tobytes()),
+        length,
+        lambda rows: draw(heads.transmission, (rows, n), rng(config.mc_seed, "transmission")),
+    ).T
     with np.errstate(over="ignore", invalid="ignore"):
         slider = heads.geometry.slider_position(bands.samples[:, :, 0] + delta)
     plan = solution.slider

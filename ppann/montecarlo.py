@@ -30,9 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.streams import PrefixDraws, sequence_key
 from ppann import kernel
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MONTE_CARLO_MODES, check_mode
+
+_WHITE = PrefixDraws()
+"""The white draws (eps) of the seeds used last, per number of samples."""
 
 
 @dataclass(frozen=True)
@@ -88,7 +92,11 @@ def monte_carlo(
     eps = None
     if draw.white is not None:
         per = steps if draw.white == "step" else 1
-        eps = np.random.default_rng(white_seq).standard_normal((per, n_samples, 3))
+        eps = _WHITE.get(
+            (sequence_key(white_seq), n_samples),
+            per,
+            lambda rows: np.random.default_rng(white_seq).standard_normal((rows, n_samples, 3)),
+        )
     factors = None
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma

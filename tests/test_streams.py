@@ -13,6 +13,8 @@ import pytest
 from common import streams
 from common.errors import ConfigError, CrankError
 from crank.chain import RunConfig
+from ppann.model import constant_ppann
+from ppann.montecarlo import _WHITE, monte_carlo
 from replay.campaign import draw_machines
 from replay.config import ReplayConfig
 from twin.dataset import GenerationConfig, generate
@@ -140,3 +142,41 @@ def test_replay_config_rejects_bad_counts() -> None:
         ReplayConfig(runs=10**12)
     with pytest.raises(CrankError, match="seed must be an integer"):
         ReplayConfig(seed=-1)
+
+
+def test_kept_draws_are_the_fresh_draws_bit_for_bit() -> None:
+    """PrefixDraws gives what a fresh generator draws, for fewer rows after more and more after
+    fewer, read-only, and forgets the key used longest ago."""
+    sequence = streams.stream(5, "monte_carlo")
+
+    def fresh(rows: int) -> np.ndarray:
+        return np.random.default_rng(sequence).standard_normal((rows, 7, 3))
+
+    kept = streams.PrefixDraws(size=2)
+    key = (streams.sequence_key(sequence), 7)
+    for rows in (40, 99, 12, 99, 250, 3):
+        got = kept.get(key, rows, fresh)
+        assert np.array_equal(got, fresh(rows))
+        assert not got.flags.writeable
+    made = []
+    kept.get(("other", 1), 5, lambda rows: made.append(rows) or np.zeros(rows))
+    kept.get(("third", 1), 5, lambda rows: np.zeros(rows))
+    kept.get(key, 3, lambda rows: made.append(rows) or fresh(rows))  # forgotten: drawn again
+    assert made == [5, 3]
+
+
+def test_the_monte_carlo_with_kept_draws_equals_a_fresh_one() -> None:
+    """The robust loop's drafts (99 steps) after its full solve (249) and the other way round
+    reuse the white draws and equal a Monte-Carlo whose draws were just made."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    tau = np.linspace(-1, 2, 249)
+    runs = {}
+    for steps in (249, 99, 249):
+        _WHITE._kept.clear()
+        cold = monte_carlo(model, [0.3, 0.0], tau[:steps], n_samples=50, mode="mixed", seed=8)
+        warm = monte_carlo(model, [0.3, 0.0], tau[:steps], n_samples=50, mode="mixed", seed=8)
+        assert np.array_equal(cold.samples, warm.samples)
+        runs[steps] = cold.samples
+    short = monte_carlo(model, [0.3, 0.0], tau[:99], n_samples=50, mode="mixed", seed=8)
+    assert np.array_equal(short.samples, runs[99])
+    assert np.array_equal(runs[249][:, :100], runs[99])
