@@ -101,7 +101,7 @@ def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, re
     """One draft's Monte-Carlo (the robust loop's unit: simulation, transmission draws,
     tightening, line allowance) with the rollout compiled (ppann/kernel.py) and in NumPy."""
     heads = FusedHeads(model)
-    times = {}
+    times, before = {}, os.environ.get("CRANK_KERNEL")
     for compiled in (True, False):
         os.environ["CRANK_KERNEL"] = "1" if compiled else "0"
         kernel.load.cache_clear()
@@ -112,7 +112,10 @@ def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, re
             slider_uncertainty(heads, solution, config, constraints_only=True)
             runs.append(time.perf_counter() - started)
         times[compiled] = statistics.median(runs)
-    os.environ.pop("CRANK_KERNEL")
+    if before is None:
+        os.environ.pop("CRANK_KERNEL")
+    else:
+        os.environ["CRANK_KERNEL"] = before
     kernel.load.cache_clear()
     print(
         f"-- one draft's Monte-Carlo ({config.mc_samples} {config.mc_mode}, "

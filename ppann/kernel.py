@@ -241,14 +241,15 @@ def rollout(
     plan: np.ndarray | None,
     gains: np.ndarray | None,
     limit: float,
+    per_step: bool,
 ) -> np.ndarray | None:
     """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or None when the kernel is
-    not available (the caller then runs NumPy's)."""
+    not available (the caller then runs NumPy's); `per_step`: eps has a row per step (else one
+    row for the whole run), as the caller decided."""
     library = load()
     if library is None:
         return None
     steps = tau.shape[0]
-    per_step = eps is not None and eps.shape[0] == steps and steps > 1
 
     def c64(a: np.ndarray | None) -> np.ndarray | None:
         return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
@@ -285,7 +286,6 @@ def rollout(
     ends = ints([r.stop for r in heads.rows])
     angle_out, speed_out = ints(heads.angle_outputs), ints(heads.speed_outputs)
     b_out = c64(heads.b_out.ravel())
-    keep = (x0, tau, eps, factors, plan, gains, params, table, w_in, w_out, starts, ends)
     failed = library.crank_rollout(
         ctypes.c_int(n_samples),
         ctypes.c_int(steps),
@@ -308,5 +308,4 @@ def rollout(
         _ptr(b_out),
         _ptr(samples),
     )
-    del keep
     return None if failed else samples

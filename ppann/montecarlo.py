@@ -144,6 +144,8 @@ def rollout(
     mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine), open loop
     or under `feedback`. `compiled`: by the C kernel of ppann/kernel.py where it builds (the
     same numbers to float32 rounding), else by the NumPy loop below."""
+    steps = tau.shape[0]
+    per_step = eps is not None and eps.shape[0] == steps and steps > 1
     if compiled:
         samples = kernel.rollout(
             heads,
@@ -155,11 +157,10 @@ def rollout(
             plan=None if feedback is None else feedback.plan,
             gains=None if feedback is None else feedback.gains,
             limit=0.0 if feedback is None else feedback.limit,
+            per_step=per_step,
         )
         if samples is not None:
             return samples
-    steps = tau.shape[0]
-    per_step = eps is not None and eps.shape[0] == steps and steps > 1
     samples = np.empty((n_samples, steps + 1, 2))
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
