@@ -24,7 +24,8 @@ from common.resources import ResourceError
 from crank.chain import RunConfig, run_chain
 from crank.console import HELDOUT_SEED
 from crank.study import run_rows
-from crank.sweep import RESULT, disk_estimate, execute, leaf_results, run_node, run_sweep
+from crank.sweep import RESULT, execute, leaf_results, run_node, run_sweep
+from crank.sweep_estimate import disk_estimate
 from crank.sweep_report import failure, markdown, rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
 from ppann.checkpoint import save
