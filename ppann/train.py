@@ -1,7 +1,8 @@
 """Two-phase training (paper section 2.2.2), reading top to bottom.
 
 Phase 1: the mean networks (and, if asked, J_m, B_m, K_m) minimise the N-step-ahead MSE of eq. 5
-over every training window at once, with Adam; the validation loss decides early stopping and the
+over the training windows in minibatches, with Adam (an epoch is every window, or a random
+`epoch_windows` of them); the validation loss decides early stopping and the
 best weights are kept. Each state's error is divided by the standard deviation of its one-step
 increment in the training data, so theta (rad) and omega (rad/s) weigh alike.
 
@@ -109,7 +110,7 @@ def train_mean(
     best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
     data = splits.train
     for epoch in range(config.max_epochs):
-        order = torch.randperm(len(data), generator=generator)
+        order = torch.randperm(len(data), generator=generator)[: config.epoch_windows]
         total = 0.0
         for batch in order.split(config.batch_size):
             prediction = n_step_prediction(model, data.x0[batch], data.tau[batch])
@@ -121,7 +122,7 @@ def train_mean(
         validation = evaluate(model, splits.validation, splits.scale)
         if scheduler is not None:
             scheduler.step(validation)
-        history.train.append(total / len(data))
+        history.train.append(total / len(order))
         history.validation.append(validation)
         if on_epoch is not None:
             on_epoch(epoch, history.train[-1], validation)

@@ -36,9 +36,14 @@ def test_default_run_is_the_measured_few_minutes() -> None:
 
 def test_each_stage_scales_with_its_request() -> None:
     base = RunConfig.for_seed(0, heldout_runs=1000)
-    longer = RunConfig.for_seed(0, generation={"seconds": 180.0}, heldout_runs=1000)
+    uncapped = {"epoch_windows": 10**9}
+    base = RunConfig.for_seed(0, train=uncapped, heldout_runs=1000)
+    longer = RunConfig.for_seed(0, generation={"seconds": 180.0}, train=uncapped, heldout_runs=1000)
     assert run_time(longer)["generate"].low == pytest.approx(2 * run_time(base)["generate"].low)
     assert run_time(longer)["train"].low > 1.9 * (run_time(base)["train"].low - 20)
+    # phase 1's epoch capped at epoch_windows: a longer dataset costs its phase 2 alone more
+    capped = RunConfig.for_seed(0, generation={"seconds": 180.0}, heldout_runs=1000)
+    assert run_time(capped)["train"].low < 1.2 * run_time(base)["train"].low
     more = RunConfig.for_seed(0, replay={"runs": 200}, heldout_runs=2000)
     for stage, fixed in (("replay", REPLAY_FIXED), ("heldout", 0.0)):
         assert run_time(more)[stage].low - fixed == pytest.approx(
