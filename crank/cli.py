@@ -152,6 +152,9 @@ def train_command(
         TrainConfig.max_epochs
     ),
     sigma_epochs: Annotated[int, typer.Option(help="Phase-2 epochs.")] = TrainConfig.sigma_epochs,
+    epoch_windows: Annotated[
+        int, typer.Option(help="Most training windows per phase-1 epoch (a random subset).")
+    ] = TrainConfig.epoch_windows,
     horizon: Annotated[int, typer.Option(help="N-step-ahead horizon Ns.")] = TrainConfig.horizon,
     sigma_block: Annotated[
         int, typer.Option(help="Phase 2 fits the spread on residual sums over this many samples.")
@@ -171,6 +174,7 @@ def train_command(
     config = TrainConfig(
         max_epochs=epochs,
         sigma_epochs=sigma_epochs,
+        epoch_windows=epoch_windows,
         horizon=horizon,
         sigma_block=sigma_block,
         early_stopping=early_stopping,
