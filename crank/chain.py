@@ -171,6 +171,8 @@ class Hooks:
     on_simulated: Callable[[int], None] | None = None
     on_written: Callable[[int], None] | None = None
     on_epoch: Callable[[str, str, int, float], None] | None = None
+    on_trained: Callable[[str], None] | None = None
+    """A model kind's training has ended (kinds may train side by side)."""
     on_iteration: Callable[[Iteration], None] | None = None
     on_run: Callable[[int], None] | None = None
     on_estimate: Callable[[dict[str, Span]], None] | None = None

@@ -135,7 +135,12 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
     bars = EpochBars({"mean": config.max_epochs, "sigma": config.sigma_epochs})
     try:
         return train_and_report(
-            data, out, config=config, on_epoch=bars, on_stage=lambda _: bars.close()
+            data,
+            out,
+            config=config,
+            on_epoch=bars,
+            on_trained=bars.done,
+            on_stage=lambda _: bars.close(),
         )
     finally:
         bars.close()

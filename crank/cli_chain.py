@@ -192,6 +192,7 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
                 on_simulated=sim.update,
                 on_written=io.update,
                 on_epoch=bars,
+                on_trained=bars.done,
                 on_iteration=show_iteration,
                 on_run=on_run,
                 on_estimate=lambda stages: typer.echo(describe(stages), err=True),

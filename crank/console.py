@@ -252,24 +252,32 @@ HELDOUT_RUNS = 1000
 
 
 class EpochBars:
-    """One progress bar per model and phase, showing the latest loss."""
+    """One progress bar per model and phase, showing the latest loss; models that train side by
+    side (ppann/fit.py `fit_all`) have a bar each."""
 
     def __init__(self, epochs: dict[str, int]) -> None:
-        self.epochs, self.bar, self.key = epochs, None, None
+        self.epochs = epochs
+        self.bars: dict[str, tuple[str, Any]] = {}
+        """Per model kind, its current phase and bar."""
 
     def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:
-        if (kind, phase) != self.key:
-            self.close()
-            self.key = (kind, phase)
-            self.bar = progress_bar(total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch")
-        self.bar.set_postfix(loss=f"{loss:.4g}")  # first: a LineBar prints on update
-        self.bar.update(1)
+        if kind not in self.bars or self.bars[kind][0] != phase:
+            self.done(kind)
+            bar = progress_bar(total=self.epochs[phase], desc=f"{kind} {phase}", unit="epoch")
+            self.bars[kind] = (phase, bar)
+        bar = self.bars[kind][1]
+        bar.set_postfix(loss=f"{loss:.4g}")  # first: a LineBar prints on update
+        bar.update(1)
+
+    def done(self, kind: str) -> None:
+        """Close the bar of `kind` (its training has ended)."""
+        if kind in self.bars:
+            self.bars.pop(kind)[1].close()
 
     def close(self) -> None:
-        """Close the current bar (a stage ends: training of one model, or all)."""
-        if self.bar is not None:
-            self.bar.close()
-        self.bar = self.key = None
+        """Close every bar (a stage ends)."""
+        for kind in list(self.bars):
+            self.done(kind)
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:

@@ -49,6 +49,7 @@ def train(config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks) -> dict[
         config=config.train,
         baselines=config.baselines,
         on_epoch=hooks.on_epoch,
+        on_trained=hooks.on_trained,
         on_stage=hooks.on_stage,
     )
 

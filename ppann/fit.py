@@ -1,10 +1,12 @@
 """Fit a model of one kind (ppann/kinds.py) on a dataset: the PPANN in two phases, a baseline in
-phase 1 only."""
+phase 1 only; several kinds one after another or side by side (`fit_all`)."""
 
 from __future__ import annotations
 
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import torch
@@ -37,6 +39,69 @@ def fit(
 ) -> Fitted:
     """Train a model of `kind`; `on_epoch(phase, epoch, loss)` reports progress."""
     splits = splits or make_splits(dataset, config)
+    model = new_model(dataset, kind=kind, config=config, ppann_config=ppann_config)
+    return train_model(model, dataset, kind=kind, config=config, splits=splits, on_epoch=on_epoch)
+
+
+def fit_all(
+    dataset: Dataset,
+    *,
+    kinds: Sequence[str],
+    config: TrainConfig,
+    splits: Splits,
+    workers: int = 1,
+    on_epoch: Callable[[str, str, int, float], None] | None = None,
+    on_done: Callable[[str], None] | None = None,
+) -> dict[str, Fitted]:
+    """Every kind's `fit`, the same to the last bit whether one after another or, with
+    `workers` > 1, side by side in threads with torch on one thread each: the networks are small,
+    so two of them on a core each train faster than one on both (torch's second thread gains
+    ~1.4x). The models are built (seeded) here, before any training starts; training draws from
+    its own generators only. `on_epoch(kind, phase, epoch, loss)` and `on_done(kind)` (its
+    training has ended) may then come from any thread, one call at a time."""
+    models = {kind: new_model(dataset, kind=kind, config=config) for kind in kinds}
+    lock = threading.Lock()
+
+    def report(kind: str) -> Callable[[str, int, float], None] | None:
+        if on_epoch is None:
+            return None
+
+        def locked(phase: str, epoch: int, loss: float) -> None:
+            with lock:
+                on_epoch(kind, phase, epoch, loss)
+
+        return locked
+
+    def train(kind: str) -> Fitted:
+        fitted = train_model(
+            models[kind], dataset, kind=kind, config=config, splits=splits, on_epoch=report(kind)
+        )
+        if on_done is not None:
+            with lock:
+                on_done(kind)
+        return fitted
+
+    if workers <= 1 or len(kinds) <= 1:
+        return {kind: train(kind) for kind in kinds}
+    threads = torch.get_num_threads()
+
+    def pinned(kind: str) -> Fitted:
+        torch.set_num_threads(1)  # a thread Python started keeps its own OpenMP setting
+        return train(kind)
+
+    torch.set_num_threads(1)
+    try:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            futures = {kind: pool.submit(pinned, kind) for kind in kinds}
+            return {kind: future.result() for kind, future in futures.items()}
+    finally:
+        torch.set_num_threads(threads)
+
+
+def new_model(
+    dataset: Dataset, *, kind: str, config: TrainConfig, ppann_config: PPANNConfig | None = None
+) -> torch.nn.Module:
+    """A fresh model of `kind` from the training seed, on the dataset's geometry."""
     torch.manual_seed(torch_seed(config.seed, "training"))
     spec = model_kind(kind)
     if kind == "ppann" and config.sigma_wrap:  # asked for in the training config
@@ -44,6 +109,21 @@ def fit(
     model = spec.new(ppann_config if kind == "ppann" else None)
     if hasattr(model, "geometry"):
         model.geometry = dataset.geometry
+    return model
+
+
+def train_model(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    *,
+    kind: str,
+    config: TrainConfig,
+    splits: Splits,
+    on_epoch: Callable[[str, int, float], None] | None = None,
+) -> Fitted:
+    """Phase 1, and for kinds with a spread phase 2 (with the transmission's quantiles), in
+    place; the model is left in eval mode."""
+    spec = model_kind(kind)
     history = History()
     started = time.perf_counter()
     train_mean(

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from common.atomic import check_writable, writes
 from common.errors import ConfigError
@@ -22,7 +23,7 @@ from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint, figures
 from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile
-from ppann.fit import Fitted, fit
+from ppann.fit import Fitted, fit_all
 from ppann.kinds import KINDS
 from ppann.machine import sigma_upper
 from ppann.model import Z_NAMES, PPANNConfig
@@ -75,25 +76,29 @@ def train_and_report(
     replay_runs: int = 100,
     baselines: bool = True,
     on_epoch: Callable[[str, str, int, float], None] | None = None,
+    on_trained: Callable[[str], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Train, save and report; returns the report dict."""
+    """Train (the kinds side by side where torch has a thread for each: ppann/fit.py
+    `fit_all`), save and report; returns the report dict."""
     out = Path(out)
     check_writable(out)
     dataset = read_dataset(data_path)
     check_rate(dataset, source=str(data_path))
     splits = make_splits(dataset, config)
     print_stage = on_stage or (lambda _: None)
-    fitted: dict[str, Fitted] = {}
-    for kind in KINDS if baselines else KINDS[:1]:
-        print_stage(f"training {kind}")
-        fitted[kind] = fit(
-            dataset,
-            kind=kind,
-            config=config,
-            splits=splits,
-            on_epoch=None if on_epoch is None else (lambda p, e, v, k=kind: on_epoch(k, p, e, v)),
-        )
+    kinds = KINDS if baselines else KINDS[:1]
+    workers = min(len(kinds), torch.get_num_threads())
+    print_stage(f"training {', '.join(kinds)}" + (" side by side" if workers > 1 else ""))
+    fitted: dict[str, Fitted] = fit_all(
+        dataset,
+        kinds=kinds,
+        config=config,
+        splits=splits,
+        workers=workers,
+        on_epoch=on_epoch,
+        on_done=on_trained,
+    )
     print_stage("validating")
     segment = validation_segment(dataset, config.validation_fraction)
     measured = np.stack([dataset.theta, dataset.omega], -1)[segment.start : segment.stop]
