@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from twin import PAPER_SECONDS
 from twin.dataset import GenerationConfig, generate
 from twin.generation import generate_file
 from twin.physics import SliderCrank, load_model
@@ -43,7 +44,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    config = GenerationConfig()
+    config = GenerationConfig(seconds=PAPER_SECONDS)
     physics = SliderCrank(load_model()[0])
     lengths = config.episode_lengths()
     nthread = os.cpu_count() or 1

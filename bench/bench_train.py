@@ -29,6 +29,7 @@ from ppann.modes import MODES
 from ppann.montecarlo import monte_carlo
 from ppann.train import make_splits
 from ppann.train_config import TrainConfig
+from twin import PAPER_SECONDS
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
 from twin.mcap_dataset import read_dataset
@@ -71,7 +72,7 @@ def main() -> None:
         path = args.data
         if path is None:
             path = Path(tmp) / "dataset.mcap"
-            generate_file(GenerationConfig(), out=path, figures=False)
+            generate_file(GenerationConfig(seconds=PAPER_SECONDS), out=path, figures=False)
         dataset = read_dataset(path)
     config = TrainConfig()
     splits = make_splits(dataset, config)

@@ -34,7 +34,7 @@ from crank.console import (
     show_iteration,
 )
 from ppann.train_config import TrainConfig
-from twin import MODEL_PATH
+from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.excitation import Excitation
 from twin.variability import Variability
 
@@ -85,10 +85,10 @@ def _config(
 @app.command("generate", short_help="Simulate the twin; write a 500 Hz dataset MCAP.")
 @one_line_errors
 def generate_command(
-    seconds: Seconds = 90.0,
+    seconds: Seconds = DATASET_SECONDS,
     seed: Seed = 0,
     out: Annotated[Path, typer.Option(help="Dataset MCAP to write.")] = Path("logs/dataset.mcap"),
-    episode_seconds: EpisodeSeconds = 10.0,
+    episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     drift: Drift = True,
     amplitude: Amplitude = Excitation.amplitude,
     variability: VariabilityOption = "paper",

@@ -36,7 +36,7 @@ from crank.console import (
     transcript,
 )
 from replay.config import ReplayConfig
-from twin import MODEL_PATH
+from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.variability import Variability
 
 if TYPE_CHECKING:
@@ -47,13 +47,13 @@ if TYPE_CHECKING:
 @one_line_errors
 def run_command(
     context: typer.Context,
-    seconds: Seconds = 90.0,
+    seconds: Seconds = DATASET_SECONDS,
     seed: Seed = 0,
     logs: Annotated[Path, typer.Option(help="Output root; the run goes in logs/<run>/.")] = Path(
         "logs"
     ),
     name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
-    episode_seconds: EpisodeSeconds = 10.0,
+    episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     drift: Drift = True,
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
@@ -226,8 +226,8 @@ def study_command(
         "logs/study"
     ),
     variability: VariabilityOption = "paper",
-    seconds: Seconds = 90.0,
-    episode_seconds: EpisodeSeconds = 10.0,
+    seconds: Seconds = DATASET_SECONDS,
+    episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
     heldout_runs: Annotated[
         int, typer.Option(help="Held-out machines per profile.")

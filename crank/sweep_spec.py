@@ -5,7 +5,7 @@ The spec is TOML with three tables, every one optional but not all empty::
     [base]                       # crank.toml keys every leaf starts from (crank config --show)
     heldout_runs = 1000
     [base.generation]
-    seconds = 90.0
+    seconds = 180.0
 
     [grid]                       # dotted key = the values to try; every combination is a leaf
     seed = [0, 1, 2]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
 from twin.mcap_dataset import read_dataset, read_truth, write_dataset
 from twin.physics import SliderCrank, load_model
@@ -30,8 +31,8 @@ class Written:
 
 @pytest.fixture(scope="session")
 def paper_dataset(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> Written:
-    """The default dataset: 90 s, seed 0, 9 episodes of 10 s."""
-    dataset, truth, _ = generate(GenerationConfig(), physics=physics)
+    """The paper's dataset: 90 s, seed 0, 9 episodes of 10 s."""
+    dataset, truth, _ = generate(GenerationConfig(seconds=PAPER_SECONDS), physics=physics)
     path = tmp_path_factory.mktemp("paper") / "dataset.mcap"
     _, xml = load_model()
     write_dataset(path, dataset, truth, run={"seed": 0}, model_xml=xml)

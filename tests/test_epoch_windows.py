@@ -62,11 +62,12 @@ def test_a_cap_below_the_window_count_takes_that_many_windows_per_epoch() -> Non
     assert len(history.train) == 3 and all(loss > 0 for loss in history.train)
 
 
-def test_the_default_cap_holds_every_window_of_the_default_dataset() -> None:
+def test_the_default_cap_holds_every_window_of_the_papers_dataset() -> None:
+    from twin import PAPER_SECONDS
     from twin.dataset import GenerationConfig
 
     config = TrainConfig()
-    generation = GenerationConfig()
+    generation = GenerationConfig(seconds=PAPER_SECONDS)
     episodes = round(generation.seconds / generation.episode_seconds)
     per_episode = generation.n_samples // episodes
     tail = round(per_episode * config.validation_fraction)
