@@ -6,7 +6,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass, replace
 
 import torch
@@ -61,14 +61,15 @@ def fit_all(
     training has ended) may then come from any thread, one call at a time."""
     models = {kind: new_model(dataset, kind=kind, config=config) for kind in kinds}
     lock = threading.Lock()
+    stop = threading.Event()  # one kind failed (or Ctrl-C): the others end at their next epoch
 
-    def report(kind: str) -> Callable[[str, int, float], None] | None:
-        if on_epoch is None:
-            return None
-
+    def report(kind: str) -> Callable[[str, int, float], None]:
         def locked(phase: str, epoch: int, loss: float) -> None:
-            with lock:
-                on_epoch(kind, phase, epoch, loss)
+            if stop.is_set():
+                raise _StoppedError
+            if on_epoch is not None:
+                with lock:
+                    on_epoch(kind, phase, epoch, loss)
 
         return locked
 
@@ -93,9 +94,22 @@ def fit_all(
     try:
         with ThreadPoolExecutor(max_workers=workers) as pool:
             futures = {kind: pool.submit(pinned, kind) for kind in kinds}
-            return {kind: future.result() for kind, future in futures.items()}
+            try:
+                done, _ = wait(futures.values(), return_when=FIRST_EXCEPTION)
+                failed = next((f for f in done if f.exception() is not None), None)
+                if failed is not None:
+                    failed.result()  # raises the first failure
+                return {kind: future.result() for kind, future in futures.items()}
+            except BaseException:
+                stop.set()  # else leaving the pool would wait for the others to finish
+                pool.shutdown(wait=False, cancel_futures=True)  # and start the queued ones
+                raise
     finally:
         torch.set_num_threads(threads)
+
+
+class _StoppedError(Exception):
+    """Ends a kind's training in fit_all once another kind has failed."""
 
 
 def new_model(

@@ -7,6 +7,7 @@ import io
 import math
 from contextlib import redirect_stderr
 
+import pytest
 import torch
 
 from crank.console import EpochBars
@@ -55,6 +56,29 @@ def test_side_by_side_equals_one_after_another_to_the_last_bit() -> None:
     ppann_phases = [phase for kind, phase, _ in together_calls if kind == "ppann"]
     assert ppann_phases == ["mean"] * 3 + ["sigma"] * 5
     assert all(math.isfinite(v) for v in together["ppann"].history.sigma)
+
+
+def test_a_kind_that_fails_stops_the_others_at_their_next_epoch() -> None:
+    data = synthetic(seconds=4.0)
+    config = TrainConfig(max_epochs=200, patience=200, batch_size=256, horizon=5)
+    calls: list[tuple[str, int]] = []
+
+    def on_epoch(kind: str, phase: str, epoch: int, loss: float) -> None:
+        calls.append((kind, epoch))
+        if kind == "physics" and epoch == 2:
+            raise KeyboardInterrupt  # as Ctrl-C in a progress callback
+
+    with pytest.raises(KeyboardInterrupt):
+        fit_all(
+            data,
+            kinds=("ppann", "physics"),
+            config=config,
+            splits=make_splits(data, config),
+            workers=2,
+            on_epoch=on_epoch,
+        )
+    ppann_epochs = [epoch for kind, epoch in calls if kind == "ppann"]
+    assert len(ppann_epochs) < 50  # not the 200 it would have run: it stopped with physics
 
 
 def test_epoch_bars_keep_one_bar_per_kind_when_calls_interleave() -> None:
