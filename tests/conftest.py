@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from control.ocp_file import OCPFile, read_ocp
+from replay.config import ReplayConfig
+from replay.files import output_paths, replay_file
 from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
 from twin.mcap_dataset import read_dataset, read_truth, write_dataset
@@ -37,6 +40,27 @@ def paper_dataset(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank
     _, xml = load_model()
     write_dataset(path, dataset, truth, run={"seed": 0}, model_xml=xml)
     return Written(path, dataset, truth, read_dataset(path), read_truth(path))
+
+
+@pytest.fixture(scope="session")
+def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> Path:
+    """The synthetic ocp.json of tests/replay_ocp.py (nominal and robust profiles)."""
+    from tests.replay_ocp import write_ocp
+
+    return write_ocp(tmp_path_factory.mktemp("replay") / "ocp.json", physics)
+
+
+@pytest.fixture(scope="session")
+def ocp(ocp_path: Path) -> OCPFile:
+    return read_ocp(ocp_path)
+
+
+@pytest.fixture(scope="session")
+def campaign_files(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:
+    """A 6-run campaign of `ocp_path`: its MCAP, Rerun recording and statistics."""
+    out = tmp_path_factory.mktemp("campaign") / "replay.mcap"
+    replay_file(ocp_path, out, config=ReplayConfig(runs=6, seed=5))
+    return output_paths(out)
 
 
 def crank(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

@@ -20,7 +20,6 @@ import pytest
 from crank.cli import main
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
-from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
@@ -75,7 +74,7 @@ RIG_TABLES = {
 
 
 @pytest.fixture(scope="module")
-def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:  # noqa: F811
+def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:
     """Valid inputs of every stage and broken ones, in a folder of their own."""
     d = tmp_path_factory.mktemp("inputs")
     ds = d / "ds.mcap"

@@ -23,7 +23,7 @@ from replay.foxglove import (
     TF_TOPIC,
     frame_transforms,
 )
-from tests.test_replay import N, campaign_files, ocp_path  # noqa: F401  (module fixtures)
+from tests.replay_ocp import N
 from twin.physics import SliderCrank
 
 
@@ -80,8 +80,8 @@ def test_frames_put_the_bodies_where_mujoco_has_them(physics: SliderCrank) -> No
 
 
 def test_campaign_log_carries_the_mechanism_and_the_plan(
-    ocp_path: Path,  # noqa: F811
-    campaign_files: dict[str, Path],  # noqa: F811
+    ocp_path: Path,
+    campaign_files: dict[str, Path],
 ) -> None:
     ocp = read_ocp(ocp_path)
     with open(campaign_files["mcap"], "rb") as f:
@@ -113,7 +113,7 @@ def test_campaign_log_carries_the_mechanism_and_the_plan(
 
 
 def test_the_shipped_layout_names_only_what_the_log_has(
-    campaign_files: dict[str, Path],  # noqa: F811
+    campaign_files: dict[str, Path],
 ) -> None:
     layout = json.loads(FOXGLOVE_LAYOUT.read_text())
     with open(campaign_files["mcap"], "rb") as f:

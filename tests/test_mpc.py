@@ -27,7 +27,6 @@ from ppann.model import constant_ppann
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig
 from replay.files import replay_file
-from tests.test_replay import ocp, ocp_path  # noqa: F401  (the module fixtures, reused here)
 from twin.physics import SliderCrank
 
 DT = 2e-3
@@ -278,7 +277,7 @@ def test_a_horizon_longer_than_the_plan_is_refused() -> None:
 
 
 def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
-    ocp_path: Path,  # noqa: F811
+    ocp_path: Path,
     tmp_path: Path,
     physics: SliderCrank,
 ) -> None:
@@ -329,7 +328,7 @@ def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
 
 
 def test_mpc_applied_torque_is_within_the_twin_limit_on_every_sample(
-    ocp: OCPFile,  # noqa: F811
+    ocp: OCPFile,
     physics: SliderCrank,
 ) -> None:
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))

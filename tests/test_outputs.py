@@ -25,7 +25,6 @@ from ppann.checkpoint import save
 from ppann.model import PPANN, constant_ppann
 from replay.config import ReplayConfig
 from tests.conftest import Written, crank
-from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
 from twin.mcap_dataset import read_run
 
 
@@ -88,7 +87,7 @@ def _replay(ocp: Path, out: Path, barrier, results) -> None:
         results.put(f"refused: {exc}")
 
 
-def test_two_concurrent_replays_to_one_output(tmp_path: Path, ocp_path: Path) -> None:  # noqa: F811
+def test_two_concurrent_replays_to_one_output(tmp_path: Path, ocp_path: Path) -> None:
     """Two replays to the same --out released together: exactly one writes it, the file reads
     back whole, and the other is refused naming the writer."""
     context = multiprocessing.get_context("fork")
@@ -320,7 +319,7 @@ def read_only(tmp_path: Path):
 def test_a_read_only_filesystem_is_one_line_for_every_writer(
     tmp_path: Path,
     read_only: Path,
-    ocp_path: Path,  # noqa: F811
+    ocp_path: Path,
 ) -> None:
     """Every command that writes, pointed at a read-only mount (root's permissions do not stop
     it, as a chmod would not): one line naming the file and the cause, exit 2."""

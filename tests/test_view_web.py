@@ -12,7 +12,6 @@ import urllib.request
 from pathlib import Path
 
 from tests.conftest import crank
-from tests.test_replay import ocp_path  # noqa: F401  (the module fixture, reused here)
 
 
 def _free_port() -> int:
@@ -24,7 +23,7 @@ def _free_port() -> int:
 
 
 def test_web_viewer_serves_the_recording_until_interrupted(
-    ocp_path: Path,  # noqa: F811
+    ocp_path: Path,
     tmp_path: Path,
 ) -> None:
     out = tmp_path / "replay.mcap"
