@@ -12,6 +12,7 @@ import pytest
 from control.ocp_file import OCPFile, read_ocp
 from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
+from tests.replay_ocp import write_ocp
 from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
 from twin.mcap_dataset import read_dataset, read_truth, write_dataset
@@ -45,8 +46,6 @@ def paper_dataset(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank
 @pytest.fixture(scope="session")
 def ocp_path(tmp_path_factory: pytest.TempPathFactory, physics: SliderCrank) -> Path:
     """The synthetic ocp.json of tests/replay_ocp.py (nominal and robust profiles)."""
-    from tests.replay_ocp import write_ocp
-
     return write_ocp(tmp_path_factory.mktemp("replay") / "ocp.json", physics)
 
 
