@@ -211,6 +211,7 @@ def figure(compare: dict[str, Any]) -> Figure:
     names = dict.fromkeys(
         f"{s['scenario']} ±{100 * s['spread']:.0f} %" for s in compare["scenarios"]
     )
-    seeds = len(compare["scenarios"])
-    fig.suptitle(f"Profiles × controllers on the twin: {', '.join(names)} ({seeds} runs)")
+    runs = len(compare["scenarios"])
+    count = f"{runs} run" if runs == 1 else f"{runs} runs"
+    fig.suptitle(f"Profiles × controllers on the twin: {', '.join(names)} ({count})")
     return fig
