@@ -14,7 +14,7 @@ import pytest
 from mcap.reader import make_reader
 
 from control.figures import predicted_band
-from control.ocp_file import read_ocp
+from control.ocp_file import OCPFile
 from replay.foxglove import (
     CHANNELS,
     FOXGLOVE_LAYOUT,
@@ -80,10 +80,9 @@ def test_frames_put_the_bodies_where_mujoco_has_them(physics: SliderCrank) -> No
 
 
 def test_campaign_log_carries_the_mechanism_and_the_plan(
-    ocp_path: Path,
+    ocp: OCPFile,
     campaign_files: dict[str, Path],
 ) -> None:
-    ocp = read_ocp(ocp_path)
     with open(campaign_files["mcap"], "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
