@@ -208,8 +208,9 @@ def figure(compare: dict[str, Any]) -> Figure:
     bottom.set_xticks(list(spreads), [f"{name}\n±{x:.0f} %" for x, name in spreads.items()])
     bottom.set_xlim(0, max(spreads) + 5)
     bottom.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
-    names = dict.fromkeys(
-        f"{s['scenario']} ±{100 * s['spread']:.0f} %" for s in compare["scenarios"]
+    names = dict.fromkeys(  # in the x axis' order, narrowest line first
+        f"{s['scenario']} ±{100 * s['spread']:.0f} %"
+        for s in sorted(compare["scenarios"], key=lambda s: s["spread"])
     )
     runs = len(compare["scenarios"])
     count = f"{runs} run" if runs == 1 else f"{runs} runs"
