@@ -18,10 +18,19 @@ class OCPConfigError(CrankError, ValueError):
 
 
 TIGHTENINGS = ("gaussian", "quantile")
-ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed"}
+ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed", "robust-pd": "closed"}
 """The robust profiles `crank solve` knows, each with the loop its tightening is sized for:
-`robust`, open loop (the paper's eq. 16), and `robust-fb`, the closed loop under the plan's
-time-varying LQR law, saturated at the torque limit (a tube, beyond the paper; control/lqr.py)."""
+`robust`, open loop (the paper's eq. 16); `robust-fb`, the closed loop under the plan's
+time-varying LQR law, saturated at the torque limit (a tube, beyond the paper; control/lqr.py);
+`robust-pd`, the closed loop under a fixed PD (`pd_kp`, `pd_kd`: the user's own controller),
+saturated too (a tube for the law the machine already runs)."""
+FEEDBACK_LAWS = {"robust-fb": "lqr", "robust-pd": "pd"}
+"""The feedback law each closed-loop profile's tube is sized for, and which ocp.json's gains
+of that profile are (`law_of`)."""
+PD_GAINS = (20.0, 0.5)
+"""The fixed PD: Kp on the angle error, N·m/rad, and Kd on the speed error, N·m·s/rad (closed-
+loop bandwidth ≈ 13 Hz on J ≈ 3e-3 kg·m², within the 2 ms sampling). One source for the
+robust-pd tube (OCPConfig) and the replays' closed loop under "pd" (replay/config.py)."""
 GAUSSIAN_SAMPLES = 1000
 """Default Monte-Carlo size for gaussian tightening: k·σ to 2.2 % standard error (100 gave 7 %)."""
 QUANTILE_TAIL = 20
@@ -31,9 +40,16 @@ MAX_MC_SAMPLES = 200_000
 
 
 def loop_of(profile: str) -> str:
-    """The loop a profile's robust claim is about: "closed" for a profile tightened for the LQR
-    closed loop (robust-fb), else "open" (the paper's experiment)."""
+    """The loop a profile's robust claim is about: "closed" for a profile tightened for a closed
+    loop (robust-fb, robust-pd), else "open" (the paper's experiment)."""
     return ROBUST_PROFILES.get(profile, "open")
+
+
+def law_of(profile: str) -> str:
+    """The feedback law of a profile's closed loop and of its gains in ocp.json: "pd" for
+    robust-pd (the fixed PD), else "lqr" (the plan's LQR, also the nominal and open-loop
+    profiles' gains)."""
+    return FEEDBACK_LAWS.get(profile, "lqr")
 
 
 def predicted_loop(mode: str) -> str:
@@ -86,8 +102,13 @@ class OCPConfig:
     """Seed of the Monte-Carlo draws; the same draws serve every robust iteration."""
     profiles: tuple[str, ...] = ("robust",)
     """The robust profiles solved beside the nominal one (ROBUST_PROFILES): "robust" (tightened
-    for the open loop, the paper's eq. 16) and "robust-fb" (the Monte-Carlo runs each machine
-    under the time-varying LQR law along the plan, saturated at the torque limit: a tube)."""
+    for the open loop, the paper's eq. 16), "robust-fb" (the Monte-Carlo runs each machine
+    under the time-varying LQR law along the plan, saturated at the torque limit: a tube) and
+    "robust-pd" (the same under the fixed PD pd_kp, pd_kd)."""
+    pd_kp: float = PD_GAINS[0]
+    """robust-pd: the fixed PD's gain on the angle error, N·m/rad."""
+    pd_kd: float = PD_GAINS[1]
+    """robust-pd: the fixed PD's gain on the speed error, N·m·s/rad."""
     feedback_theta: float = 0.02
     """LQR: acceptable crank-angle deviation, rad (Bryson: q_theta = 1 / this^2)."""
     feedback_omega: float = 1.0
@@ -117,7 +138,7 @@ class OCPConfig:
             "feedback_torque",
         ):
             check_finite(name, getattr(self, name), positive=True, error=OCPConfigError)
-        for name in ("smoothness_weight", "k_sigma"):
+        for name in ("smoothness_weight", "k_sigma", "pd_kp", "pd_kd"):
             check_finite(name, getattr(self, name), nonneg=True, error=OCPConfigError)
         samples = self.constraint_samples
         if not samples or len(set(samples)) != len(samples):

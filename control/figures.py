@@ -79,8 +79,9 @@ def nominal_figure(ocp: OCPFile) -> Figure:
 TITLES = {
     "robust": "Robust OCP (eq. 16, tightened open loop)",
     "robust-fb": "Robust OCP tightened for the LQR closed loop (a tube)",
+    "robust-pd": "Robust OCP tightened for the fixed-PD closed loop (a tube)",
 }
-COLORS = {"nominal": "C0", "robust": "C3", "robust-fb": "C2"}
+COLORS = {"nominal": "C0", "robust": "C3", "robust-fb": "C2", "robust-pd": "C4"}
 
 
 def robust_figure(ocp: OCPFile, name: str) -> Figure:

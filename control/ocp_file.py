@@ -14,8 +14,10 @@ Top-level keys (stable; `version` changes if any meaning does):
   profiles                   the profiles in the file, in order: "nominal", then each robust
                              profile of config.profiles that was solved (control/config.py
                              ROBUST_PROFILES: "robust", open-loop tightening, the paper's eq. 16;
-                             "robust-fb", tightened for the LQR closed loop)
-  nominal, robust, robust-fb each profile listed (below)
+                             "robust-fb", tightened for the LQR closed loop; "robust-pd",
+                             for the fixed-PD closed loop)
+  nominal, robust, robust-fb,
+  robust-pd                  each profile listed (below)
   refused                    {profile: the one-line reason} for each asked-for robust profile
                              that has no robust torque (e.g. open loop on a wide line)
   variability                the training dataset's variability scenario (replays draw from it)
@@ -44,8 +46,10 @@ was tightened for), plus
 `tightening_se` there (m), and `population` and `sampling`, the parts of `tightening` that
 allow for the line's uncertain mean and for the Monte-Carlo's standard error (m,
 control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
-(N - 1 each), the LQR gains along the profile (control/lqr.py, N·m/rad and N·m·s/rad) that the
-twin's closed loop applies before samples 1..N-1.
+(N - 1 each), the gains of the profile's law (control/config.py law_of: the LQR along the plan,
+control/lqr.py, or robust-pd's fixed PD at every sample; N·m/rad and N·m·s/rad) that the twin's
+closed loop applies before samples 1..N-1. The nominal profile carries the gains of the first
+robust profile's law.
 """
 
 from __future__ import annotations

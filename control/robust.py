@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import NoSolutionError
-from control.config import OCPConfig, loop_of
+from control.config import OCPConfig, law_of, loop_of
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, OCPError, Solution
@@ -150,7 +150,8 @@ class RobustResult:
     wall_time: float
     """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
     nominal_gains: np.ndarray
-    """LQR gains (N-1, 2) along the nominal plan (control/lqr.py), whatever the loop."""
+    """Gains (N-1, 2) of the profile's law (control/config.py law_of) along the nominal plan,
+    whatever the loop: its LQR (control/lqr.py), or for robust-pd the fixed PD."""
     robust_gains: np.ndarray
     nominal_loops: dict[str, np.ndarray]
     """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
@@ -169,8 +170,9 @@ def solve_robust(
 ) -> RobustResult:
     """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
     margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
-    tightening sized for the open loop, or for the LQR closed loop); the result carries both
-    plans' LQR gains and their open- and closed-loop spread.
+    tightening sized for the open loop, or for the closed loop under the plan's LQR or the
+    fixed PD); the result carries both plans' gains of the profile's law and their open- and
+    closed-loop spread.
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -186,8 +188,12 @@ def solve_robust(
     cap = np.full(len(index), STROKE_SHARE * available)
 
     weights = LQRWeights.from_config(config)
+    law = law_of(profile)
 
     def gains_of(solution: Solution) -> np.ndarray:
+        """The gains (N-1, 2) of the profile's law along a plan: its LQR, or the fixed PD."""
+        if law == "pd":
+            return np.tile([config.pd_kp, config.pd_kd], (solution.states.shape[0] - 1, 1))
         return tracking_gains(ocp.dynamics.step_on_turn, solution.states, solution.tau, weights)
 
     def tube(solution: Solution) -> np.ndarray | None:
@@ -251,7 +257,13 @@ def solve_robust(
             beyond = (proposal >= cap) & (new_target > cap)
             if beyond.any():
                 raise _beyond_stroke(
-                    config, int(np.flatnonzero(beyond)[0]), unc, cap, available=available, loop=loop
+                    config,
+                    int(np.flatnonzero(beyond)[0]),
+                    unc,
+                    cap,
+                    available=available,
+                    loop=loop,
+                    law=law,
                 )
             residual = new_target - proposal
             bracket.update(proposal, residual)
@@ -302,7 +314,14 @@ def solve_robust(
 
 
 def _beyond_stroke(
-    config: OCPConfig, k: int, unc: Uncertainty, cap: np.ndarray, *, available: float, loop: str
+    config: OCPConfig,
+    k: int,
+    unc: Uncertainty,
+    cap: np.ndarray,
+    *,
+    available: float,
+    loop: str,
+    law: str = "lqr",
 ) -> BeyondStrokeError:
     """The error for constraint `k` (0-based) whose tightening `unc` asks for exceeds the cap."""
     sample = config.constraint_samples[k]
@@ -314,9 +333,10 @@ def _beyond_stroke(
             f"Monte-Carlo's standard error, at confidence {config.confidence:g}"
         )
     if loop == "closed":
+        stiffer = "PD gains" if law == "pd" else "LQR weights"
         hint = (
             f"or give the feedback more authority, a torque limit above "
-            f"{config.torque_limit:g} N·m or stiffer LQR weights: the closed loop cannot keep "
+            f"{config.torque_limit:g} N·m or stiffer {stiffer}: the closed loop cannot keep "
             f"this spread"
         )
     else:

@@ -77,6 +77,13 @@ class RunConfig:
             )
         if self.replay.variability != self.generation.variability:
             raise ConfigError("replays must draw from the dataset's variability scenario")
+        pd = (self.ocp.pd_kp, self.ocp.pd_kd)
+        if "robust-pd" in self.ocp.profiles and pd != (self.replay.kp, self.replay.kd):
+            raise ConfigError(
+                f"robust-pd's tube is sized for the PD Kp {pd[0]:g}, Kd {pd[1]:g} (ocp.pd_kp, "
+                f"pd_kd) but the replays' PD is Kp {self.replay.kp:g}, Kd {self.replay.kd:g} "
+                f"(replay.kp, kd): give both the gains of the machine's controller"
+            )
 
     @classmethod
     def for_seed(

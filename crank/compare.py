@@ -2,12 +2,12 @@
 
 For each finished run folder (`crank run`, best with `--profiles robust,robust-fb`; one folder
 per variability scenario) the profiles of its ocp.json are played on the twin of the run's
-scenario under four controllers — open loop, the fixed PD, the profile's LQR law, and the online
-MPC on the run's PPANN — on the run's 100 campaign machines and on held-out machines (streams
-heldout_machines / heldout_noise of `heldout_seed`; every controller on the same machines). One
-row per scenario, profile and controller: violations, lowest run, the profile's cost premium,
-the Σu² applied against the nominal plan's, tracking RMS, saturation share, the final θ/ω error
-and, under the MPC, its step times.
+scenario under four controllers — open loop, the fixed PD, the profile's own law (its LQR), and
+the online MPC on the run's PPANN — on the run's 100 campaign machines and on held-out machines
+(streams heldout_machines / heldout_noise of `heldout_seed`; every controller on the same
+machines). One row per scenario, profile and controller: violations, lowest run, the profile's
+cost premium, the Σu² applied against the nominal plan's, tracking RMS, saturation share, the
+final θ/ω error and, under the MPC, its step times.
 
 Files in `<out>/`: `compare.json` (the rows, each run's seeds and the settings), `compare.md` (a
 table per scenario, and the verdict against issue 12's targets: ≤ 0.5 % of held-out machines,
@@ -41,7 +41,9 @@ CONTROLLERS = {
     "closed-LQR": ("closed", "lqr"),
     "mpc": ("mpc", "lqr"),
 }
-"""Each column's replay mode and closed-loop law (replay/config.py)."""
+"""Each column's replay mode and closed-loop law (replay/config.py); closed-LQR plays each
+profile's own gains. A robust-pd profile sized for the fixed PD has no closed-LQR row: its own
+law is the closed-PD row."""
 TARGET_EFFORT = 0.10
 """Issue 12: Σu² applied within 10 % of the nominal plan's."""
 SPREAD_KEYS = ("motor_frictionloss", "motor_damping", "slider_frictionloss", "slider_damping")
@@ -81,7 +83,7 @@ def compare_run(
     from control.ocp_file import read_ocp
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
-    from replay.campaign import run_campaign
+    from replay.campaign import plays_own_law, run_campaign
     from replay.config import ReplayConfig, played_line
     from replay.heldout import heldout_check
     from replay.statistics import campaign_statistics
@@ -140,6 +142,8 @@ def compare_run(
     rows = []
     for name in ocp.names:
         for controller, (mode, feedback) in CONTROLLERS.items():
+            if controller == "closed-LQR" and plays_own_law(ocp.profiles[name], pd):
+                continue  # robust-pd sized for this PD: its own law is the closed-PD row
             s = stats[feedback]["profiles"][name][mode]
             h = held[feedback]["profiles"][name][mode]
             rows.append(

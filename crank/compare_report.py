@@ -44,17 +44,22 @@ def _mpc(row: dict[str, Any]) -> str:
     return f"{m['median_ms']:.2f} / {m['p99_ms']:.2f} / {m['max_ms']:.2f} ({m['deadline_misses']})"
 
 
+OWN_LAW = {"robust-fb": ("closed-LQR", "mpc"), "robust-pd": ("closed-PD",)}
+"""The controllers each tube was sized for (the MPC plays the LQR it reduces to)."""
+
+
 def verdict(scenario: dict[str, Any], *, rate: float, effort: float) -> list[str]:
-    """Issue 12's targets on this scenario: robust-fb closed-LQR and mpc at 0 campaign runs and
-    <= `rate` of held-out machines, with Σu² applied within `effort` of the nominal plan's."""
+    """Issue 12's targets on this scenario: each tube (robust-fb, robust-pd) under the law it was
+    sized for (OWN_LAW) at 0 campaign runs and <= `rate` of held-out machines, with Σu² applied
+    within `effort` of the nominal plan's."""
     lines = []
     for row in scenario["rows"]:
-        if row["profile"] != "robust-fb" or row["controller"] not in ("closed-LQR", "mpc"):
+        if row["controller"] not in OWN_LAW.get(row["profile"], ()):
             continue
         holds = row["below_campaign"] == 0 and row["heldout_rate"] <= rate
         cheap = row["effort_over_nominal"] <= effort
         lines.append(
-            f"- robust-fb under {row['controller']}: {row['below_campaign']}/"
+            f"- {row['profile']} under {row['controller']}: {row['below_campaign']}/"
             f"{row['campaign_runs']} campaign runs and {100 * row['heldout_rate']:.2f} % of "
             f"held-out machines below (bound {100 * row['heldout_upper_95']:.2f} %): "
             f"**{'met' if holds else 'NOT met'}**; Σu² applied "
@@ -62,7 +67,9 @@ def verdict(scenario: dict[str, Any], *, rate: float, effort: float) -> list[str
             f"**{'met' if cheap else 'NOT met'}**"
         )
     if not lines:
-        lines.append("- no robust-fb profile in this run: the closed-loop targets were not checked")
+        lines.append(
+            "- no tube (robust-fb, robust-pd) in this run: the closed-loop targets were not checked"
+        )
     return lines
 
 
@@ -164,7 +171,7 @@ def figure(compare: dict[str, Any]) -> Figure:
         style = {"color": COLORS[profile], "ms": 5}
         label = f"{profile}, {controller}" + (" (worst seed)" if len(rows) > len(series) else "")
         top.plot(x, [100 * w for w in worst], CONTROLLER_STYLES[controller], label=label, **style)
-        if profile != "nominal" and controller in ("closed-LQR", "mpc"):
+        if profile != "nominal" and controller in ("closed-LQR", "mpc", *OWN_LAW.get(profile, ())):
             most = [max(r["effort_over_nominal"] for r in by_spread[v]) for v in sorted(by_spread)]
             label = f"{profile}: Σu² applied under {controller} (largest)"
             bottom.plot(

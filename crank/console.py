@@ -16,7 +16,7 @@ import typer
 from tqdm import tqdm
 
 from common.errors import CrankError
-from control.config import OCPConfig
+from control.config import PD_GAINS, OCPConfig
 
 if TYPE_CHECKING:
     from control.robust import Iteration
@@ -217,8 +217,10 @@ ProfilesOption = Annotated[
     str,
     typer.Option(
         help="Comma-separated robust profiles to solve beside the nominal one: robust (tightened "
-        "for the open loop, eq. 16) and robust-fb (for the closed loop under the plan's LQR "
-        "gains: a tube); the held-out check plays each in its loop."
+        "for the open loop, eq. 16), robust-fb (for the closed loop under the plan's LQR "
+        f"gains: a tube) and robust-pd (a tube for the fixed PD Kp {PD_GAINS[0]:g}, Kd "
+        f"{PD_GAINS[1]:g} the machine may already run); the held-out check plays each in its "
+        "loop."
     ),
 ]
 DEFAULT_PROFILES = ",".join(OCPConfig.profiles)

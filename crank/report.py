@@ -21,13 +21,14 @@ FIGURES = (
     ("ocp.nominal.png", "Nominal OCP (Fig. 10)"),
     ("ocp.robust.png", "Robust OCP and its margin iterations (Fig. 11)"),
     ("ocp.robust-fb.png", "Robust OCP for the LQR closed loop (a tube) and its margin iterations"),
+    ("ocp.robust-pd.png", "Robust OCP for the fixed-PD closed loop (a tube) and its iterations"),
     ("replay.png", "Replays on the twin (Fig. 12)"),
 )
 
 
 LOOP_WORDS = {
     "open": "open loop",
-    "closed": "closed loop under each profile's LQR gains",
+    "closed": "closed loop under each profile's own gains (its LQR; robust-pd's fixed PD)",
     "mpc": "under the online MPC",
 }
 
@@ -201,7 +202,8 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
             holds = robust["rate"] <= heldout["target_rate"]
             word = "**holds**" if holds else "**does not hold**"
             pd = loop == "closed" and heldout.get("feedback") == "pd"
-            own = " (the loop it was tightened for)" if loop_of(name) == loop and not pd else ""
+            sized = loop_of(name) == loop and name in heldout.get("holds", {})
+            own = " (the loop it was tightened for)" if sized else ""
             words = "closed loop under the fixed PD" if pd else LOOP_WORDS[loop]
             lines.append(
                 f"- {words}{own}, the {name} torque left the slider below the height "

@@ -12,8 +12,8 @@ Modes:
   closed  the torque plus a tracking law on the measured (θ, ω) of the PPANN's predicted
           trajectory, u_k = τ_k + K_θ,k (θ̂_k − θ_k) + K_ω,k (ω̂_k − ω_k), saturated at the
           torque limit, computed at every 2 ms sample from the state at t_k only. K_k are the
-          profile's LQR gains from ocp.json (`feedback="lqr"`, the default; control/lqr.py),
-          or a fixed PD (`feedback="pd"`: K_p, K_d).
+          profile's own gains from ocp.json (`feedback="lqr"`, the default: its LQR,
+          control/lqr.py, or robust-pd's fixed PD), or a fixed PD (`feedback="pd"`: K_p, K_d).
   mpc     an online MPC on the PPANN mean tracking the profile (control/mpc.py): one
           real-time iteration per machine per 2 ms sample, inside the twin's stepping loop,
           from the measured (θ, ω); each step's compute time is recorded (`MPCRecord`), and a
@@ -131,11 +131,19 @@ def draw_machines(config: ReplayConfig, n_samples: int, *, held_out: bool = Fals
 
 def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:
     """The closed loop's gains on the angle and speed errors before samples 1..N-1, (N-1, 2):
-    the profile's LQR gains, or the fixed PD (kp, kd) of `config` at every sample. The twin's
-    law (`tracking_law`) and the held-out check's closed-loop Monte-Carlo both use these."""
+    the profile's own gains in ocp.json (its LQR; robust-pd's fixed PD), or the fixed PD (kp,
+    kd) of `config` at every sample. The twin's law (`tracking_law`) and the held-out check's
+    closed-loop Monte-Carlo both use these."""
     if config.feedback == "pd":
         return np.tile([config.kp, config.kd], (len(profile.gain_theta), 1))
     return np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
+
+
+def plays_own_law(profile: Profile, config: ReplayConfig) -> bool:
+    """Whether the closed loop of `config` applies the gains the profile's tube was sized
+    with: its own (feedback "lqr"), or a fixed PD equal to them (robust-pd under "pd")."""
+    own = np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
+    return bool(np.array_equal(closed_loop_gains(profile, config), own))
 
 
 def tracking_law(

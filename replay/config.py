@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
 from common.resources import check_memory
+from control.config import PD_GAINS
 from control.mpc_config import MPCConfig
 from twin.variability import Variability
 
@@ -52,8 +53,8 @@ class ReplayConfigError(CrankError, ValueError):
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """How a campaign is played. Defaults: 100 runs per profile and mode, PD gains that track
-    within the 2 ms sampling (closed-loop bandwidth ≈ 13 Hz on J ≈ 3e-3 kg·m²)."""
+    """How a campaign is played. Defaults: 100 runs per profile and mode, the fixed PD of
+    control/config.py PD_GAINS."""
 
     runs: int = 100
     seed: int = 0
@@ -61,10 +62,11 @@ class ReplayConfig:
     """open (the torque as planned), closed (plan + LQR or PD), mpc (the online MPC, opt-in:
     it needs the PPANN the plan was solved on)."""
     feedback: str = "lqr"
-    """Closed loop: "lqr" (the profile's gains) or "pd" (kp, kd)."""
-    kp: float = 20.0
-    """PD: proportional gain on the angle error, N·m/rad."""
-    kd: float = 0.5
+    """Closed loop: "lqr" (each profile's own gains in ocp.json: the plan's LQR, or for
+    robust-pd its PD) or "pd" (kp, kd at every sample)."""
+    kp: float = PD_GAINS[0]
+    """PD: proportional gain on the angle error, N·m/rad (control/config.py PD_GAINS)."""
+    kd: float = PD_GAINS[1]
     """PD: derivative gain on the speed error, N·m·s/rad."""
     max_start_time: float = 60.0
     """Each machine has run U[0, max_start_time] s before its replay (warm-up drift), s."""

@@ -189,6 +189,7 @@ BODY_COLORS = {
     "nominal": (0.3, 0.6, 0.9, 1.0),
     "robust": (0.85, 0.6, 0.2, 1.0),
     "robust-fb": (0.3, 0.75, 0.35, 1.0),
+    "robust-pd": (0.6, 0.45, 0.8, 1.0),
 }
 """The mechanism's colour per profile, RGBA."""
 

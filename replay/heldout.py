@@ -1,8 +1,8 @@
 """The held-out check: every torque of an ocp.json, open loop, closed loop or under the MPC, on
 many machines drawn from streams no other stage uses (heldout_machines, heldout_noise), and the
-PPANN's calibration there. Closed loop, each machine runs under the profile's LQR gains
-(replay/campaign.py), and the PPANN's prediction is its closed-loop Monte-Carlo under the same
-law and saturation. Predicted
+PPANN's calibration there. Closed loop, each machine runs under the profile's own gains (its
+LQR; robust-pd's fixed PD; replay/campaign.py) or the replay's fixed PD, and the PPANN's
+prediction is its closed-loop Monte-Carlo under the same law and saturation. Predicted
 slider positions include the model's transmission error (ppann/transmission.py), as the
 tightening does.
 
@@ -19,11 +19,11 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
   format, version        "crank-heldout", 3 (3: samples.<k>.theta)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
-  feedback               closed loop: lqr (each profile's gains) or pd (the fixed PD)
+  feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
   variability, max_start_time
   mc_samples             trajectories of each predicted σ
   target_rate            0.005: a robust profile's allowed violation rate
-  profiles.<nominal|robust|robust-fb>.<mode>:
+  profiles.<nominal|robust|robust-fb|robust-pd>.<mode>:
     mpc                  (mpc mode) the MPC steps' compute times, as in replay.stats.json
     violating_runs, rate, rate_upper_95
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
@@ -33,7 +33,8 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
                                  predicted.<mode> {sigma, mean, ratio}}}
     theta_final          as samples.<k>.theta, at the last sample
   holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
-                         tightened for (open, or closed: its LQR gains), if that loop was played
+                         tightened for (open, or closed under the gains its tube was sized
+                         with), if that loop was played
   timing                 {simulate_s, monte_carlo_s}
 """
 
@@ -60,7 +61,7 @@ from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import closed_loop_gains, draw_machines, play
+from replay.campaign import closed_loop_gains, draw_machines, play, plays_own_law
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
@@ -119,12 +120,14 @@ def heldout_check(
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Play every profile in each of `modes` on the same `runs` held-out machines; return
-    heldout.json's content. Closed loop is each profile's LQR law, or with `feedback` "pd" the
-    replay's fixed PD (ReplayConfig kp, kd), and the prediction is the closed-loop Monte-Carlo
-    under that law. In mpc mode each machine runs the online MPC on `model` (settings `mpc`),
-    and the prediction beside it is the LQR closed loop's (the MPC's law while no bound is
-    active). `on_played(profile, mode, entry)` sees each entry as soon as it is done (progress:
-    the MPC on 1000 machines takes about a minute a profile).
+    heldout.json's content. Closed loop is each profile's own law (its gains in ocp.json), or
+    with `feedback` "pd" the replay's fixed PD (ReplayConfig kp, kd), and the prediction is the
+    closed-loop Monte-Carlo under that law. In mpc mode each machine runs the online MPC on
+    `model` (settings `mpc`), and the prediction beside it is the closed loop's under the
+    profile's own gains: the MPC's law while no bound is active for an LQR plan (for
+    robust-pd, whose file carries its PD, that prediction is the PD's). `on_played(profile,
+    mode, entry)` sees each entry as soon as it is done (progress: the MPC on 1000 machines
+    takes about a minute a profile).
 
     Raises:
       GeometryError: the plan, the model and the twin are not all of one mechanism.
@@ -236,7 +239,8 @@ def heldout_check(
     out["holds"] = {
         name: out["profiles"][name][loop]["rate"] <= TARGET_RATE
         for name in ocp.robust_names
-        if (loop := ocp.profiles[name].loop) in modes and (loop == "open" or feedback == "lqr")
+        if (loop := ocp.profiles[name].loop) in modes
+        and (loop == "open" or plays_own_law(ocp.profiles[name], config))
     }
     out["timing"] = {"simulate_s": simulate_s, "monte_carlo_s": mc_s}
     return out

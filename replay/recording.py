@@ -39,7 +39,12 @@ from control.ocp_file import OCPFile
 from replay.campaign import Campaign
 
 APPLICATION_ID = "crank_replay"
-COLORS = {"nominal": (31, 119, 180), "robust": (214, 39, 40), "robust-fb": (44, 160, 44)}
+COLORS = {
+    "nominal": (31, 119, 180),
+    "robust": (214, 39, 40),
+    "robust-fb": (44, 160, 44),
+    "robust-pd": (148, 103, 189),
+}
 REFERENCE = (235, 235, 235)
 """The plan and the band: light grey on the dark theme."""
 HEIGHT = (255, 200, 0)

@@ -47,7 +47,8 @@ import numpy as np
 
 from common.jsonio import write_json
 from control.ocp_file import OCPFile
-from replay.campaign import Campaign, Replay
+from replay.campaign import Campaign, Replay, plays_own_law
+from replay.config import ReplayConfig
 
 FORMAT = "crank-replay-stats"
 VERSION = 2
@@ -170,21 +171,23 @@ def campaign_statistics(
         },
         "config": campaign.config.as_dict(),
         "claim": claim,
-        "claims": _claims(profiles, ocp, lqr=campaign.config.feedback == "lqr"),
+        "claims": _claims(profiles, ocp, config=campaign.config),
         "profiles": profiles,
         "timing": timing,
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
 
 
-def _claims(profiles: dict[str, dict[str, Any]], ocp: OCPFile, *, lqr: bool) -> dict[str, Any]:
+def _claims(
+    profiles: dict[str, dict[str, Any]], ocp: OCPFile, *, config: ReplayConfig
+) -> dict[str, Any]:
     """Each robust profile in the loop it was tightened for, if that loop was played (closed:
-    under the profile's LQR gains, not a PD)."""
+    under the gains its tube was sized with, replay/campaign.py plays_own_law)."""
     claims = {}
     for name in ocp.robust_names:
         loop = ocp.profiles[name].loop
         played = profiles[name].get(loop)
-        if played is None or (loop == "closed" and not lqr):
+        if played is None or (loop == "closed" and not plays_own_law(ocp.profiles[name], config)):
             continue
         claims[name] = {
             "loop": loop,

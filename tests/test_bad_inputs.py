@@ -241,15 +241,16 @@ CASES: list[tuple[str, str]] = [
     ("solve --model {m.pt} --out o/ocp.json --confidence nan", "confidence must be a finite"),
     (
         "solve --model {m.pt} --out o/ocp.json --profiles robust,pid",
-        "profiles must be distinct names among robust, robust-fb, got robust, pid",
+        "profiles must be distinct names among robust, robust-fb, robust-pd, got robust, pid",
     ),
     (
         "solve --model {m.pt} --out o/ocp.json --profiles robust-fb,robust-fb",
-        "profiles must be distinct names among robust, robust-fb, got robust-fb, robust-fb",
+        "profiles must be distinct names among robust, robust-fb, robust-pd, "
+        "got robust-fb, robust-fb",
     ),
     (
         "solve --model {m.pt} --out o/ocp.json --profiles ,",
-        "profiles must be distinct names among robust, robust-fb, got none",
+        "profiles must be distinct names among robust, robust-fb, robust-pd, got none",
     ),
     ("solve --model {m.pt} --out o/ocp.json --torque-limit 0", "torque_limit must be > 0"),
     ("solve --model {m.pt} --out o/ocp.json --torque-limit nan", "torque_limit must be a finite"),
@@ -346,7 +347,10 @@ CASES: list[tuple[str, str]] = [
     ("run --logs L --heldout-runs -1", "heldout_runs must be an integer"),
     ("run --logs L --runs 0", "runs must be an integer"),
     ("run --logs L --seed -1", "seed must be"),
-    ("run --logs L --profiles pid", "profiles must be distinct names among robust, robust-fb"),
+    (
+        "run --logs L --profiles pid",
+        "profiles must be distinct names among robust, robust-fb, robust-pd",
+    ),
     ("run --logs L --model {garbage.xml}", "invalid MJCF"),
     ("run --logs {file}", "cannot write"),
     ("run --resume {folder}", "nothing to resume: "),
@@ -382,7 +386,7 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-1 --runs 0", "runs must be an integer"),
     (
         "study --out S --seeds 0-1 --profiles nominal",
-        "profiles must be distinct names among robust, robust-fb, got nominal",
+        "profiles must be distinct names among robust, robust-fb, robust-pd, got nominal",
     ),
     ("study --out {file}/S --seeds 0-1", "cannot write"),
     # --- import ---

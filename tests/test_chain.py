@@ -24,12 +24,12 @@ SHORT = RunConfig.for_seed(
     # A 12 s model is too uncertain for a 3σ profile; 0.5σ still exercises the robust loop. Its
     # 6 machines of 2 s leave the line too open for any allowance at the default confidence
     # (tests/test_tightening.py covers that), so this chain takes the fitted line as it is.
-    # Both robust profiles: every stage then carries three (the held-out check two loops).
+    # Every robust profile: every stage then carries four (the held-out check two loops).
     ocp={
         "k_sigma": 0.5,
         "mc_samples": 200,
         "confidence": 0.0,
-        "profiles": ("robust", "robust-fb"),
+        "profiles": ("robust", "robust-fb", "robust-pd"),
     },
     replay={"runs": 4},
     heldout_runs=20,
@@ -123,9 +123,9 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert config["heldout_streams"]["root_seed"] == SHORT.heldout_seed
     heldout = json.loads((a / "heldout.json").read_text())
     assert heldout["runs"] == 20 and heldout["modes"] == ["open", "closed"]
-    assert list(heldout["profiles"]) == ["nominal", "robust", "robust-fb"]
-    assert set(heldout["holds"]) == {"robust", "robust-fb"}
-    for name, loop in (("robust", "open"), ("robust-fb", "closed")):
+    assert list(heldout["profiles"]) == ["nominal", "robust", "robust-fb", "robust-pd"]
+    assert set(heldout["holds"]) == {"robust", "robust-fb", "robust-pd"}
+    for name, loop in (("robust", "open"), ("robust-fb", "closed"), ("robust-pd", "closed")):
         rate = heldout["profiles"][name][loop]["rate"]
         assert heldout["holds"][name] == (rate <= heldout["target_rate"])
     for entry in (e for played in heldout["profiles"].values() for e in played.values()):
@@ -146,9 +146,11 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert ocp["variability"]["name"] == "paper"
     assert ocp["config"]["mc_mode"] == "mixed"
     assert len(ocp["robust"]["tightening"]) == 2 and len(ocp["robust-fb"]["tightening"]) == 2
+    assert ocp["robust-pd"]["gain_theta"] == [SHORT.ocp.pd_kp] * 149
+    assert ocp["robust-pd"]["gain_omega"] == [SHORT.ocp.pd_kd] * 149
     stats = json.loads((a / "replay.stats.json").read_text())
-    assert set(stats["claims"]) == {"robust", "robust-fb"}
-    assert stats["claims"]["robust-fb"]["loop"] == "closed"
+    assert set(stats["claims"]) == {"robust", "robust-fb", "robust-pd"}
+    assert stats["claims"]["robust-fb"]["loop"] == stats["claims"]["robust-pd"]["loop"] == "closed"
     text = (a / "report.md").read_text()
     assert "The robust-fb torque" in text and "ocp.robust-fb.png" in text
     ppann = json.loads((a / "model.report.json").read_text())["models"]["ppann"]
@@ -173,7 +175,7 @@ def test_same_seed_reproduces_every_artifact(two_runs) -> None:
     oa = json.loads((a / "ocp.json").read_text())
     ob = json.loads((b / "ocp.json").read_text())
     assert oa["model"]["sha256"] == ob["model"]["sha256"]
-    for profile in ("nominal", "robust", "robust-fb"):
+    for profile in ("nominal", "robust", "robust-fb", "robust-pd"):
         for key in ("tau", "slider", "slider_sigma", "tightening"):
             assert oa[profile][key] == ob[profile][key], (profile, key)
     sa = json.loads((a / "replay.stats.json").read_text())
@@ -209,6 +211,7 @@ def test_same_seed_gives_the_same_bytes_but_the_documented_wall_clock(two_runs) 
         "replay.stats.json",
         "ocp.robust.png",
         "ocp.robust-fb.png",
+        "ocp.robust-pd.png",
     } <= set(checked)
     ocp = json.loads((a / "ocp.json").read_text())
     assert ocp["model"]["path"] == "model.pt"  # relative to the run folder
@@ -234,8 +237,9 @@ def test_run_refuses_an_existing_folder(two_runs) -> None:
 
 
 def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: Path) -> None:
-    """`crank compare` on the short run: one row per profile and controller; on the run's own
-    campaign and held-out machines its open and LQR rows are the run's replay.stats.json and
+    """`crank compare` on the short run: one row per profile and controller (robust-pd, sized for
+    the fixed PD, has its own law in the closed-PD row and no closed-LQR one); on the run's own
+    campaign and held-out machines its open and own-law rows are the run's replay.stats.json and
     heldout.json to the last digit; the MPC rows carry step times; compare.md has the verdict."""
     from crank.compare import CONTROLLERS, compare_runs
 
@@ -254,11 +258,14 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
     (scenario,) = result["scenarios"]
     rows = {(r["profile"], r["controller"]): r for r in scenario["rows"]}
     names = ("nominal", "robust", "robust-fb")
-    assert set(rows) == {(p, c) for p in names for c in CONTROLLERS}
+    assert set(rows) == {(p, c) for p in (*names, "robust-pd") for c in CONTROLLERS} - {
+        ("robust-pd", "closed-LQR")
+    }
     stats = json.loads((a / "replay.stats.json").read_text())
     heldout = json.loads((a / "heldout.json").read_text())
     for (profile, controller), row in rows.items():
-        mode = {"open": "open", "closed-LQR": "closed"}.get(controller)
+        own = "closed-PD" if profile == "robust-pd" else "closed-LQR"
+        mode = {"open": "open", own: "closed"}.get(controller)
         if mode is None:
             continue
         played = stats["profiles"][profile][mode]
@@ -276,6 +283,7 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
     assert scenario["spread"] == pytest.approx(0.05)
     text = (tmp_path / "cmp" / "compare.md").read_text()
     assert "- robust-fb under closed-LQR:" in text and "- robust-fb under mpc:" in text
+    assert "- robust-pd under closed-PD:" in text and "- robust-pd under mpc" not in text
     assert (tmp_path / "cmp" / "compare.png").stat().st_size > 10_000
     with pytest.raises(ConfigError, match="already exists"):
         compare_runs([a], tmp_path / "cmp", runs=4, heldout_runs=20, heldout_seed=1)

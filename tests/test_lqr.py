@@ -76,7 +76,7 @@ def test_feedback_tolerances_must_be_positive_and_finite(field: str, value: floa
 def test_unknown_empty_or_repeated_profiles_are_refused(profiles: tuple, shown: str) -> None:
     with pytest.raises(
         OCPConfigError,
-        match=f"profiles must be distinct names among robust, robust-fb, got {shown}$",
+        match=f"profiles must be distinct names among robust, robust-fb, robust-pd, got {shown}$",
     ):
         OCPConfig(profiles=profiles)
 

@@ -35,7 +35,7 @@ def _heldout(mode: str, ratio: float) -> dict:
     ("mode", "words"),
     [
         ("open", "open loop"),
-        ("closed", "closed loop under each profile's LQR gains"),
+        ("closed", "closed loop under each profile's own gains (its LQR; robust-pd's fixed PD)"),
         ("mpc", "under the online MPC"),
     ],
 )
@@ -45,6 +45,19 @@ def test_heldout_says_the_loop_it_was_played_in(mode: str, words: str) -> None:
     assert f"- {words}{own}, the robust torque left" in text
     assert (mode == "open") == ("open loop" in text)
     assert "| robust | " + mode + " | 50 |" in text
+
+
+def test_a_pd_tube_under_its_pd_is_in_the_loop_it_was_tightened_for() -> None:
+    """Under the fixed PD, robust-pd (sized for it: in `holds`) is in its own loop, robust-fb
+    (sized for its LQR: not in `holds`) is not."""
+    heldout = _heldout("closed", 1.1)
+    entry = heldout["profiles"]["robust"]["closed"]
+    heldout["profiles"] = {"nominal": {"closed": entry}, "robust-fb": {"closed": entry}}
+    heldout["profiles"]["robust-pd"] = {"closed": entry}
+    heldout["feedback"], heldout["holds"] = "pd", {"robust-pd": True}
+    text = "\n".join(heldout_lines(heldout))
+    assert "under the fixed PD (the loop it was tightened for), the robust-pd torque" in text
+    assert "under the fixed PD, the robust-fb torque" in text
 
 
 def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
