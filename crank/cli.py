@@ -234,6 +234,12 @@ def solve_command(
             "cheaper; needs a C compiler, else as without).",
         ),
     ] = OCPConfig.compiled,
+    pd_kp: Annotated[
+        float, typer.Option(help="robust-pd: the machine's PD, N·m/rad on the angle error.")
+    ] = OCPConfig.pd_kp,
+    pd_kd: Annotated[
+        float, typer.Option(help="robust-pd: the machine's PD, N·m·s/rad on the speed error.")
+    ] = OCPConfig.pd_kd,
 ) -> None:
     """Nominal OCP (eqs. 10, 15) and robust OCP (eq. 16) on a PPANN; write ocp.json + figures."""
     from control.solve import figure_paths, solve_file
@@ -254,6 +260,8 @@ def solve_command(
         theta_end=theta_end,
         mc_seed=seed,
         compiled=compiled,
+        pd_kp=pd_kp,
+        pd_kd=pd_kd,
     )
     payload = solve_file(model, out, config=config, on_iteration=show_iteration)
     figures = ", ".join(str(p) for p in figure_paths(out, tuple(payload["profiles"])).values())

@@ -139,7 +139,11 @@ def replay_command(
         ),
     ] = "open,closed",
     feedback: Annotated[
-        str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
+        str,
+        typer.Option(
+            help="Closed loop: lqr (each profile's own gains from ocp.json: its LQR, robust-pd's "
+            "PD) or pd (the fixed PD)."
+        ),
     ] = ReplayConfig.feedback,
     kp: Annotated[float, typer.Option(help="PD: N·m/rad on the angle error.")] = (ReplayConfig.kp),
     kd: Annotated[float, typer.Option(help="PD: N·m·s/rad on the speed error.")] = (
@@ -225,7 +229,11 @@ def heldout_command(
     ] = "open",
     mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
     feedback: Annotated[
-        str, typer.Option(help="Closed loop: lqr (the profile's gains from ocp.json) or pd.")
+        str,
+        typer.Option(
+            help="Closed loop: lqr (each profile's own gains from ocp.json: its LQR, robust-pd's "
+            "PD) or pd (the fixed PD)."
+        ),
     ] = ReplayConfig.feedback,
     mpc_horizon: MPCHorizon = _MPC.horizon,
     mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
