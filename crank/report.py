@@ -7,7 +7,7 @@ from typing import Any
 
 from common.atomic import atomic_path
 from common.jsonio import finite_or_none
-from control.config import loop_of
+from control.config import law_of, loop_of
 from ppann.modes import MODES
 from replay.statistics import format_table, summary_rows
 
@@ -28,9 +28,17 @@ FIGURES = (
 
 LOOP_WORDS = {
     "open": "open loop",
-    "closed": "closed loop under each profile's own gains (its LQR; robust-pd's fixed PD)",
+    "closed": "closed loop under its LQR gains",
     "mpc": "under the online MPC",
 }
+
+
+def loop_words(loop: str, profile: str) -> str:
+    """A loop a profile was played in, in words: closed is under the profile's own gains (its
+    LQR, or robust-pd's fixed PD)."""
+    if loop == "closed" and law_of(profile) == "pd":
+        return "closed loop under its fixed PD"
+    return LOOP_WORDS[loop]
 
 
 def _number(value: Any, spec: str) -> str:
@@ -135,8 +143,8 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
             continue  # the paper's claim above
         word = "**holds**" if c["holds"] else "**does not hold**"
         verdicts.append(
-            f"The {name} torque {word}: {LOOP_WORDS[c['loop']]}, it left the slider below the "
-            f"height in {c['violating_runs']} of {c['runs']} runs (cost premium "
+            f"The {name} torque {word}: {loop_words(c['loop'], name)}, it left the slider below "
+            f"the height in {c['violating_runs']} of {c['runs']} runs (cost premium "
             f"{premiums[name]:+.1%})."
         )
     for name, why in report["refused"].items():
@@ -204,7 +212,7 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
             pd = loop == "closed" and heldout.get("feedback") == "pd"
             sized = loop_of(name) == loop and name in heldout.get("holds", {})
             own = " (the loop it was tightened for)" if sized else ""
-            words = "closed loop under the fixed PD" if pd else LOOP_WORDS[loop]
+            words = "closed loop under the fixed PD" if pd else loop_words(loop, name)
             lines.append(
                 f"- {words}{own}, the {name} torque left the slider below the height "
                 f"on {100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "

@@ -35,7 +35,7 @@ def _heldout(mode: str, ratio: float) -> dict:
     ("mode", "words"),
     [
         ("open", "open loop"),
-        ("closed", "closed loop under each profile's own gains (its LQR; robust-pd's fixed PD)"),
+        ("closed", "closed loop under its LQR gains"),
         ("mpc", "under the online MPC"),
     ],
 )
@@ -58,6 +58,11 @@ def test_a_pd_tube_under_its_pd_is_in_the_loop_it_was_tightened_for() -> None:
     text = "\n".join(heldout_lines(heldout))
     assert "under the fixed PD (the loop it was tightened for), the robust-pd torque" in text
     assert "under the fixed PD, the robust-fb torque" in text
+    heldout["feedback"], heldout["holds"] = "lqr", {"robust-fb": True, "robust-pd": True}
+    text = "\n".join(heldout_lines(heldout))
+    tightened = " (the loop it was tightened for), the"
+    assert f"- closed loop under its fixed PD{tightened} robust-pd torque" in text
+    assert f"- closed loop under its LQR gains{tightened} robust-fb torque" in text
 
 
 def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
