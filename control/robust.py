@@ -340,7 +340,10 @@ def _beyond_stroke(
             f"this spread"
         )
     else:
-        hint = "or close the loop (robust-fb): open loop cannot keep this spread"
+        hint = (
+            "or close the loop (robust-fb; robust-pd for a fixed PD): open loop cannot keep this "
+            "spread"
+        )
     return BeyondStrokeError(
         f"the model's tightening of the slider at sample {sample} "
         f"({1e3 * unc.tightening[k]:.1f} mm{line}; Monte-Carlo σ there "

@@ -268,7 +268,8 @@ def test_no_profile_error_carries_its_figures() -> None:
     assert error.tightening > STROKE_SHARE * error.available
     assert error.line == 0.0
     assert f"({1e3 * error.tightening:.1f} mm;" in str(error)
-    assert "close the loop (robust-fb): open loop cannot keep this spread" in str(error)
+    hint = "close the loop (robust-fb; robust-pd for a fixed PD): open loop cannot keep this"
+    assert hint in str(error)
 
 
 def test_no_tube_error_names_the_feedback_not_open_loop() -> None:
