@@ -18,14 +18,14 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
     study = run_study(SHORT, (0, 1), out)
     rows = {(r["seed"], r["profile"]): r for r in study["rows"]}
     # one row per seed and robust profile, each judged in its own loop
-    assert set(rows) == {(s, p) for s in (0, 1) for p in ("robust", "robust-fb")}
+    assert set(rows) == {(s, p) for s in (0, 1) for p in ("robust", "robust-fb", "robust-pd")}
     assert rows[0, "robust"]["error"] is None  # the configuration test_chain runs to the end
     for (seed, profile), row in rows.items():
         if row["error"] is not None:  # a 12 s toy model may not settle: then it says why
             if (out / f"seed-{seed}" / "error.txt").exists():
                 assert (out / f"seed-{seed}" / "error.txt").read_text().strip() == row["error"]
             continue
-        loop = {"robust": "open", "robust-fb": "closed"}[profile]
+        loop = {"robust": "open", "robust-fb": "closed", "robust-pd": "closed"}[profile]
         assert row["loop"] == loop
         heldout = json.loads((out / f"seed-{seed}" / "heldout.json").read_text())
         assert row["robust_heldout_rate"] == heldout["profiles"][profile][loop]["rate"]
@@ -34,6 +34,7 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
         assert (out / name).stat().st_size > 0
     text = (out / "study.md").read_text()
     assert "| seed | profile |" in text and "- robust-fb closed loop on held-out" in text
+    assert "- robust-pd closed loop on held-out" in text
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
     with pytest.raises(ConfigError, match="already exists"):
         run_study(SHORT, (0, 1), out)
