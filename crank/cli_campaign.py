@@ -302,6 +302,10 @@ def _has_display() -> bool:
 WEB_PORT = 9090
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def _serve_web(path: Path, port: int) -> None:
     """The Rerun web viewer of `path` on localhost, in the foreground until Ctrl-C."""
     for taken in (port, port + 1):
@@ -313,15 +317,25 @@ def _serve_web(path: Path, port: int) -> None:
     data = quote(f"rerun+http://127.0.0.1:{port + 1}/proxy", safe="")
     typer.echo(f"serving {path}: open http://127.0.0.1:{port}/?url={data} (Ctrl-C stops)")
     quiet = os.environ | {"RUST_LOG": "warn"}  # the viewer's own INFO lines
-    # `python -m rerun` runs the viewer binary as its own child: a session of their own, so
-    # that Ctrl-C here stops both and leaves nothing behind
-    server = subprocess.Popen(command, stdout=subprocess.DEVNULL, env=quiet, start_new_session=True)
+    # Ctrl-C and `kill` both stop the viewer: a process started in the background by a
+    # non-interactive shell inherits SIGINT ignored (Python then never raises
+    # KeyboardInterrupt), and SIGTERM would end this process and leave the viewer running
+    previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        code = server.wait()
-    except KeyboardInterrupt:
-        os.killpg(server.pid, signal.SIGTERM)
-        server.wait()
-        return
+        # `python -m rerun` runs the viewer binary as its own child: a session of their own,
+        # so that stopping here stops both and leaves nothing behind
+        server = subprocess.Popen(
+            command, stdout=subprocess.DEVNULL, env=quiet, start_new_session=True
+        )
+        try:
+            code = server.wait()
+        except KeyboardInterrupt:
+            os.killpg(server.pid, signal.SIGTERM)
+            server.wait()
+            return
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if code != 0:
         raise OutputError(f"the Rerun web viewer stopped with exit code {code}")
 

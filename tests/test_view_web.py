@@ -1,5 +1,5 @@
 """`crank view FILE.rrd --web`: the Rerun web viewer bundled with rerun-sdk, served on localhost
-with the recording (no display, no download), stopped by Ctrl-C."""
+with the recording (no display, no download), stopped by Ctrl-C or `kill`."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
+
+import pytest
 
 from tests.conftest import crank
 
@@ -22,10 +24,14 @@ def _free_port() -> int:
     raise AssertionError("no two free ports")
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "kill"])
 def test_web_viewer_serves_the_recording_until_interrupted(
     ocp_path: Path,
     tmp_path: Path,
+    stop: signal.Signals,
 ) -> None:
+    """Served until stopped; the viewer stops with it, also where SIGINT was inherited ignored
+    (a background job of a non-interactive shell: before, Ctrl-C then never reached it)."""
     out = tmp_path / "replay.mcap"
     assert crank("replay", "--ocp", str(ocp_path), "--out", str(out), "--runs", "2").returncode == 0
     port = _free_port()
@@ -35,6 +41,7 @@ def test_web_viewer_serves_the_recording_until_interrupted(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )
     try:
         page, deadline = None, time.monotonic() + 60
@@ -54,7 +61,7 @@ def test_web_viewer_serves_the_recording_until_interrupted(
         taken = crank(*view)
         assert taken.returncode == 2 and f"port {port} is in use" in taken.stderr
     finally:
-        server.send_signal(signal.SIGINT)
+        server.send_signal(stop)
         stdout, _ = server.communicate(timeout=30)
     assert server.returncode == 0
     with socket.socket() as gone:  # the viewer stopped with it
