@@ -307,7 +307,7 @@ def _interrupt(signum: int, frame: object) -> None:
 
 
 def _serve_web(path: Path, port: int) -> None:
-    """The Rerun web viewer of `path` on localhost, in the foreground until Ctrl-C."""
+    """The Rerun web viewer of `path` on localhost, in the foreground until Ctrl-C or kill."""
     for taken in (port, port + 1):
         with socket.socket() as probe:
             if probe.connect_ex(("127.0.0.1", taken)) == 0:

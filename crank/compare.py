@@ -143,7 +143,7 @@ def compare_run(
     for name in ocp.names:
         for controller, (mode, feedback) in CONTROLLERS.items():
             if controller == "closed-LQR" and plays_own_law(ocp.profiles[name], pd):
-                continue  # robust-pd sized for this PD: its own law is the closed-PD row
+                continue  # its own gains are this PD (robust-pd): the closed-PD row
             s = stats[feedback]["profiles"][name][mode]
             h = held[feedback]["profiles"][name][mode]
             rows.append(
