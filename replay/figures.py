@@ -8,10 +8,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from control.config import law_of
 from control.figures import COLORS, constraint_boxes, predicted_band
 from control.ocp_file import OCPFile
-from replay.campaign import Campaign
+from replay.campaign import Campaign, closed_loop_gains
 
 
 def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Figure:
@@ -44,9 +43,9 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
                 ax.set_ylim(-0.005, ocp.geometry.stroke_top + 0.005)
             shown = ", ".join(f"{v} at k={n}" for n, v in s["violations"].items())
             title = f"{mode} loop"
-            if mode == "closed":  # under which law: the replays' PD, or the profile's own
-                pd = campaign.config.feedback == "pd" or law_of(profile) == "pd"
-                title = f"closed loop ({'PD' if pd else 'LQR'})"
+            if mode == "closed":  # a PD applies the same gains at every sample, an LQR does not
+                gains = closed_loop_gains(planned, campaign.config)
+                title = f"closed loop ({'PD' if np.all(gains == gains[0]) else 'LQR'})"
             if "mpc" in s:
                 title = f"MPC, {s['mpc']['median_ms']:.2f} ms/step"
             ax.set_title(f"{profile}, {title}: {shown} of {s['runs']} below", fontsize=10)
