@@ -58,6 +58,14 @@ def run_command(
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
+    pd: Annotated[
+        str | None,
+        typer.Option(
+            help="The machine's fixed PD as KP,KD (N·m/rad, N·m·s/rad): the replays' PD and the "
+            "one the robust-pd tube is sized for (default: "
+            f"{ReplayConfig.kp:g},{ReplayConfig.kd:g})."
+        ),
+    ] = None,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
@@ -125,10 +133,26 @@ FLAG_KEYS = {
 """Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
 
 
+def pd_gains(text: str) -> tuple[float, float]:
+    """`--pd KP,KD` as two numbers (range checks are the configs')."""
+    parts = text.split(",")
+    try:
+        kp, kd = (float(part) for part in parts)
+    except ValueError:
+        raise ConfigError(f"--pd takes the gains as KP,KD, e.g. 20,0.5; got {text!r}") from None
+    return kp, kd
+
+
 def flag_values(given: dict[str, Any]) -> dict[str, Any]:
-    """The flags given on the command line as a partial config file."""
+    """The flags given on the command line as a partial config file; `--pd` sets the PD of the
+    replays and of the robust-pd tube alike."""
     out: dict[str, Any] = {}
     for flag, value in given.items():
+        if flag == "pd":
+            kp, kd = pd_gains(value)
+            out.setdefault("ocp", {}).update(pd_kp=kp, pd_kd=kd)
+            out.setdefault("replay", {}).update(kp=kp, kd=kd)
+            continue
         if flag not in FLAG_KEYS:
             continue
         *tables, key = FLAG_KEYS[flag]

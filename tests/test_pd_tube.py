@@ -92,3 +92,16 @@ def test_own_law_is_the_gains_the_tube_was_sized_with() -> None:
     np.testing.assert_array_equal(
         closed_loop_gains(pd_profile, pd), closed_loop_gains(pd_profile, own)
     )
+
+
+def test_one_flag_sets_the_pd_of_the_replays_and_of_the_tube() -> None:
+    """`crank run --pd 30,0.8` sets the PD of robust-pd and of the replays alike, so the run's
+    own consistency check holds."""
+    from crank.cli_chain import flag_values
+    from crank.config_file import build, defaults, merge
+
+    values = merge(defaults(), flag_values({"pd": "30,0.8", "profiles": "robust-pd"}), source="t")
+    config = build(values, source="t")
+    assert (config.ocp.pd_kp, config.ocp.pd_kd) == (config.replay.kp, config.replay.kd)
+    assert (config.replay.kp, config.replay.kd) == (30.0, 0.8)
+    assert config.ocp.profiles == ("robust-pd",)
