@@ -43,6 +43,15 @@ if TYPE_CHECKING:
     from crank.chain import RunConfig
 
 
+PDOption = Annotated[
+    str | None,
+    typer.Option(
+        help="The machine's fixed PD as KP,KD (N·m/rad, N·m·s/rad): the replays' PD and the one "
+        f"the robust-pd tube is sized for (default: {ReplayConfig.kp:g},{ReplayConfig.kd:g})."
+    ),
+]
+
+
 @app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
 @one_line_errors
 def run_command(
@@ -58,14 +67,7 @@ def run_command(
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
-    pd: Annotated[
-        str | None,
-        typer.Option(
-            help="The machine's fixed PD as KP,KD (N·m/rad, N·m·s/rad): the replays' PD and the "
-            "one the robust-pd tube is sized for (default: "
-            f"{ReplayConfig.kp:g},{ReplayConfig.kd:g})."
-        ),
-    ] = None,
+    pd: PDOption = None,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
@@ -267,6 +269,7 @@ def study_command(
     ),
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
+    pd: PDOption = None,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
         False
@@ -279,6 +282,7 @@ def study_command(
     from crank.study import parse_seeds, run_study
 
     chosen = parse_seeds(seeds)
+    kp, kd = pd_gains(pd) if pd is not None else (ReplayConfig.kp, ReplayConfig.kd)
     base = RunConfig.for_seed(
         chosen[0],
         generation={
@@ -291,8 +295,10 @@ def study_command(
             "tightening": tightening,
             "confidence": confidence,
             "profiles": profiles_list(profiles),
+            "pd_kp": kp,
+            "pd_kd": kd,
         },
-        replay={"runs": runs},
+        replay={"runs": runs, "kp": kp, "kd": kd},
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
         baselines=baselines,
