@@ -136,14 +136,18 @@ def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:
     closed-loop Monte-Carlo both use these."""
     if config.feedback == "pd":
         return np.tile([config.kp, config.kd], (len(profile.gain_theta), 1))
+    return own_gains(profile)
+
+
+def own_gains(profile: Profile) -> np.ndarray:
+    """The profile's own gains in ocp.json, (N-1, 2): its LQR, or robust-pd's fixed PD."""
     return np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
 
 
 def plays_own_law(profile: Profile, config: ReplayConfig) -> bool:
     """Whether the closed loop of `config` applies the gains the profile's tube was sized
     with: its own (feedback "lqr"), or a fixed PD equal to them (robust-pd under "pd")."""
-    own = np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
-    return bool(np.array_equal(closed_loop_gains(profile, config), own))
+    return bool(np.array_equal(closed_loop_gains(profile, config), own_gains(profile)))
 
 
 def tracking_law(

@@ -43,7 +43,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +60,7 @@ from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import closed_loop_gains, draw_machines, play, plays_own_law
+from replay.campaign import closed_loop_gains, draw_machines, own_gains, play, plays_own_law
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
@@ -144,7 +143,6 @@ def heldout_check(
         mpc=mpc if mpc is not None else MPCConfig(),
         feedback=feedback,
     )
-    lqr = replace(config, feedback="lqr")
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
     c = ocp.config
@@ -176,7 +174,7 @@ def heldout_check(
         if predicted_loop(mode) == "closed":
             law = Feedback(
                 np.stack([planned.theta, planned.omega], axis=-1),
-                closed_loop_gains(planned, config if mode == "closed" else lqr),
+                closed_loop_gains(planned, config) if mode == "closed" else own_gains(planned),
                 c.torque_limit,
             )
         t0 = time.perf_counter()
