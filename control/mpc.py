@@ -153,7 +153,9 @@ class TrackingMPC:
             for m in jacobians(step, self.states[:-1], self.tau[: n - 1])  # (N-1, ...)
         )
         weights = LQRWeights(q_theta=config.q_theta, q_omega=config.q_omega, r=config.r)
-        _, self.costs = riccati(a, b, weights)  # P_0..P_{N-1}
+        # K_0..K_{N-2} and P_0..P_{N-1}: the TV-LQR of the same weights along the plan, which the
+        # MPC is while no bound is active (exactly on a linear system; module docstring)
+        self.gains, self.costs = riccati(a, b, weights)
         self.q = np.array([config.q_theta, config.q_omega])
 
     def start(self) -> np.ndarray:

@@ -73,6 +73,9 @@ class MPCRecord:
     deadline: float
     engine: str
     """What evaluated the predictions: "compiled" (C) or "vm" (CasADi's virtual machine)."""
+    gains: np.ndarray
+    """The LQR the MPC is while no bound is active (N-1, 2): its weights' Riccati gains along
+    the plan (control/mpc.py), the law its closed-loop prediction uses."""
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,7 @@ def mpc_law(
         horizon=config.mpc.horizon,
         deadline=config.mpc.deadline,
         engine=controller.engine,
+        gains=controller.gains,
     )
     guesses = np.tile(controller.start(), (config.runs, 1))
 

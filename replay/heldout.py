@@ -60,7 +60,7 @@ from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import closed_loop_gains, draw_machines, own_gains, play, plays_own_law
+from replay.campaign import closed_loop_gains, draw_machines, play, plays_own_law
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
@@ -122,9 +122,9 @@ def heldout_check(
     heldout.json's content. Closed loop is each profile's own law (its gains in ocp.json), or
     with `feedback` "pd" the replay's fixed PD (ReplayConfig kp, kd), and the prediction is the
     closed-loop Monte-Carlo under that law. In mpc mode each machine runs the online MPC on
-    `model` (settings `mpc`), and the prediction beside it is the closed loop's under the
-    profile's own gains: the MPC's law while no bound is active for an LQR plan (for
-    robust-pd, whose file carries its PD, that prediction is the PD's). `on_played(profile,
+    `model` (settings `mpc`), and the prediction beside it is the closed loop's under the LQR
+    the MPC is while no bound is active (its weights' gains along the plan, whatever law the
+    profile was tightened for). `on_played(profile,
     mode, entry)` sees each entry as soon as it is done (progress: the MPC on 1000 machines
     takes about a minute a profile).
 
@@ -174,7 +174,7 @@ def heldout_check(
         if predicted_loop(mode) == "closed":
             law = Feedback(
                 np.stack([planned.theta, planned.omega], axis=-1),
-                closed_loop_gains(planned, config) if mode == "closed" else own_gains(planned),
+                closed_loop_gains(planned, config) if mode == "closed" else replay.mpc.gains,
                 c.torque_limit,
             )
         t0 = time.perf_counter()

@@ -59,6 +59,7 @@ def test_mpc_on_a_linear_system_is_the_tv_lqr_law(horizon: int) -> None:
     mpc = TrackingMPC(_linear_step(a, b), states=states, tau=tau, torque_limit=1e6, config=config)
     weights = LQRWeights(q_theta=config.q_theta, q_omega=config.q_omega, r=config.r)
     gains, _ = riccati(np.repeat(a[None], n - 1, 0), np.repeat(b[None], n - 1, 0), weights)
+    np.testing.assert_allclose(mpc.gains, gains, rtol=1e-12)  # the held-out check predicts with it
     for k in range(n - 1):
         x = states[k] + rng.normal(scale=[0.05, 1.0])
         guess = rng.uniform(-5.0, 5.0, horizon)
