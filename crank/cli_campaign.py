@@ -21,6 +21,8 @@ from control.mpc_config import MPCConfig, MPCConfigError
 from crank.console import (
     HELDOUT_SEED,
     ModelPath,
+    PDKd,
+    PDKp,
     Progress,
     app,
     one_line_errors,
@@ -142,13 +144,11 @@ def replay_command(
         str,
         typer.Option(
             help="Closed loop: lqr (each profile's own gains from ocp.json: its LQR, robust-pd's "
-            "PD) or pd (the fixed PD)."
+            "PD) or pd (the fixed PD --kp, --kd)."
         ),
     ] = ReplayConfig.feedback,
-    kp: Annotated[float, typer.Option(help="PD: N·m/rad on the angle error.")] = (ReplayConfig.kp),
-    kd: Annotated[float, typer.Option(help="PD: N·m·s/rad on the speed error.")] = (
-        ReplayConfig.kd
-    ),
+    kp: PDKp = ReplayConfig.kp,
+    kd: PDKd = ReplayConfig.kd,
     max_start_time: Annotated[
         float, typer.Option(help="Machines have run U[0, this] s before (warm-up drift).")
     ] = ReplayConfig.max_start_time,
@@ -232,9 +232,11 @@ def heldout_command(
         str,
         typer.Option(
             help="Closed loop: lqr (each profile's own gains from ocp.json: its LQR, robust-pd's "
-            "PD) or pd (the fixed PD)."
+            "PD) or pd (the fixed PD --kp, --kd)."
         ),
     ] = ReplayConfig.feedback,
+    kp: PDKp = ReplayConfig.kp,
+    kd: PDKd = ReplayConfig.kd,
     mpc_horizon: MPCHorizon = _MPC.horizon,
     mpc_weights: MPCWeights = DEFAULT_WEIGHTS,
     mpc_deadline_ms: MPCDeadline = 1e3 * _MPC.deadline,
@@ -254,7 +256,7 @@ def heldout_command(
         slider_limit=mpc_slider_limit,
     )
     # validates runs, seed and modes before any file is read
-    ReplayConfig(runs=runs, seed=seed, modes=_modes(modes), feedback=feedback)
+    ReplayConfig(runs=runs, seed=seed, modes=_modes(modes), feedback=feedback, kp=kp, kd=kd)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
         ocp,
@@ -265,6 +267,8 @@ def heldout_command(
         variability=chosen,
         modes=_modes(modes),
         feedback=feedback,
+        kp=kp,
+        kd=kd,
         model_path=mjcf,
         mpc=mpc,
         on_played=lambda name, mode, entry: typer.echo(

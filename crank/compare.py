@@ -1,13 +1,14 @@
 """`crank compare`: every profile of a run under every controller, per product-line scenario.
 
-For each finished run folder (`crank run`, best with `--profiles robust,robust-fb`; one folder
-per variability scenario) the profiles of its ocp.json are played on the twin of the run's
-scenario under four controllers — open loop, the fixed PD, the profile's own law (its LQR), and
-the online MPC on the run's PPANN — on the run's 100 campaign machines and on held-out machines
-(streams heldout_machines / heldout_noise of `heldout_seed`; every controller on the same
-machines). One row per scenario, profile and controller: violations, lowest run, the profile's
-cost premium, the Σu² applied against the nominal plan's, tracking RMS, saturation share, the
-final θ/ω error and, under the MPC, its step times.
+For each finished run folder (`crank run`, best with `--profiles robust,robust-fb,robust-pd`;
+one folder per variability scenario) the profiles of its ocp.json are played on the twin of the
+run's scenario under four controllers — open loop, the fixed PD the run's replays played
+(`replay.kp`, `kd`; every run of a compare must share it), the profile's own law (its LQR),
+and the online MPC on the run's PPANN — on the run's 100 campaign machines and on held-out
+machines (streams heldout_machines / heldout_noise of `heldout_seed`; every controller on the
+same machines). One row per scenario, profile and controller: violations, lowest run, the
+profile's cost premium, the Σu² applied against the nominal plan's, tracking RMS, saturation
+share, the final θ/ω error and, under the MPC, its step times.
 
 Files in `<out>/`: `compare.json` (the rows, each run's seeds and the settings), `compare.md` (a
 table per scenario, and the verdict against issue 12's targets: ≤ 0.5 % of held-out machines,
@@ -105,6 +106,8 @@ def compare_run(
         max_start_time=config.replay.max_start_time,
         variability=variability,
         mpc=mpc,
+        kp=config.replay.kp,  # the PD the run's replays played
+        kd=config.replay.kd,
     )
     pd = replace(base, modes=("closed",), feedback="pd")
     stage(f"{run_dir.name}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
@@ -132,6 +135,8 @@ def compare_run(
             modes=modes,
             mpc=mpc,
             feedback=feedback,
+            kp=base.kp,
+            kd=base.kd,
             on_played=lambda name, mode, entry, law=feedback: stage(
                 played_line(
                     name, mode, feedback=law, below=entry["violating_runs"], runs=heldout_runs
@@ -176,6 +181,7 @@ def compare_run(
         "spread": spread(variability),
         "seed": config.seed,
         "replay_seed": base.seed,
+        "pd": {"kp": base.kp, "kd": base.kd},
         "heldout_streams": streams.describe(heldout_seed, ("heldout_machines", "heldout_noise")),
         "refused": ocp.refused,
         "rows": rows,
@@ -196,7 +202,8 @@ def compare_runs(
     """`compare_run` for each run folder, written to `out`/compare.{json,md,png}.
 
     Raises:
-      ConfigError: no run folder, a folder named twice or not a finished run, or `out` exists.
+      ConfigError: no run folder, a folder named twice or not a finished run, runs whose
+        replays played different fixed PDs, or `out` exists.
     """
 
     out = Path(out)
@@ -208,7 +215,16 @@ def compare_runs(
     from replay.heldout import TARGET_RATE
 
     # every folder and count checked before any replay
-    horizon = max(_run_folder(run_dir)[0].ocp.horizon for run_dir in run_dirs)
+    configs = [_run_folder(run_dir)[0] for run_dir in run_dirs]
+    horizon = max(c.ocp.horizon for c in configs)
+    pds = {(c.replay.kp, c.replay.kd) for c in configs}
+    if len(pds) > 1:
+        raise ConfigError(
+            "the runs' replays played different fixed PDs ("
+            + ", ".join(f"Kp {kp:g} Kd {kd:g}" for kp, kd in sorted(pds))
+            + "): compare them apart"
+        )
+    ((kp, kd),) = pds
     ReplayConfig(runs=runs)
     ReplayConfig(runs=heldout_runs)
     check_campaign_memory(heldout_runs, modes=len(CONTROLLERS), horizon=horizon, held_out=True)
@@ -234,7 +250,7 @@ def compare_runs(
         "heldout_runs": heldout_runs,
         "heldout_seed": heldout_seed,
         "controllers": {k: {"mode": m, "feedback": f} for k, (m, f) in CONTROLLERS.items()},
-        "pd": {"kp": ReplayConfig.kp, "kd": ReplayConfig.kd},
+        "pd": {"kp": kp, "kd": kd},  # every run's replays' (checked above)
         "mpc": mpc.as_dict(),
         "target_rate": TARGET_RATE,  # the held-out check's
         "target_effort": TARGET_EFFORT,

@@ -240,6 +240,8 @@ Confidence = Annotated[
     ),
 ]
 ModelPath = Annotated[Path, typer.Option("--model", help="The slider-crank MJCF.")]
+PDKp = Annotated[float, typer.Option("--kp", help="The fixed PD: N·m/rad on the angle error.")]
+PDKd = Annotated[float, typer.Option("--kd", help="The fixed PD: N·m·s/rad on the speed error.")]
 VariabilityOption = Annotated[
     str,
     typer.Option(

@@ -20,6 +20,7 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
+  pd                     {kp, kd}: the fixed PD of feedback pd
   variability, max_start_time
   mc_samples             trajectories of each predicted σ
   target_rate            0.005: a robust profile's allowed violation rate
@@ -52,7 +53,7 @@ from scipy import stats as scistats
 from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
-from control.config import lower_tail, predicted_loop
+from control.config import PD_GAINS, lower_tail, predicted_loop
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
@@ -116,11 +117,13 @@ def heldout_check(
     modes: tuple[str, ...] = ("open",),
     mpc: MPCConfig | None = None,
     feedback: str = "lqr",
+    kp: float = PD_GAINS[0],
+    kd: float = PD_GAINS[1],
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Play every profile in each of `modes` on the same `runs` held-out machines; return
     heldout.json's content. Closed loop is each profile's own law (its gains in ocp.json), or
-    with `feedback` "pd" the replay's fixed PD (ReplayConfig kp, kd), and the prediction is the
+    with `feedback` "pd" the fixed PD `kp`, `kd`, and the prediction is the
     closed-loop Monte-Carlo under that law. In mpc mode each machine runs the online MPC on
     `model` (settings `mpc`), and the prediction beside it is the closed loop's under the LQR
     the MPC is while no bound is active (its weights' gains along the plan, whatever law the
@@ -142,6 +145,8 @@ def heldout_check(
         max_start_time=max_start_time,
         mpc=mpc if mpc is not None else MPCConfig(),
         feedback=feedback,
+        kp=kp,
+        kd=kd,
     )
     machines = draw_machines(config, ocp.horizon, held_out=True)
     heads = FusedHeads(model)
@@ -155,6 +160,7 @@ def heldout_check(
         "seed": seed,
         "modes": list(modes),
         "feedback": feedback,
+        "pd": {"kp": kp, "kd": kd},
         "streams": streams.describe(seed, ("heldout_machines", "heldout_noise")),
         "variability": variability.as_dict(),
         "max_start_time": max_start_time,
@@ -258,6 +264,8 @@ def heldout_file(
     model_path: str | Path = MODEL_PATH,
     mpc: MPCConfig | None = None,
     feedback: str = "lqr",
+    kp: float = PD_GAINS[0],
+    kd: float = PD_GAINS[1],
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
@@ -283,6 +291,8 @@ def heldout_file(
         modes=modes,
         mpc=mpc,
         feedback=feedback,
+        kp=kp,
+        kd=kd,
         on_played=on_played,
     )
     result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder

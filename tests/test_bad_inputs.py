@@ -307,6 +307,8 @@ CASES: list[tuple[str, str]] = [
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes open,open", "modes repeat"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes ,", "modes must be"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --seed -1", "seed must be"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --kp inf", "kp must be a finite"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --kd -0.5", "kd must be >= 0"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes mpc --mpc-horizon 0", "mpc h"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes mpc --mpc-horizon 200", "149"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes mpc --mpc-weights x", "three"),

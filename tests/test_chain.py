@@ -317,3 +317,44 @@ def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> 
     with pytest.raises(ConfigError, match="a run is in two"):
         merge_compares([tmp_path / "a", tmp_path / "ab"], tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
+
+
+def test_compare_plays_the_pd_the_runs_replays_played(two_runs, tmp_path: Path) -> None:
+    """A run whose replays ran another fixed PD (Kp 10, Kd 0.25; its config.json rewritten, its
+    ocp.json's robust-pd still sized for 20, 0.5) is compared under that PD: its closed-PD rows
+    are the held-out check's under it, and robust-pd, whose own law is no longer this PD, gets
+    a closed-LQR row (its own gains). Runs that played different PDs are refused before any
+    replay. (The compare once played the default PD whatever the run's was.)"""
+    import shutil
+
+    from crank.compare import compare_runs
+    from ppann.checkpoint import load
+    from replay.heldout import heldout_check
+    from twin.physics import SliderCrank, load_model
+
+    a, _, _ = two_runs
+    other = tmp_path / "pd10"
+    shutil.copytree(a, other)
+    config = json.loads((a / "config.json").read_text())
+    config["replay"] |= {"kp": 10.0, "kd": 0.25}
+    config["ocp"] |= {"pd_kp": 10.0, "pd_kd": 0.25}
+    (other / "config.json").write_text(json.dumps(config))
+    with pytest.raises(ConfigError, match=r"different fixed PDs \(Kp 10 Kd 0\.25, Kp 20 Kd 0\.5\)"):
+        compare_runs([a, other], tmp_path / "bad", runs=2, heldout_runs=5, heldout_seed=3)
+    assert not (tmp_path / "bad").exists()
+    result = compare_runs([other], tmp_path / "cmp", runs=2, heldout_runs=10, heldout_seed=3)
+    assert result["pd"] == result["scenarios"][0]["pd"] == {"kp": 10.0, "kd": 0.25}
+    rows = {(r["profile"], r["controller"]): r for r in result["scenarios"][0]["rows"]}
+    assert ("robust-pd", "closed-LQR") in rows
+    physics = SliderCrank(load_model(RunConfig.from_dict(config).model_path)[0])
+    model, _ = load(other / "model.pt")
+    kwargs = {"runs": 10, "seed": 3, "modes": ("closed",), "feedback": "pd"}
+    kwargs |= {"variability": RunConfig.from_dict(config).generation.variability}
+    held = heldout_check(physics, other / "ocp.json", model, kp=10.0, kd=0.25, **kwargs)
+    default = heldout_check(physics, other / "ocp.json", model, **kwargs)
+    for name, entry in held["profiles"].items():
+        lowest = 1e3 * min(e["lowest"] for e in entry["closed"]["samples"].values())
+        assert rows[name, "closed-PD"]["lowest_heldout_mm"] == lowest
+        assert rows[name, "closed-PD"]["heldout_rate"] == entry["closed"]["rate"]
+        other_pd = default["profiles"][name]["closed"]["samples"]
+        assert lowest != 1e3 * min(e["lowest"] for e in other_pd.values())

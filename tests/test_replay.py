@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from common.streams import stream
-from control.config import predicted_loop
+from control.config import PD_GAINS, predicted_loop
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.mpc_config import MPCConfig
@@ -150,26 +150,33 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
 
 
 @pytest.mark.parametrize(
-    ("modes", "feedback"),
+    ("modes", "feedback", "pd"),
     [
-        (("open",), "lqr"),
-        (("closed",), "lqr"),
-        (("closed", "open"), "lqr"),
-        (("closed",), "pd"),
-        (("mpc",), "lqr"),
+        (("open",), "lqr", PD_GAINS),
+        (("closed",), "lqr", PD_GAINS),
+        (("closed", "open"), "lqr", PD_GAINS),
+        (("closed",), "pd", PD_GAINS),
+        (("closed",), "pd", (10.0, 0.25)),
+        (("mpc",), "lqr", PD_GAINS),
     ],
 )
 def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
-    physics: SliderCrank, ocp_path: Path, ocp: OCPFile, modes: tuple[str, ...], feedback: str
+    physics: SliderCrank,
+    ocp_path: Path,
+    ocp: OCPFile,
+    modes: tuple[str, ...],
+    feedback: str,
+    pd: tuple[float, float],
 ) -> None:
     """Every profile of the held-out check is played in each loop asked for, on the same
     machines, and predicted by a Monte-Carlo of that loop: the observed spread equals a direct
     replay's in that mode, and the prediction equals a Monte-Carlo under the profile's gains
-    (closed; the fixed PD's with feedback "pd"), under the LQR the MPC is without active bounds
-    (mpc: its weights' gains along the plan, not the file's), or none (open). (A loop variable
-    once shadowed the mode, and the second profile was played open loop; the MPC was once
-    predicted with the file's gains, a PD for robust-pd.) The robust profile's verdict is of its
-    own loop, open, when played."""
+    (closed; with feedback "pd" the fixed PD asked for, the default one or another), under the
+    LQR the MPC is without active bounds (mpc: its weights' gains along the plan, not the
+    file's), or none (open). (A loop variable once shadowed the mode, and the second profile was
+    played open loop; the MPC was once predicted with the file's gains, a PD for robust-pd; the
+    check once played the default PD whatever the run's was.) The robust profile's verdict is of
+    its own loop, open, when played."""
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
     variability = Variability.scenario("paper")
     result = heldout_check(
@@ -182,13 +189,16 @@ def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
         mc_samples=50,
         modes=modes,
         feedback=feedback,
+        kp=pd[0],
+        kd=pd[1],
         mpc=LATE_MPC,
     )
     assert result["modes"] == list(modes) and result["feedback"] == feedback
+    assert result["pd"] == {"kp": pd[0], "kd": pd[1]}
     assert list(result["holds"]) == (["robust"] if "open" in modes else [])
     for mode, name in ((m, n) for m in modes for n in ocp.names):
         entry = result["profiles"][name][mode]
-        _check_heldout_entry(physics, ocp, model, entry, name, mode, feedback=feedback)
+        _check_heldout_entry(physics, ocp, model, entry, name, mode, feedback=feedback, pd=pd)
 
 
 LATE_MPC = MPCConfig(deadline=60.0)
@@ -205,11 +215,19 @@ def _check_heldout_entry(
     mode: str,
     *,
     feedback: str,
+    pd: tuple[float, float],
 ) -> None:
     """One profile's held-out entry in `mode` against a direct replay and Monte-Carlo."""
     variability = Variability.scenario("paper")
     config = ReplayConfig(
-        runs=8, seed=11, modes=(mode,), variability=variability, feedback=feedback, mpc=LATE_MPC
+        runs=8,
+        seed=11,
+        modes=(mode,),
+        variability=variability,
+        feedback=feedback,
+        kp=pd[0],
+        kd=pd[1],
+        mpc=LATE_MPC,
     )
     machines = draw_machines(config, N, held_out=True)
     profile = ocp.profiles[name]
@@ -222,7 +240,7 @@ def _check_heldout_entry(
     if mode != "open":
         gains = own
         if feedback == "pd":
-            gains = np.tile([20.0, 0.5], (N - 1, 1))
+            gains = np.tile(pd, (N - 1, 1))
         if mode == "mpc":
             weights = LQRWeights(q_theta=LATE_MPC.q_theta, q_omega=LATE_MPC.q_omega, r=LATE_MPC.r)
             gains = tracking_gains(CasadiPPANN(model).step_on_turn, states, profile.tau, weights)
