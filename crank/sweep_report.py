@@ -4,6 +4,7 @@ seed) and sweep.png (held-out violation rate and premium per option group, one d
 
 from __future__ import annotations
 
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -144,11 +145,21 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+TICK_WIDTH = 15
+"""Characters of an option's value per line under its column (about the column's inch at 8 pt)."""
+
+
 def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     """Per option group (x), each seed's held-out violation rate with its 95 % bound (top) and
     cost premium (bottom); a red cross where a leaf failed or a profile was refused."""
     grouped = groups(rows, axes)
-    fig = Figure(figsize=(max(6.0, 1.2 * len(grouped) + 3), 6), layout="constrained")
+    names = [a for a in axes if a != "seed"]
+    if len({row.get("profile") for row in rows}) > 1:
+        names.append("profile")
+    lines = max(1, len(names))
+    fig = Figure(
+        figsize=(max(6.0, 1.0 * len(grouped) + 2), 5.5 + 0.2 * lines), layout="constrained"
+    )
     top, bottom = fig.subplots(2, 1, sharex=True)
     for x, members in enumerate(grouped.values()):
         good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
@@ -178,16 +189,20 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
         fontsize=8,
     )
     bottom.set_ylabel("robust cost premium [%]")
-    bottom.set_ylim(bottom=0)
+    premiums = [100 * r["premium"] for r in rows if r.get("premium") is not None]
+    bottom.set_ylim(bottom=min([0.0, *premiums]) - 0.5)  # a premium below 0 stays in view
     ticks = []
-    for label, members in grouped.items():
+    for members in grouped.values():
+        values = (str(members[0].get(name)) for name in names)
+        label = "\n".join(textwrap.fill(v, TICK_WIDTH) for v in values) or "all"
         bad = sum(1 for r in members if r.get("error") or "robust_heldout_rate" not in r)
         refused = sum(1 for r in members if failure(r) == "refused")
         counts = ((bad - refused, "failed"), (refused, "refused"))
         notes = [f"{n} {word}" for n, word in counts if n]
         ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
-    bottom.set_xticks(range(len(grouped)), ticks, rotation=20, ha="right", fontsize=8)
+    bottom.set_xticks(range(len(grouped)), ticks, fontsize=8)
     bottom.set_xlim(-0.5, len(grouped) - 0.5)
+    bottom.set_xlabel(" / ".join(names) or "every leaf")
     fig.suptitle("Sweep: robust torque per option group (one dot per seed)")
     return fig
 

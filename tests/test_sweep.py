@@ -378,3 +378,34 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     text = markdown(sweep, [row(0, 0.006, 0.011)])
     assert "worst 0.60 % (seed=0, robust), target <= 0.5 %: **NOT met**" in text
     assert "| all | 1 | 6/1000 (0.60 %) |" in text
+
+
+def test_sweep_figure_names_each_column_by_its_values() -> None:
+    """The figure's columns are labelled by their option values, one per line and wrapped (the
+    options' names once repeated in every label, rotated, and long ones ran into each other),
+    the axes' names below; a premium below zero stays in view."""
+    from crank.sweep_report import figure
+
+    rows = [
+        {
+            "seed": seed,
+            "generation.variability": line,
+            "case": case,
+            "profile": profile,
+            "robust_heldout_rate": 0.001,
+            "robust_heldout_upper_95": 0.004,
+            "premium": -0.002 if case == "samples 60, 90" else 0.03,
+        }
+        for seed in (0, 1)
+        for line in ("paper", "line-30")
+        for case in ("samples 60, 90", "horizon 200, samples 70, 130")
+        for profile in ("robust-fb", "robust-pd")
+    ]
+    fig = figure(rows, ["seed", "generation.variability", "case"])
+    bottom = fig.axes[1]
+    ticks = [t.get_text() for t in bottom.get_xticklabels()]
+    assert len(ticks) == 8
+    assert ticks[0] == "paper\nsamples 60, 90\nrobust-fb"
+    assert ticks[3] == "paper\nhorizon 200,\nsamples 70, 130\nrobust-pd"
+    assert bottom.get_xlabel() == "generation.variability / case / profile"
+    assert bottom.get_ylim()[0] < -0.2
