@@ -92,6 +92,8 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         variability=config.generation.variability,
         max_start_time=config.replay.max_start_time,
         modes=config.heldout_modes,
+        kp=config.replay.kp,  # recorded beside the own-law loops (a robust-pd's gains are this PD)
+        kd=config.replay.kd,
         model_path=config.model_path,
     )
 

@@ -123,6 +123,7 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert config["heldout_streams"]["root_seed"] == SHORT.heldout_seed
     heldout = json.loads((a / "heldout.json").read_text())
     assert heldout["runs"] == 20 and heldout["modes"] == ["open", "closed"]
+    assert heldout["pd"] == {"kp": SHORT.replay.kp, "kd": SHORT.replay.kd}
     assert list(heldout["profiles"]) == ["nominal", "robust", "robust-fb", "robust-pd"]
     assert set(heldout["holds"]) == {"robust", "robust-fb", "robust-pd"}
     for name, loop in (("robust", "open"), ("robust-fb", "closed"), ("robust-pd", "closed")):
