@@ -102,8 +102,9 @@ def compare_command(
         typer.Argument(
             metavar="RUN_DIR...",
             help="Finished run folders (crank run, best with --profiles "
-            "robust,robust-fb,robust-pd), one per variability scenario, whose replays played one "
-            "fixed PD; with --merge, compare folders to join.",
+            "robust,robust-fb,robust-pd), one per variability scenario, or sweep folders (each "
+            "finished leaf), whose replays played one fixed PD; with --merge, compare folders "
+            "to join.",
         ),
     ],
     out: Annotated[Path, typer.Option(help="Folder to write (must not exist).")] = Path(

@@ -14,7 +14,8 @@ Files in `<out>/`: `compare.json` (the rows, each run's seeds and the settings),
 table per scenario, and the verdict against issue 12's targets: ≤ 0.5 % of held-out machines,
 Σu² within 10 % of the nominal plan's), `compare.png` (held-out violation rate and premium
 against the scenario's spread). `merge_compares` joins compare folders made apart (in parallel,
-or on other machines) with the same settings into one.
+or on other machines) with the same settings into one. A sweep folder (`crank sweep`) stands for
+its finished leaves, each compared with its solve and model steps' plan and PPANN.
 """
 
 from __future__ import annotations
@@ -57,14 +58,56 @@ def spread(variability: Variability) -> float:
     return max((p.high - p.low) / (2 * p.nominal) for p in values)
 
 
+def _sweep_leaf(run_dir: Path) -> dict[str, Any] | None:
+    """The sweep.json entry of a sweep's leaf folder (`<sweep>/leaf/<key>`), or None."""
+    sweep = run_dir.parent.parent / "sweep.json"
+    if run_dir.parent.name != "leaf" or not sweep.is_file():
+        return None
+    leaves = json.loads(sweep.read_text()).get("leaves", [])
+    return next((leaf for leaf in leaves if leaf["steps"]["leaf"] == run_dir.name), None)
+
+
+def expand_sweeps(paths: list[Path]) -> list[Path]:
+    """Run folders as given, a sweep folder (sweep.json) replaced by its finished leaves' folders
+    in the sweep's order (a leaf whose step failed or did not run is left out).
+
+    Raises:
+      ConfigError: a sweep folder with no finished leaf.
+    """
+    out: list[Path] = []
+    for path in map(Path, paths):
+        if not (path / "sweep.json").is_file():
+            out.append(path)
+            continue
+        leaves = json.loads((path / "sweep.json").read_text()).get("leaves", [])
+        done = [path / "leaf" / leaf["steps"]["leaf"] for leaf in leaves]
+        done = [d for d in done if (d / "report.md").is_file()]
+        if not done:
+            raise ConfigError(f"sweep folder {path} has no finished leaf to compare")
+        out += done
+    return out
+
+
 def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
-    """A finished run folder's configuration, ocp.json and model.pt; a ConfigError names what is
-    missing."""
-    for name in ("config.json", "ocp.json", "model.pt", "report.md"):
-        if not (run_dir / name).is_file():
+    """A finished run folder's (or a sweep leaf's) configuration, ocp.json and model.pt; a
+    ConfigError names what is missing. A sweep leaf's plan and model are its solve and model
+    steps' (crank/sweep.py)."""
+    files = {name: run_dir / name for name in ("config.json", "ocp.json", "model.pt", "report.md")}
+    if (leaf := _sweep_leaf(run_dir)) is not None:
+        sweep, steps = run_dir.parent.parent, leaf["steps"]
+        files["ocp.json"] = sweep / "solve" / steps["solve"] / "ocp.json"
+        files["model.pt"] = sweep / "model" / steps["model"] / "model.pt"
+    for name, path in files.items():
+        if not path.is_file():
             raise ConfigError(f"{run_dir} is not a finished run folder (no {name})")
-    config = RunConfig.from_dict(json.loads((run_dir / "config.json").read_text()))
-    return config, run_dir / "ocp.json", run_dir / "model.pt"
+    config = RunConfig.from_dict(json.loads(files["config.json"].read_text()))
+    return config, files["ocp.json"], files["model.pt"]
+
+
+def _label(run_dir: Path) -> str:
+    """A run folder's name in progress lines: a sweep leaf's options, else the folder's name."""
+    leaf = _sweep_leaf(run_dir)
+    return run_dir.name if leaf is None else leaf["name"]
 
 
 def compare_run(
@@ -110,7 +153,8 @@ def compare_run(
         kd=config.replay.kd,
     )
     pd = replace(base, modes=("closed",), feedback="pd")
-    stage(f"{run_dir.name}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
+    label = _label(run_dir)
+    stage(f"{label}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
     campaign = run_campaign(physics, ocp, config=base, model=model)
     stats = {
         "lqr": campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing={}),
@@ -123,7 +167,7 @@ def compare_run(
     }
     held = {}
     for feedback, modes in (("lqr", base.modes), ("pd", pd.modes)):
-        stage(f"{run_dir.name}: {heldout_runs} held-out machines, {', '.join(modes)} ({feedback})")
+        stage(f"{label}: {heldout_runs} held-out machines, {', '.join(modes)} ({feedback})")
         held[feedback] = heldout_check(
             physics,
             ocp_path,
@@ -207,6 +251,7 @@ def compare_runs(
     """
 
     out = Path(out)
+    run_dirs = expand_sweeps(run_dirs)
     if not run_dirs:
         raise ConfigError("compare needs at least one run folder")
     if len({p.resolve() for p in run_dirs}) != len(run_dirs):

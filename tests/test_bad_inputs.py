@@ -113,6 +113,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     (d / "locked.json").write_text(json.dumps(unmeasured))
     (d / "nameless.xml").write_text("<mujoco/>")
     (d / "folder").mkdir()
+    (d / "unrun").mkdir()  # a sweep folder none of whose leaves finished
+    (d / "unrun" / "sweep.json").write_text(json.dumps({"leaves": []}))
     (d / "file").write_text("a file where a folder should be\n")
     for name, text in RANGES.items():
         (d / f"{name}.toml").write_text(text)
@@ -485,6 +487,7 @@ CASES: list[tuple[str, str]] = [
     ("compare {dir} --out o/c", "is not a finished run folder (no config.json)"),
     ("compare {dir}/absent --out o/c", "is not a finished run folder"),
     ("compare {dir} {dir} --out o/c", "a run folder is named twice"),
+    ("compare {unrun} --out o/c", "has no finished leaf to compare"),
     ("compare {dir} --merge --out o/c", "--merge needs at least two compare folders"),
     ("compare {dir} {dir}/absent --merge --out o/c", "is not a compare folder (no compare.json)"),
 ]

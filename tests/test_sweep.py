@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from common.errors import ConfigError
 from common.jsonio import without_wall_clock
 from common.resources import ResourceError
 from crank.chain import RunConfig, run_chain
@@ -409,3 +411,44 @@ def test_sweep_figure_names_each_column_by_its_values() -> None:
     assert ticks[3] == "paper\nhorizon 200,\nsamples 70, 130\nrobust-pd"
     assert bottom.get_xlabel() == "generation.variability / case / profile"
     assert bottom.get_ylim()[0] < -0.2
+
+
+def _untimed(row: dict) -> dict:
+    """A compare row without the MPC's step times (wall clock)."""
+    mpc = row.get("mpc") and {k: row["mpc"][k] for k in ("steps", "qp_iterations_max")}
+    return row | {"mpc": mpc}
+
+
+def test_compare_takes_a_sweep_folder_as_its_leaves(swept, tmp_path: Path) -> None:
+    """`crank compare SWEEP` compares each finished leaf with its solve and model steps' plan and
+    PPANN: a leaf compares row for row as the same chain run one by one (CHECKED); the sweep
+    folder stands for its four leaves in the sweep's order; an unfinished leaf is left out."""
+    from crank.compare import compare_runs, expand_sweeps
+
+    out, sweep, _, chains = swept
+    leaves = expand_sweeps([out])
+    assert [p.name for p in leaves] == [row["leaf_key"] for row in sweep["rows"]]
+    row = next(
+        r for r in sweep["rows"] if (r["seed"], tuple(r["ocp.constraint_samples"])) == CHECKED[0]
+    )
+    chain = chains / "seed-0-50-100"
+    said: list[str] = []
+    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3}
+    ours = compare_runs(
+        [out / "leaf" / row["leaf_key"]], tmp_path / "leaf", on_stage=said.append, **kwargs
+    )
+    theirs = compare_runs([chain], tmp_path / "chain", **kwargs)
+    assert said[0].startswith(f"{row['leaf']}: 2 campaign machines")
+    (a,), (b,) = ours["scenarios"], theirs["scenarios"]
+    assert a.pop("run") == str(out / "leaf" / row["leaf_key"]) and b.pop("run") == str(chain)
+    rows = [[_untimed(r) for r in s.pop("rows")] for s in (a, b)]
+    assert a == b and rows[0] == rows[1] and len(rows[0]) == 2 * 4
+    unfinished = tmp_path / "sweep"
+    shutil.copytree(out, unfinished)
+    (unfinished / "leaf" / leaves[0].name / "report.md").unlink()
+    assert [p.name for p in expand_sweeps([unfinished])] == [p.name for p in leaves[1:]]
+    for p in leaves:
+        (unfinished / "leaf" / p.name / "report.md").unlink(missing_ok=True)
+    with pytest.raises(ConfigError, match="has no finished leaf"):
+        compare_runs([unfinished], tmp_path / "bad", **kwargs)
+    assert not (tmp_path / "bad").exists()
