@@ -35,6 +35,7 @@ from common.errors import ConfigError
 from common.jsonio import write_json
 from control.mpc_config import MPCConfig
 from crank.chain import RunConfig
+from crank.sweep_spec import folder as step_folder
 from twin.variability import Variability
 
 CONTROLLERS = {
@@ -80,7 +81,7 @@ def expand_sweeps(paths: list[Path]) -> list[Path]:
             out.append(path)
             continue
         leaves = json.loads((path / "sweep.json").read_text()).get("leaves", [])
-        done = [path / "leaf" / leaf["steps"]["leaf"] for leaf in leaves]
+        done = [step_folder(path, "leaf", leaf["steps"]["leaf"]) for leaf in leaves]
         done = [d for d in done if (d / "report.md").is_file()]
         if not done:
             raise ConfigError(f"sweep folder {path} has no finished leaf to compare")
@@ -95,8 +96,8 @@ def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
     files = {name: run_dir / name for name in ("config.json", "ocp.json", "model.pt", "report.md")}
     if (leaf := _sweep_leaf(run_dir)) is not None:
         sweep, steps = run_dir.parent.parent, leaf["steps"]
-        files["ocp.json"] = sweep / "solve" / steps["solve"] / "ocp.json"
-        files["model.pt"] = sweep / "model" / steps["model"] / "model.pt"
+        files["ocp.json"] = step_folder(sweep, "solve", steps["solve"]) / "ocp.json"
+        files["model.pt"] = step_folder(sweep, "model", steps["model"]) / "model.pt"
     for name, path in files.items():
         if not path.is_file():
             raise ConfigError(f"{run_dir} is not a finished run folder (no {name})")

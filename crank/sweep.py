@@ -31,7 +31,7 @@ from crank import stages
 from crank.chain import Hooks
 from crank.estimate import run_time
 from crank.sweep_estimate import disk_estimate, time_estimate
-from crank.sweep_spec import KINDS, Leaf, Node, graph
+from crank.sweep_spec import KINDS, Leaf, Node, folder, graph
 
 RESULT = "result.json"
 SPEC_COPY = "sweep.toml"
@@ -44,10 +44,6 @@ def check_executor(executor: str) -> None:
     """Refuse an executor that is not one of EXECUTORS (ConfigError)."""
     if executor not in EXECUTORS:
         raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-
-
-def folder(out: Path, kind: str, key: str) -> Path:
-    return out / kind / key
 
 
 def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[str, Any]:

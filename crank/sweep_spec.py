@@ -43,6 +43,12 @@ if TYPE_CHECKING:
 KINDS = ("data", "model", "solve", "leaf")
 """The steps of a leaf, each depending on the one before."""
 
+
+def folder(out: Path, kind: str, key: str) -> Path:
+    """Where a step of `kind` (KINDS) with `key` keeps its files in the sweep folder `out`."""
+    return out / kind / key
+
+
 MAX_LEAVES = 10_000
 SECTIONS = ("base", "grid", "cases")
 
