@@ -52,13 +52,6 @@ def law_of(profile: str) -> str:
     return FEEDBACK_LAWS.get(profile, "lqr")
 
 
-def predicted_loop(mode: str) -> str:
-    """The loop whose Monte-Carlo predicts a replay `mode` ("open", "closed" or "mpc"):
-    "closed" for the LQR closed loop and for the MPC, whose law with no bound active is that
-    LQR's (control/mpc.py); else "open"."""
-    return "closed" if mode in ("closed", "mpc") else "open"
-
-
 def lower_tail(k_sigma: float) -> float:
     """The one-sided probability that k·σ stands for under a normal law, Φ(−k)."""
     return 0.5 * math.erfc(k_sigma / math.sqrt(2))

@@ -11,11 +11,11 @@ from twin.geometry import Geometry
 
 
 def predicted_band(
-    profile: Profile, mode: str, k_sigma: float, *, geometry: Geometry
+    profile: Profile, sigma: np.ndarray, k_sigma: float, *, geometry: Geometry
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The PPANN's slider ∓ k σ of the profile played in `mode` (open or closed), (N,) each,
-    within `geometry`'s stroke; for drawing, not for statistics."""
-    sigma = profile.sigma_in(mode)
+    """The PPANN's slider ∓ k `sigma` about the profile's plan, (N,) each, within `geometry`'s
+    stroke; for drawing, not for statistics. `sigma`: the profile's in a loop
+    (Profile.sigma_in) or a replay's under the law it played (Replay.predicted_sigma)."""
     clip = geometry.within_stroke
     return clip(profile.slider - k_sigma * sigma), clip(profile.slider + k_sigma * sigma)
 
@@ -38,7 +38,7 @@ def _slider(
     k = ocp.config.k_sigma
     loop = loop or profile.loop
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
-    lower, upper = predicted_band(profile, loop, k, geometry=ocp.geometry)
+    lower, upper = predicted_band(profile, profile.sigma_in(loop), k, geometry=ocp.geometry)
     ax.fill_between(
         profile.time,
         lower,

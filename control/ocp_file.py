@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import CrankError
-from control.config import ROBUST_PROFILES, OCPConfig, predicted_loop
+from control.config import ROBUST_PROFILES, OCPConfig
 from twin.geometry import Geometry, GeometryError
 
 FORMAT = "crank-ocp"
@@ -117,7 +117,7 @@ class Profile:
     slider_sigma_open: np.ndarray
     """Monte-Carlo slider std of the plan played open loop, m."""
     slider_sigma_closed: np.ndarray
-    """... and closed loop under the profile's LQR gains, m."""
+    """... and closed loop under the profile's own gains (its LQR; robust-pd's PD), m."""
     heights: np.ndarray
     gain_theta: np.ndarray
     """(N - 1,) LQR gain on the angle error before samples 1..N-1, N·m/rad."""
@@ -130,11 +130,13 @@ class Profile:
     loop: str
     """open or closed: the loop its bands and tightening are of (a robust profile's claim)."""
 
-    def sigma_in(self, mode: str) -> np.ndarray:
-        """Monte-Carlo slider std of the plan played in `mode`, (N,), m: open loop, or closed
-        loop under the LQR gains (control/config.py predicted_loop)."""
-        closed = predicted_loop(mode) == "closed"
-        return self.slider_sigma_closed if closed else self.slider_sigma_open
+    def sigma_in(self, loop: str) -> np.ndarray:
+        """Monte-Carlo slider std of the plan played in `loop`, (N,), m: "open", or "closed"
+        under the profile's own gains (its LQR; robust-pd's fixed PD). Under another law (a
+        replay's fixed PD, the MPC) see replay/laws.py predicted_sigma."""
+        if loop not in ("open", "closed"):
+            raise ValueError(f"loop {loop!r}: open or closed")
+        return self.slider_sigma_closed if loop == "closed" else self.slider_sigma_open
 
 
 @dataclass(frozen=True)

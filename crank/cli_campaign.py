@@ -63,7 +63,9 @@ MPCSliderLimit = Annotated[
 PPANNPath = Annotated[
     Path | None,
     typer.Option(
-        "--ppann", help="mpc mode: the PPANN checkpoint (default: the one ocp.json names)."
+        "--ppann",
+        help="The PPANN checkpoint the mpc mode and the prediction under --feedback pd use "
+        "(default: the one ocp.json names).",
     ),
 ]
 _MPC = MPCConfig()

@@ -128,9 +128,10 @@ def compare_run(
     from control.ocp_file import read_ocp
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
-    from replay.campaign import plays_own_law, run_campaign
+    from replay.campaign import run_campaign
     from replay.config import ReplayConfig, played_line
     from replay.heldout import heldout_check
+    from replay.laws import plays_own_law
     from replay.statistics import campaign_statistics
     from twin.physics import SliderCrank, load_model
 
@@ -160,7 +161,7 @@ def compare_run(
     stats = {
         "lqr": campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing={}),
         "pd": campaign_statistics(
-            run_campaign(physics, ocp, config=pd, machines=campaign.machines),
+            run_campaign(physics, ocp, config=pd, machines=campaign.machines, model=model),
             ocp,
             ocp_path=ocp_path,
             timing={},

@@ -323,6 +323,17 @@ def print_replay(stats: dict[str, Any], out: Path) -> None:
     from replay.statistics import format_table, summary_rows
 
     typer.echo(format_table(summary_rows(stats)))
+    unpredicted = [
+        f"{name} {mode}"
+        for name, modes in stats["profiles"].items()
+        for mode, s in modes.items()
+        if any(c["predicted_k_sigma"] is None for c in s["constraint"].values())
+    ]
+    if unpredicted:
+        typer.echo(
+            f"—: no prediction for {', '.join(unpredicted)} (the PD is not their own law, and "
+            "the PPANN ocp.json names is not there or not the plan's: give it with --ppann)"
+        )
     claim = stats["claim"]
     if claim["holds"] is not None:
         verdict = "holds" if claim["holds"] else "does NOT hold"

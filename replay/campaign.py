@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -39,6 +39,7 @@ from control.mpc_config import MPCConfigError
 from control.ocp_file import OCPFile, Profile
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 from replay.config import ReplayConfig
+from replay.laws import closed_loop_gains, played_gains, predicted_sigma
 from twin.physics import SliderCrank
 from twin.stepping import simulate
 from twin.variability import MachineDraw
@@ -97,6 +98,9 @@ class Replay:
     friction: dict[str, np.ndarray]
     mpc: MPCRecord | None = None
     """What the MPC's steps took (mpc mode only)."""
+    predicted_sigma: np.ndarray | None = None
+    """The PPANN's slider σ (N,), m, under the law played (replay/laws.py predicted_sigma): set
+    by `run_campaign`; None where that law is not the profile's own and no PPANN was given."""
 
     @property
     def runs(self) -> int:
@@ -130,27 +134,6 @@ def draw_machines(config: ReplayConfig, n_samples: int, *, held_out: bool = Fals
         starts.append(start_rng.uniform(0.0, config.max_start_time))
         forces.append(config.variability.disturbance(np.random.default_rng(noise_child), n_samples))
     return Machines(draws=draws, start_times=np.array(starts), disturbance=np.array(forces))
-
-
-def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:
-    """The closed loop's gains on the angle and speed errors before samples 1..N-1, (N-1, 2):
-    the profile's own gains in ocp.json (its LQR; robust-pd's fixed PD), or the fixed PD (kp,
-    kd) of `config` at every sample. The twin's law (`tracking_law`) and the held-out check's
-    closed-loop Monte-Carlo both use these."""
-    if config.feedback == "pd":
-        return np.tile([config.kp, config.kd], (len(profile.gain_theta), 1))
-    return own_gains(profile)
-
-
-def own_gains(profile: Profile) -> np.ndarray:
-    """The profile's own gains in ocp.json, (N-1, 2): its LQR, or robust-pd's fixed PD."""
-    return np.stack([profile.gain_theta, profile.gain_omega], axis=-1)
-
-
-def plays_own_law(profile: Profile, config: ReplayConfig) -> bool:
-    """Whether the closed loop of `config` applies the gains the profile's tube was sized
-    with: its own (feedback "lqr"), or a fixed PD equal to them (robust-pd under "pd")."""
-    return bool(np.array_equal(closed_loop_gains(profile, config), own_gains(profile)))
 
 
 def tracking_law(
@@ -301,9 +284,16 @@ def run_campaign(
     model: PPANN | None = None,
 ) -> Campaign:
     """Play every profile of `ocp` in every configured mode on the same machines (default:
-    drawn from the config's seed); `on_replay` sees each (profile, mode) as soon as it is
+    drawn from the config's seed), each with the PPANN's slider σ under the law it played
+    (`model`: the plan's PPANN; the mpc mode needs it, and so does the prediction of a law
+    other than the profile's own); `on_replay` sees each (profile, mode) as soon as it is
     simulated (the campaign log writes it then)."""
     machines = machines if machines is not None else draw_machines(config, ocp.horizon)
+    heads = None
+    if model is not None:
+        from ppann.model import FusedHeads
+
+        heads = FusedHeads(model)
     replays = {}
     simulating = 0.0
     for profile in ocp.names:
@@ -320,6 +310,10 @@ def run_campaign(
                 model=model,
             )
             simulating += time.perf_counter() - started
+            mpc_gains = None if replay.mpc is None else replay.mpc.gains
+            gains = played_gains(ocp.profiles[profile], mode, config, mpc_gains=mpc_gains)
+            sigma = predicted_sigma(ocp, profile, gains, heads=heads)
+            replay = replace(replay, predicted_sigma=sigma)
             replays[profile, mode] = replay
             if on_replay is not None:
                 on_replay(replay)

@@ -136,7 +136,9 @@ class CampaignLog:
         """Append every run of `replay`, each as one episode, flushing after each run."""
         n = self.n_samples
         plan = (  # the same for every run of the replay's profile and mode
-            None if self.ocp is None else foxglove.plan_rows(self.ocp, replay.profile, replay.mode)
+            None
+            if self.ocp is None
+            else foxglove.plan_rows(self.ocp, replay.profile, replay.predicted_sigma)
         )
         for run in range(replay.runs):
             episode = self.episodes

@@ -10,7 +10,8 @@ from matplotlib.figure import Figure
 
 from control.figures import COLORS, constraint_boxes, predicted_band
 from control.ocp_file import OCPFile
-from replay.campaign import Campaign, closed_loop_gains
+from replay.campaign import Campaign
+from replay.laws import closed_loop_gains
 
 
 def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Figure:
@@ -30,9 +31,14 @@ def replay_figure(campaign: Campaign, ocp: OCPFile, stats: dict[str, Any]) -> Fi
             replay = campaign.replays[profile, mode]
             s = stats["profiles"][profile][mode]
             ax.plot(t, replay.slider_position.T, color=color, lw=0.4, alpha=0.35)
-            lower, upper = predicted_band(planned, mode, k, geometry=ocp.geometry)
-            loop = "LQR loop" if mode == "mpc" else f"{mode} loop"
-            ax.fill_between(t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({loop})")
+            if replay.predicted_sigma is not None:  # the law played: open, closed, the MPC's LQR
+                lower, upper = predicted_band(
+                    planned, replay.predicted_sigma, k, geometry=ocp.geometry
+                )
+                loop = "its LQR" if mode == "mpc" else f"{mode} loop"
+                ax.fill_between(
+                    t, lower, upper, color="k", alpha=0.12, label=f"PPANN ±{k:g}σ ({loop})"
+                )
             ax.plot(t, s["slider"]["mean"], color="k", lw=1.2, label="twin mean")
             for side, label in (("lower", f"twin ±{k:g}σ (within the stroke)"), ("upper", None)):
                 ax.plot(t, top(s["slider"][side]), "k--", lw=0.8, label=label)

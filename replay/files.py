@@ -23,6 +23,7 @@ from replay.campaign import Replay, draw_machines, run_campaign
 from replay.campaign_log import CampaignLog, campaign_header, check_not_partial
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.figures import replay_figure
+from replay.laws import plays_own_law
 from replay.recording import write_recording
 from replay.statistics import campaign_statistics, write_statistics
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
@@ -85,6 +86,22 @@ def plan_model(
     return model
 
 
+def _prediction_model(
+    ocp_path: str | Path, *, override: str | Path | None, ocp: OCPFile
+) -> PPANN | None:
+    """The plan's PPANN for a prediction the campaign can do without: None if ocp.json's
+    checkpoint is gone or another file (its rows then have no predicted σ); a wrong `override`
+    is an error."""
+    from ppann.checkpoint import CheckpointError
+
+    if override is not None:
+        return plan_model(ocp_path, override=override, ocp=ocp)
+    try:
+        return plan_model(ocp_path, ocp=ocp)
+    except CheckpointError:
+        return None
+
+
 def ocp_variability(ocp_path: str | Path) -> Variability:
     """The variability scenario recorded in an ocp.json (the training dataset's; the default
     twin's for a model trained on no dataset).
@@ -138,6 +155,10 @@ def replay_file(
     if "mpc" in config.modes:
         check_fits(config.mpc, ocp.horizon)
         predictor = plan_model(ocp_path, override=ppann, ocp=ocp)
+    elif "closed" in config.modes and not all(
+        plays_own_law(p, config) for p in ocp.profiles.values()
+    ):  # the prediction under the replay's PD runs the PPANN's Monte-Carlo (replay/laws.py)
+        predictor = _prediction_model(ocp_path, override=ppann, ocp=ocp)
     model, model_xml = load_model(model_path)
     physics = SliderCrank(model)
     ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that=f"the twin {model_path}")

@@ -8,7 +8,8 @@ shipped with the package).
   /slider_crank/scene  foxglove.SceneUpdate, once per run: crank, rod and slider as boxes locked to
                        their frames, the slide, and the constraint height as a red plate.
   /slider_crank/plan   slider_crank.Plan, one per sample: the profile's planned slider position,
-                       the PPANN's band (mean ∓ kσ in the run's loop, within the stroke) and the
+                       the PPANN's band (plan ∓ kσ under the law the run played, within the
+                       stroke; absent where it has no prediction, replay/laws.py) and the
                        height, tagged like the measurement (run, profile, mode, sample).
 
 Foxglove picks its schemas by name ("foxglove.FrameTransforms" with JSON encoding and a JSON
@@ -96,8 +97,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             **{k: {"type": "string"} for k in ("profile", "mode")},
             "t": {"type": "number", "description": "time of the log, s"},
             "planned": {"type": "number", "description": "planned slider position, m"},
-            "lower": {"type": "number", "description": "PPANN mean - k sigma, m"},
-            "upper": {"type": "number", "description": "PPANN mean + k sigma, m"},
+            "lower": {
+                "type": "number",
+                "description": "plan - k sigma of the PPANN under the law played (absent: none)",
+            },
+            "upper": {"type": "number", "description": "plan + k sigma, m"},
             "height": {"type": "number", "description": "the constraint's height, m"},
         },
     },
@@ -230,11 +234,15 @@ def scene_update(t: float, *, geometry: Geometry, height: float, profile: str) -
     }
 
 
-def plan_rows(ocp: OCPFile, profile: str, mode: str) -> list[dict[str, float]]:
-    """Per sample: the planned slider, the band of the run's loop and the height."""
+def plan_rows(ocp: OCPFile, profile: str, sigma: np.ndarray | None) -> list[dict[str, float]]:
+    """Per sample: the planned slider, the PPANN's band ∓ k `sigma` under the law the run
+    played (none without `sigma`: replay/laws.py predicted_sigma) and the height."""
     planned = ocp.profiles[profile]
-    lower, upper = predicted_band(planned, mode, ocp.config.k_sigma, geometry=ocp.geometry)
+    height = ocp.config.height
+    if sigma is None:
+        return [{"planned": p, "height": height} for p in planned.slider.tolist()]
+    lower, upper = predicted_band(planned, sigma, ocp.config.k_sigma, geometry=ocp.geometry)
     return [
-        {"planned": p, "lower": lo, "upper": up, "height": ocp.config.height}
+        {"planned": p, "lower": lo, "upper": up, "height": height}
         for p, lo, up in zip(planned.slider.tolist(), lower.tolist(), upper.tolist(), strict=True)
     ]

@@ -53,7 +53,7 @@ from scipy import stats as scistats
 from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
-from control.config import PD_GAINS, lower_tail, predicted_loop
+from control.config import PD_GAINS, lower_tail
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import read_ocp
 from ppann.checkpoint import CheckpointError, load
@@ -61,8 +61,9 @@ from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw
-from replay.campaign import closed_loop_gains, draw_machines, play, plays_own_law
+from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
+from replay.laws import played_gains, plays_own_law
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
@@ -176,13 +177,12 @@ def heldout_check(
         )
         simulate_s += time.perf_counter() - t0
         planned = ocp.profiles[profile]
+        mpc_gains = None if replay.mpc is None else replay.mpc.gains
+        gains = played_gains(planned, mode, config, mpc_gains=mpc_gains)
         law = None
-        if predicted_loop(mode) == "closed":
-            law = Feedback(
-                np.stack([planned.theta, planned.omega], axis=-1),
-                closed_loop_gains(planned, config) if mode == "closed" else replay.mpc.gains,
-                c.torque_limit,
-            )
+        if gains is not None:  # closed loop, or the LQR the MPC is
+            states = np.stack([planned.theta, planned.omega], axis=-1)
+            law = Feedback(states, gains, c.torque_limit)
         t0 = time.perf_counter()
         predicted = {
             mc_mode: monte_carlo(

@@ -165,16 +165,18 @@ def _series(rec: rr.RecordingStream, campaign: Campaign, ocp: OCPFile) -> None:
         _lines(rec, f"/slider/{loop}/runs", replay.slider_position, n=n, dt=dt, **run_style)
         _lines(rec, f"/torque/{loop}/runs", replay.tau, n=n, dt=dt, **run_style)
         planned = ocp.profiles[profile]
-        _lines(
-            rec,
-            f"/slider/{loop}/band",
-            band_lines(*predicted_band(planned, mode, c.k_sigma, geometry=ocp.geometry)),
-            n=n,
-            dt=dt,
-            colors=[(*REFERENCE, 45)] * BAND_LINES,
-            widths=[3.0] * BAND_LINES,
-            names=[f"PPANN ∓{c.k_sigma:g}σ"] * BAND_LINES,
-        )
+        if replay.predicted_sigma is not None:  # the PPANN's spread under the law played
+            band = predicted_band(planned, replay.predicted_sigma, c.k_sigma, geometry=ocp.geometry)
+            _lines(
+                rec,
+                f"/slider/{loop}/band",
+                band_lines(*band),
+                n=n,
+                dt=dt,
+                colors=[(*REFERENCE, 45)] * BAND_LINES,
+                widths=[3.0] * BAND_LINES,
+                names=[f"PPANN ∓{c.k_sigma:g}σ"] * BAND_LINES,
+            )
         _lines(
             rec,
             f"/slider/{loop}/planned",

@@ -2,8 +2,9 @@
 
 `<campaign>.stats.json` keys (stable; `version` changes if any meaning does):
 
-  format, version         "crank-replay-stats", 2 (2: premiums and claims per robust profile,
-                          in place of robust_cost_premium)
+  format, version         "crank-replay-stats", 3 (2: premiums and claims per robust profile,
+                          in place of robust_cost_premium; 3: predicted_k_sigma under the law
+                          played, or null)
   ocp                     {path, height, constraint_samples (1-based), k_sigma, premiums}:
                           premiums {profile: its cost over the nominal's, minus 1} per robust
                           profile
@@ -20,8 +21,10 @@
     violating_runs        runs below the height at any constraint sample
     constraint            {sample: {height, lowest, mean, observed_k_sigma, predicted_k_sigma,
                           clearance}}: slider at the constraint samples, m; observed k·σ over the
-                          runs beside the PPANN's Monte-Carlo k·σ (an open-loop prediction, the
-                          same in both modes); clearance = lowest − height
+                          runs beside the PPANN's Monte-Carlo k·σ under the law played (open, the
+                          closed loop's gains, the MPC's LQR; replay/laws.py), null where that
+                          law is not the profile's own and the replay had no PPANN to predict
+                          it with; clearance = lowest − height
     final_error           {theta, omega}: each {mean, std, max_abs} of the measured state minus
                           the OCP's θ_N, ω_N at sample N
     effort                {applied_mean, applied_std, planned}: Σ u_k² over the N samples
@@ -47,11 +50,12 @@ import numpy as np
 
 from common.jsonio import write_json
 from control.ocp_file import OCPFile
-from replay.campaign import Campaign, Replay, plays_own_law
+from replay.campaign import Campaign, Replay
 from replay.config import ReplayConfig
+from replay.laws import plays_own_law
 
 FORMAT = "crank-replay-stats"
-VERSION = 2
+VERSION = 3
 CLAIM_NOMINAL_MIN = 10
 """The nominal profile must break the constraint on at least this many of 100 open-loop runs."""
 
@@ -87,6 +91,7 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
     """The statistics of one profile in one mode (keys as in the module docstring)."""
     c = ocp.config
     planned = ocp.profiles[replay.profile]
+    predicted = replay.predicted_sigma
     slider = replay.slider_position
     k = c.k_sigma
     ddof = 1 if replay.runs > 1 else 0
@@ -102,7 +107,7 @@ def replay_statistics(replay: Replay, ocp: OCPFile) -> dict[str, Any]:
             "lowest": float(at.min()),
             "mean": float(at.mean()),
             "observed_k_sigma": float(k * sigma[sample - 1]),
-            "predicted_k_sigma": float(k * planned.sigma_in(replay.mode)[sample - 1]),
+            "predicted_k_sigma": None if predicted is None else float(k * predicted[sample - 1]),
             "clearance": float(at.min() - c.height),
         }
     effort = np.sum(replay.tau**2, axis=1)
@@ -182,7 +187,7 @@ def _claims(
     profiles: dict[str, dict[str, Any]], ocp: OCPFile, *, config: ReplayConfig
 ) -> dict[str, Any]:
     """Each robust profile in the loop it was tightened for, if that loop was played (closed:
-    under the gains its tube was sized with, replay/campaign.py plays_own_law)."""
+    under the gains its tube was sized with, replay/laws.py plays_own_law)."""
     claims = {}
     for name in ocp.robust_names:
         loop = ocp.profiles[name].loop
@@ -214,9 +219,9 @@ def summary_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
                 c = s["constraint"][str(n)]
                 row[f"below@{n}"] = f"{s['violations'][str(n)]}/{s['runs']}"
                 row[f"lowest@{n} mm"] = f"{1e3 * c['lowest']:.1f}"
-                row[f"{k}@{n} obs/pred mm"] = (
-                    f"{1e3 * c['observed_k_sigma']:.1f}/{1e3 * c['predicted_k_sigma']:.1f}"
-                )
+                predicted = c["predicted_k_sigma"]
+                shown = "—" if predicted is None else f"{1e3 * predicted:.1f}"
+                row[f"{k}@{n} obs/pred mm"] = f"{1e3 * c['observed_k_sigma']:.1f}/{shown}"
             theta = s["final_error"]["theta"]
             row["θ_N err rad"] = f"{theta['mean']:+.3f}±{theta['std']:.3f}"
             row["Σu² (plan)"] = f"{s['effort']['applied_mean']:.0f} ({s['effort']['planned']:.0f})"

@@ -96,8 +96,9 @@ def test_campaign_log_carries_the_mechanism_and_the_plan(
     assert by_topic[SCENE_TOPIC] == runs
     robust_closed = [p for p in plans if p["profile"] == "robust" and p["mode"] == "closed"]
     first = [p for p in robust_closed if p["run"] == 0]
+    robust = ocp.profiles["robust"]  # closed under its own gains: the file's closed spread
     lower, upper = predicted_band(
-        ocp.profiles["robust"], "closed", ocp.config.k_sigma, geometry=ocp.geometry
+        robust, robust.sigma_in("closed"), ocp.config.k_sigma, geometry=ocp.geometry
     )
     np.testing.assert_array_equal([p["planned"] for p in first], ocp.profiles["robust"].slider)
     np.testing.assert_array_equal([p["lower"] for p in first], lower)

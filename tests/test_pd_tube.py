@@ -13,8 +13,8 @@ from control.robust import solve_robust
 from control.tightening import slider_uncertainty
 from crank.chain import RunConfig
 from ppann.model import PPANN, FusedHeads, constant_ppann
-from replay.campaign import closed_loop_gains, plays_own_law
 from replay.config import ReplayConfig
+from replay.laws import closed_loop_gains, plays_own_law
 
 
 @pytest.fixture(scope="module")

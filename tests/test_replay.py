@@ -4,6 +4,7 @@ and the statistics (the synthetic ocp.json: tests/replay_ocp.py)."""
 from __future__ import annotations
 
 import copy
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from common.streams import stream
-from control.config import PD_GAINS, predicted_loop
+from control.config import PD_GAINS
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.mpc_config import MPCConfig
@@ -29,15 +30,15 @@ from twin.stepping import chunk_time
 from twin.variability import Variability, apply
 
 
-def test_each_mode_is_predicted_by_its_loops_monte_carlo(ocp: OCPFile) -> None:
-    """open plays the open-loop spread; closed and mpc (the MPC's unsaturated law is the LQR's)
-    the closed loop's, which the fixture makes a tenth of it."""
+def test_each_loop_of_the_file_has_its_own_monte_carlo(ocp: OCPFile) -> None:
+    """open is the open-loop spread; closed the closed loop's under the profile's own gains,
+    which the fixture makes a tenth of it. The MPC is another law (replay/laws.py), which the
+    file has no spread for (replay/laws.py predicts it)."""
     robust = ocp.profiles["robust"]
     np.testing.assert_array_equal(robust.sigma_in("open"), np.full(N, 0.004))
-    for mode in ("closed", "mpc"):
-        assert predicted_loop(mode) == "closed"
-        np.testing.assert_array_equal(robust.sigma_in(mode), np.full(N, 0.0004))
-    assert predicted_loop("open") == "open"
+    np.testing.assert_array_equal(robust.sigma_in("closed"), np.full(N, 0.0004))
+    with pytest.raises(ValueError, match="'mpc': open or closed"):
+        robust.sigma_in("mpc")
 
 
 def _reference_run(physics, config, machines, i, profile, *, feedback: bool) -> dict:
@@ -139,11 +140,14 @@ def test_closed_loop_feedback_uses_the_measurements_and_tracks(
     # feedback shrinks the machine-to-machine spread of the angle at the end by > 5x
     assert closed.theta[:, -1].std() < open_loop.theta[:, -1].std() / 5
     # each row is compared with the PPANN's prediction of its own loop, never the other's
-    for replay, sigma in (
-        (open_loop, ocp.nominal.slider_sigma_open),
-        (closed, ocp.nominal.slider_sigma_closed),
+    campaign = run_campaign(
+        physics, ocp, config=replace(config, modes=("open", "closed")), machines=machines
+    )
+    for mode, sigma in (
+        ("open", ocp.nominal.slider_sigma_open),
+        ("closed", ocp.nominal.slider_sigma_closed),
     ):
-        row = replay_statistics(replay, ocp)
+        row = replay_statistics(campaign.replays["nominal", mode], ocp)
         for sample, entry in row["constraint"].items():
             assert entry["predicted_k_sigma"] == 3 * sigma[int(sample) - 1]
     assert not np.array_equal(ocp.nominal.slider_sigma_open, ocp.nominal.slider_sigma_closed)

@@ -90,10 +90,9 @@ def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> N
 def test_rerun_band_is_shaded_between_the_bounds_and_inside_the_stroke() -> None:
     """The drawn band stays within the stroke (a predicted 3σ above top dead centre is drawn at
     the stroke's end) and its Rerun series run evenly from the lower to the upper bound."""
-    profile = SimpleNamespace(
-        slider=np.array([0.02, 0.0, 0.1]), sigma_in=lambda mode: np.array([0.003, 0.002, 0.004])
-    )
-    lower, upper = predicted_band(profile, "open", 3.0, geometry=PAPER)
+    profile = SimpleNamespace(slider=np.array([0.02, 0.0, 0.1]))
+    sigma = np.array([0.003, 0.002, 0.004])
+    lower, upper = predicted_band(profile, sigma, 3.0, geometry=PAPER)
     assert np.allclose(lower, [0.011, 0.0, 0.088], rtol=0, atol=1e-15)
     assert np.allclose(upper, [0.029, 0.006, PAPER.stroke_top], rtol=0, atol=1e-15)
     lines = band_lines(lower, upper)
@@ -242,7 +241,7 @@ def test_cli_replay_writes_every_file_and_view_explains(ocp_path: Path, tmp_path
     paths = output_paths(out)
     assert all(p.is_file() for p in paths.values())
     stats = json.loads(paths["stats"].read_text())
-    assert stats["format"] == "crank-replay-stats" and stats["version"] == 2
+    assert stats["format"] == "crank-replay-stats" and stats["version"] == 3
     assert stats["config"]["runs"] == 3
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     view = subprocess.run(
