@@ -71,8 +71,8 @@ def plan_model(
         raise CheckpointError(f"{ocp_path} names no checkpoint; give the PPANN with --ppann")
     if not path.is_file():
         raise CheckpointError(
-            f"the mpc mode predicts with the PPANN {ocp_path} was solved on, and {path} is not "
-            "there (give it with --ppann)"
+            f"the MPC and the prediction of a law other than a profile's own use the PPANN "
+            f"{ocp_path} was solved on, and {path} is not there (give it with --ppann)"
         )
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     if record.get("sha256") not in (None, digest):

@@ -298,6 +298,8 @@ CASES: list[tuple[str, str]] = [
     ("replay --ocp {ocp.json} --out o/r.mcap --modes mpc", "is not there"),
     ("replay --ocp {ocp.json} --out o/r.mcap --modes mpc --ppann {m.pt}", "is not the checkpoint"),
     ("replay --ocp {ocp.json} --out o/r.mcap --modes mpc --ppann {text.pt}", "is not the check"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --feedback pd --ppann {m.pt}", "is not the check"),
+    ("replay --ocp {ocp.json} --out o/r.mcap --feedback pd --ppann {dir}/no.pt", "is not there"),
     # --- heldout ---
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --runs 0", "runs must be an"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --runs 1000000", "runs must be"),
