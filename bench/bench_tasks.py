@@ -2,12 +2,15 @@
 Monte-Carlo seeds and every returned robust torque checked on held-out machines.
 
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
-        [--mc-samples 1000] [--only "horizon 200"] [--out tasks.json]
+        [--mc-samples 1000] [--only "horizon 200"] [--profiles robust-fb,robust-pd]
+        [--heldout-seed S] [--out tasks.json]
 
-Per task and Monte-Carlo seed: the verdict (a robust torque, or the one-line reason there is
-none), the margins and their standard errors, the cost premium, and the held-out violation rate
-with its exact 95 % bound. A task's verdict must not depend on the Monte-Carlo seed. Writes
-`tasks.json` beside the model and prints a table.
+Per task, Monte-Carlo seed and robust profile (default the open-loop `robust`; the tubes
+`robust-fb`, `robust-pd` are checked closed loop under their own gains): the verdict (a robust
+torque, or the one-line reason there is none), the margins and their standard errors, the cost
+premium, and the held-out violation rate in the profile's loop with its exact 95 % bound. A
+task's verdict must not depend on the Monte-Carlo seed. Writes `tasks.json` beside the model
+and prints a table.
 """
 
 from __future__ import annotations
@@ -34,6 +37,11 @@ TASKS: dict[str, dict] = {
 }
 
 
+def _none(reason: object) -> dict:
+    """A row's verdict where the profile has no robust torque."""
+    return {"verdict": "none", "error": str(reason)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", required=True)
@@ -43,7 +51,9 @@ def main() -> None:
     parser.add_argument("--heldout-seed", type=int, default=HELDOUT_SEED)
     parser.add_argument("--only", default="", help="run the tasks whose name contains this")
     parser.add_argument("--out", default="tasks.json", help="file name beside the model")
+    parser.add_argument("--profiles", default="robust", help="robust profiles, comma-separated")
     args = parser.parse_args()
+    profiles = tuple(p.strip() for p in args.profiles.split(","))
     model = Path(args.model)
     work = model.parent / "tasks"
     work.mkdir(exist_ok=True)
@@ -52,17 +62,19 @@ def main() -> None:
         if args.only not in task:
             continue
         for mc_seed in parse_seeds(args.mc_seeds):
-            config = OCPConfig(**options, mc_seed=mc_seed, mc_samples=args.mc_samples)
+            config = OCPConfig(
+                **options, mc_seed=mc_seed, mc_samples=args.mc_samples, profiles=profiles
+            )
             ocp_path = work / f"task{t}-mc{mc_seed}.json"
-            row = {"task": task, "mc_seed": mc_seed}
             started = time.perf_counter()
             try:
                 solved = solve_file(model, ocp_path, config=config)
             except CrankError as exc:
-                row |= {"verdict": "none", "error": str(exc)}
-                rows.append(row)
+                for name in profiles:
+                    rows.append({"task": task, "mc_seed": mc_seed, "profile": name} | _none(exc))
                 print(f"{task:<34} mc {mc_seed}: no robust torque: {exc}", flush=True)
                 continue
+            loops = {name: solved[name]["loop"] for name in profiles if name in solved}
             heldout = heldout_file(
                 ocp_path,
                 work / f"task{t}-mc{mc_seed}.heldout.json",
@@ -70,32 +82,47 @@ def main() -> None:
                 runs=args.runs,
                 seed=args.heldout_seed,
                 variability=ocp_variability(ocp_path),
+                modes=tuple(dict.fromkeys(sorted(loops.values(), reverse=True))),
             )
-            robust = heldout["profiles"]["robust"]["open"]
-            row |= {
-                "verdict": "robust",
-                "margins_mm": [1e3 * (h - config.height) for h in solved["robust"]["heights"]],
-                "tightening_se_mm": [1e3 * v for v in solved["robust"]["tightening_se"]],
-                "premium": solved["robust"]["cost"] / solved["nominal"]["cost"] - 1,
-                "heldout_rate": robust["rate"],
-                "heldout_upper_95": robust["rate_upper_95"],
-                "nominal_heldout_rate": heldout["profiles"]["nominal"]["open"]["rate"],
-                "seconds": time.perf_counter() - started,
-            }
-            rows.append(row)
-            print(
-                f"{task:<34} mc {mc_seed}: margins "
-                + ", ".join(f"{m:.2f}" for m in row["margins_mm"])
-                + f" mm, premium {100 * row['premium']:.1f} %, held-out "
-                f"{100 * row['heldout_rate']:.2f} % (bound {100 * row['heldout_upper_95']:.2f} %), "
-                f"nominal {100 * row['nominal_heldout_rate']:.1f} %",
-                flush=True,
-            )
+            for name in profiles:
+                row = {"task": task, "mc_seed": mc_seed, "profile": name}
+                if name not in solved:
+                    rows.append(row | _none(solved["refused"][name]))
+                    print(f"{task:<34} mc {mc_seed} {name}: none: {row['error']}", flush=True)
+                    continue
+                loop = loops[name]
+                held = heldout["profiles"][name][loop]
+                nominal_cost = solved["nominal"]["cost"]
+                row |= {
+                    "verdict": "robust",
+                    "loop": loop,
+                    "margins_mm": [1e3 * (h - config.height) for h in solved[name]["heights"]],
+                    "tightening_se_mm": [1e3 * v for v in solved[name]["tightening_se"]],
+                    "premium": solved[name]["cost"] / nominal_cost - 1,
+                    "heldout_rate": held["rate"],
+                    "heldout_upper_95": held["rate_upper_95"],
+                    "nominal_heldout_rate": heldout["profiles"]["nominal"][loop]["rate"],
+                    "seconds": time.perf_counter() - started,
+                }
+                rows.append(row)
+                print(
+                    f"{task:<34} mc {mc_seed} {name}: margins "
+                    + ", ".join(f"{m:.2f}" for m in row["margins_mm"])
+                    + f" mm, premium {100 * row['premium']:.1f} %, held-out {loop} "
+                    f"{100 * row['heldout_rate']:.2f} % (bound "
+                    f"{100 * row['heldout_upper_95']:.2f} %), nominal "
+                    f"{100 * row['nominal_heldout_rate']:.1f} %",
+                    flush=True,
+                )
     for task in (t for t in TASKS if args.only in t):
-        verdicts = {r["verdict"] for r in rows if r["task"] == task}
-        print(f"{task}: verdict {'/'.join(sorted(verdicts))} over the Monte-Carlo seeds")
+        for name in profiles:
+            verdicts = {r["verdict"] for r in rows if r["task"] == task and r["profile"] == name}
+            print(
+                f"{task}, {name}: verdict {'/'.join(sorted(verdicts))} over the Monte-Carlo seeds"
+            )
     out = model.parent / args.out
-    out.write_text(json.dumps({"runs": args.runs, "rows": rows}, indent=1))
+    record = {"runs": args.runs, "heldout_seed": args.heldout_seed, "profiles": list(profiles)}
+    out.write_text(json.dumps(record | {"rows": rows}, indent=1))
     print(f"wrote {out}")
 
 
