@@ -259,7 +259,7 @@ def compare_runs(
     if len({p.resolve() for p in run_dirs}) != len(run_dirs):
         raise ConfigError("a run folder is named twice")
     from replay.config import ReplayConfig, check_campaign_memory
-    from replay.heldout import TARGET_RATE
+    from replay.rates import TARGET_RATE
 
     # every folder and count checked before any replay
     configs = [_run_folder(run_dir)[0] for run_dir in run_dirs]

@@ -285,7 +285,9 @@ class EpochBars:
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:
+    from control.config import loop_of
     from replay.config import loop_label
+    from replay.rates import verdict_text
 
     typer.echo(f"held-out check ({heldout['runs']} machines per profile and loop):")
     for profile, played in heldout["profiles"].items():
@@ -296,9 +298,10 @@ def print_heldout(heldout: dict[str, Any]) -> None:
                 f"({100 * entry['rate']:.2f} %, 95 % upper bound "
                 f"{100 * entry['rate_upper_95']:.2f} %)"
             )
-    for profile, holds in heldout["holds"].items():
-        verdict = "holds" if holds else "does NOT hold"
-        typer.echo(f"  {profile} {verdict} in its loop at <= {100 * heldout['target_rate']:.1f} %")
+    for profile in heldout["holds"]:
+        below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
+        said = verdict_text(below, heldout["runs"], target=heldout["target_rate"])
+        typer.echo(f"  {profile} in its loop {said}")
 
 
 def show_iteration(it: Iteration) -> None:

@@ -192,6 +192,22 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     return "\n".join(lines)
 
 
+def _verdict_words(entry: dict[str, Any], heldout: dict[str, Any]) -> str:
+    """A profile's held-out verdict in a sentence's words (replay/rates.py)."""
+    from replay.rates import machines_to_confirm, verdict
+
+    target = heldout["target_rate"]
+    said = verdict(entry["violating_runs"], heldout["runs"], target=target)
+    if said == "fails":
+        return "**does not hold**."
+    if said == "holds":
+        return "**holds**."
+    return (
+        f"**is not confirmed**: within it on these {heldout['runs']} machines, but they are too "
+        f"few for the bound to be (none below on {machines_to_confirm(target)} would confirm it)."
+    )
+
+
 def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
     """The held-out verdicts and the calibration table of report.md (nothing if not run)."""
     if heldout is None:
@@ -207,8 +223,7 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
     for name in list(profiles)[1:]:
         for loop in heldout["modes"]:
             robust, nominal = profiles[name][loop], profiles["nominal"][loop]
-            holds = robust["rate"] <= heldout["target_rate"]
-            word = "**holds**" if holds else "**does not hold**"
+            word = _verdict_words(robust, heldout)
             pd = loop == "closed" and heldout.get("feedback") == "pd"
             sized = loop_of(name) == loop and name in heldout.get("holds", {})
             own = " (the loop it was tightened for)" if sized else ""
@@ -218,7 +233,7 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
                 f"on {100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
                 f"{100 * robust['rate_upper_95']:.2f} %), the nominal one on "
                 f"{100 * nominal['rate']:.1f} %. Against the target of <= "
-                f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}."
+                f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}"
             )
     lines += [
         "",

@@ -34,7 +34,7 @@ from control.figures import COLORS
 from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
-from replay.heldout import TARGET_RATE as TARGET_HELDOUT_RATE
+from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
 
 MAX_SEEDS = 1000
 
@@ -244,6 +244,13 @@ def markdown(study: dict[str, Any]) -> str:
             f"(target <= {100 * study['target_heldout_rate']:.1f} %): "
             f"**{'met' if holds and every else 'NOT met'}**"
         )
+        unsure = [r for r in good if r["robust_heldout_upper_95"] > study["target_heldout_rate"]]
+        if unsure:
+            lines.append(
+                f"  - on {len(unsure)} seed(s) the 95 % bound is above the target (worst "
+                f"{100 * max(r['robust_heldout_upper_95'] for r in unsure):.2f} %): too few "
+                "held-out machines to confirm it"
+            )
         lines.append(
             f"- {name} {loop} loop 0/100 campaign runs on every seed: "
             f"**{'yes' if campaign and every else 'no'}**"

@@ -36,6 +36,9 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
   holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
                          tightened for (open, or closed under the gains its tube was sized
                          with), if that loop was played
+  verdicts               {profile: holds | unconfirmed | fails} for the same (replay/rates.py):
+                         unconfirmed where the rate is within the target but its 95 % bound is
+                         not (too few machines to confirm it)
   timing                 {simulate_s, monte_carlo_s}
 """
 
@@ -64,21 +67,13 @@ from ppann.transmission import draw
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
+from replay.rates import TARGET_RATE, rate_upper, verdict
 from replay.statistics import mpc_timing
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
 VERSION = 3
-TARGET_RATE = 0.005
-"""Largest violation rate of the robust profile on held-out machines that counts as holding."""
-
-
-def rate_upper(violations: int, runs: int, *, confidence: float = 0.95) -> float:
-    """Exact one-sided Clopper-Pearson upper bound of a binomial rate."""
-    if violations >= runs:
-        return 1.0
-    return float(scistats.beta.ppf(confidence, violations + 1, runs - violations))
 
 
 def _ratio(predicted: float, observed: float) -> float | None:
@@ -240,12 +235,14 @@ def heldout_check(
         }
         if on_played is not None:
             on_played(profile, mode, out["profiles"][profile][mode])
-    out["holds"] = {
-        name: out["profiles"][name][loop]["rate"] <= TARGET_RATE
+    judged = {
+        name: out["profiles"][name][loop]
         for name in ocp.robust_names
         if (loop := ocp.profiles[name].loop) in modes
         and (loop == "open" or plays_own_law(ocp.profiles[name], config))
     }
+    out["holds"] = {name: e["rate"] <= TARGET_RATE for name, e in judged.items()}
+    out["verdicts"] = {name: verdict(e["violating_runs"], runs) for name, e in judged.items()}
     out["timing"] = {"simulate_s": simulate_s, "monte_carlo_s": mc_s}
     return out
 

@@ -129,6 +129,8 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     for name, loop in (("robust", "open"), ("robust-fb", "closed"), ("robust-pd", "closed")):
         rate = heldout["profiles"][name][loop]["rate"]
         assert heldout["holds"][name] == (rate <= heldout["target_rate"])
+        # 20 machines cannot confirm 0.5 % (0 of 598 would): never "holds"
+        assert heldout["verdicts"][name] == ("unconfirmed" if rate <= 0.005 else "fails")
     for entry in (e for played in heldout["profiles"].values() for e in played.values()):
         assert 0 <= entry["violating_runs"] <= 20
         assert entry["rate_upper_95"] >= entry["rate"]

@@ -200,6 +200,9 @@ def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
     assert result["modes"] == list(modes) and result["feedback"] == feedback
     assert result["pd"] == {"kp": pd[0], "kd": pd[1]}
     assert list(result["holds"]) == (["robust"] if "open" in modes else [])
+    for name in result["holds"]:  # 8 machines confirm no rate of 0.5 %
+        below = result["profiles"][name]["open"]["violating_runs"]
+        assert result["verdicts"][name] == ("unconfirmed" if below == 0 else "fails")
     for mode, name in ((m, n) for m in modes for n in ocp.names):
         entry = result["profiles"][name][mode]
         _check_heldout_entry(physics, ocp, model, entry, name, mode, feedback=feedback, pd=pd)

@@ -9,6 +9,7 @@ from crank.report import heldout_lines, train_summary
 
 def _heldout(mode: str, ratio: float) -> dict:
     entry = {
+        "violating_runs": 0,
         "rate": 0.0,
         "rate_upper_95": 0.003,
         "samples": {
@@ -104,3 +105,23 @@ def test_theta_is_calibrated_at_each_constraint_sample_and_the_last() -> None:
     assert "| robust | open | last | 200.0 | 0.98 | 9.00 |" in text
     # a version-2 file (no θ at the samples) gets the slider's table only
     assert "θ σ mrad" not in "\n".join(heldout_lines(_heldout("open", 1.1)))
+
+
+@pytest.mark.parametrize(
+    ("below", "runs", "word"),
+    [
+        (0, 1000, "**holds**."),
+        (0, 100, "**is not confirmed**: within it on these 100 machines, but they are too few"),
+        (6, 1000, "**does not hold**."),
+    ],
+)
+def test_heldout_verdict_needs_its_bound_within_the_target(
+    below: int, runs: int, word: str
+) -> None:
+    """0 of 100 is a rate of 0 % with an exact 95 % bound of 2.95 %: not a confirmed 0.5 %."""
+    heldout = _heldout("open", 1.1)
+    entry = heldout["profiles"]["robust"]["open"] | {"violating_runs": below, "rate": below / runs}
+    heldout["profiles"]["robust"]["open"] = entry
+    heldout["runs"] = runs
+    text = "\n".join(heldout_lines(heldout))
+    assert f"Against the target of <= 0.5 % the robust torque {word}" in text

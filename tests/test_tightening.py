@@ -25,7 +25,7 @@ from control.tightening import (
 from ppann.confidence import confidence_quantile
 from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
 from ppann.montecarlo import rollout
-from replay.heldout import rate_upper
+from replay.rates import rate_upper
 from twin.geometry import PAPER
 
 PLAN = 0.095

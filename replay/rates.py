@@ -1,0 +1,55 @@
+"""Violation rates on held-out machines: the exact bound, and what a count can confirm.
+
+No violation on 50 machines is a rate of 0 %, and its exact one-sided 95 % upper bound is
+5.8 %: such a check cannot tell 0.1 % from 2 %. A robust torque *holds* against the target rate
+when its observed rate is within the target and so is that bound; within the target with the
+bound above it, the machines were too few to confirm it (`machines_to_confirm` says how many
+would, with none below); above the target, it does not hold.
+"""
+
+from __future__ import annotations
+
+import math
+
+from scipy import stats as scistats
+
+TARGET_RATE = 0.005
+"""Largest violation rate of the robust profile on held-out machines that counts as holding."""
+CONFIDENCE = 0.95
+"""The one-sided confidence of the rate's upper bound."""
+
+
+def rate_upper(violations: int, runs: int, *, confidence: float = CONFIDENCE) -> float:
+    """Exact one-sided Clopper-Pearson upper bound of a binomial rate."""
+    if violations >= runs:
+        return 1.0
+    return float(scistats.beta.ppf(confidence, violations + 1, runs - violations))
+
+
+def machines_to_confirm(target: float = TARGET_RATE, *, confidence: float = CONFIDENCE) -> int:
+    """The fewest machines whose exact bound is within `target` when none goes below:
+    (1 − target)^n ≤ 1 − confidence."""
+    return math.ceil(math.log(1.0 - confidence) / math.log(1.0 - target))
+
+
+def verdict(violations: int, runs: int, *, target: float = TARGET_RATE) -> str:
+    """ "holds" (rate and its 95 % bound within `target`), "unconfirmed" (the rate within it,
+    the bound above: too few machines) or "fails" (the rate above it)."""
+    if violations / runs > target:
+        return "fails"
+    return "holds" if rate_upper(violations, runs) <= target else "unconfirmed"
+
+
+def verdict_text(violations: int, runs: int, *, target: float = TARGET_RATE) -> str:
+    """The verdict in words, with the numbers that decide it."""
+    upper, pct = rate_upper(violations, runs), f"{100 * target:.1f} %"
+    said = verdict(violations, runs, target=target)
+    if said == "fails":
+        return f"does NOT hold ({100 * violations / runs:.2f} % > {pct})"
+    if said == "holds":
+        return f"holds at <= {pct} (95 % bound {100 * upper:.2f} %)"
+    return (
+        f"is within {pct} on these {runs} machines but not confirmed: the 95 % bound is "
+        f"{100 * upper:.2f} % (none below on {machines_to_confirm(target)} machines would "
+        f"confirm it)"
+    )
