@@ -57,12 +57,15 @@ def verdict(scenario: dict[str, Any], *, rate: float, effort: float) -> list[str
         if row["controller"] not in OWN_LAW.get(row["profile"], ()):
             continue
         holds = row["below_campaign"] == 0 and row["heldout_rate"] <= rate
+        word = "met" if holds else "NOT met"
+        if holds and row["heldout_upper_95"] > rate:  # replay/rates.py
+            word = "met on these machines, not confirmed: the bound is above the target"
         cheap = row["effort_over_nominal"] <= effort
         lines.append(
             f"- {row['profile']} under {row['controller']}: {row['below_campaign']}/"
             f"{row['campaign_runs']} campaign runs and {100 * row['heldout_rate']:.2f} % of "
             f"held-out machines below (bound {100 * row['heldout_upper_95']:.2f} %): "
-            f"**{'met' if holds else 'NOT met'}**; Σu² applied "
+            f"**{word}**; Σu² applied "
             f"{100 * row['effort_over_nominal']:+.1f} % over the nominal plan's: "
             f"**{'met' if cheap else 'NOT met'}**"
         )
