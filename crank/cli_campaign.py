@@ -30,6 +30,7 @@ from crank.console import (
     print_replay,
 )
 from replay.config import ReplayConfig, played_line
+from replay.rates import TARGET_RATE, machines_to_confirm
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -215,7 +216,13 @@ def heldout_command(
     model: Annotated[Path, typer.Option(help="The PPANN checkpoint the OCP was solved on.")] = (
         Path("logs/model.pt")
     ),
-    runs: Annotated[int, typer.Option(help="Held-out machines per profile.")] = 1000,
+    runs: Annotated[
+        int,
+        typer.Option(
+            help=f"Held-out machines per profile (fewer than {machines_to_confirm()} cannot "
+            f"confirm a rate of {100 * TARGET_RATE:g} %)."
+        ),
+    ] = 1000,
     seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (HELDOUT_SEED),
     out: Annotated[Path, typer.Option(help="heldout.json to write.")] = Path("logs/heldout.json"),
     variability: Annotated[

@@ -36,6 +36,7 @@ from crank.console import (
     transcript,
 )
 from replay.config import ReplayConfig
+from replay.rates import TARGET_RATE, machines_to_confirm
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.variability import Variability
 
@@ -72,7 +73,12 @@ def run_command(
         ReplayConfig.runs
     ),
     heldout_runs: Annotated[
-        int, typer.Option(help="Held-out machines per profile; 0 skips the check.")
+        int,
+        typer.Option(
+            help=f"Held-out machines per profile; 0 skips the check. Fewer than "
+            f"{machines_to_confirm()} cannot confirm a rate of {100 * TARGET_RATE:g} % (the "
+            "exact 95 % bound of none below)."
+        ),
     ] = HELDOUT_RUNS,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
