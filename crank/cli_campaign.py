@@ -290,7 +290,7 @@ def recover_command(
     fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
 ) -> None:
     """Rebuild a readable, indexed MCAP from what a crashed campaign writer left."""
-    from replay.campaign_log import recover
+    from replay.recover import recover
 
     result = recover(broken, fixed)
     state = "was complete" if result.complete else "was cut short"

@@ -18,30 +18,23 @@ attachments `model.xml`, `ocp.json` and `config.json` (the resolved replay confi
 
 Crash safety: the log is written to `<out>.partial` and renamed when finished. After each run the
 writer closes its chunk and flushes the file, so a killed campaign leaves every completed run on
-disk; `recover` rebuilds an indexed MCAP from such a file, keeping the runs whose `replay_run`
-record made it (a run's record is written after its messages).
+disk; `recover` (replay/recover.py) rebuilds an indexed MCAP from such a file, keeping the runs
+whose `replay_run` record made it (a run's record is written after its messages).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import struct
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
 import orjson
-import zstandard
-from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from common.atomic import OutputError, atomic_path, check_writable, register_output, writes
-from common.errors import CrankError
+from common.atomic import OutputError, check_writable, register_output
 from control.ocp_file import OCPFile
 from replay import foxglove
 from replay.campaign import Machines, Replay
@@ -50,7 +43,6 @@ from twin import __version__
 from twin.generation import provenance
 from twin.mcap_dataset import (
     CHANNELS,
-    MCAP_MAGIC,
     MEASUREMENT_TOPIC,
     RUN_METADATA,
     TRUTH_TOPIC,
@@ -80,10 +72,6 @@ TAGS = {
     "mode": {"type": "string", "description": "open, closed (plan + LQR or PD) or mpc"},
     "sample": {"type": "integer", "description": "the OCP's 1-based sample k, t_k = (k - 1) Ts"},
 }
-
-
-class RecoverError(CrankError, ValueError):
-    """A file cannot be recovered (not an MCAP, or nothing readable in it)."""
 
 
 def partial_path(out: str | Path) -> Path:
@@ -293,99 +281,6 @@ def campaign_header(
         "config": config.as_dict(),
         **provenance(model_path),
     }
-
-
-@dataclass(frozen=True)
-class Recovery:
-    """What `recover` kept."""
-
-    runs: int
-    messages: int
-    dropped_messages: int
-    complete: bool
-    """Whether the broken file was in fact complete (it had its footer)."""
-
-
-_READ_ERRORS = (McapError, EOFError, struct.error, zstandard.ZstdError, ValueError, OSError)
-
-
-def _records(f: BinaryIO) -> tuple[list[Any], bool]:
-    """Every record readable from the start of `f`, and whether the file ended properly."""
-    records: list[Any] = []
-    try:
-        for record in StreamReader(f, skip_magic=False).records:
-            records.append(record)
-    except _READ_ERRORS:
-        return records, False
-    return records, True
-
-
-@writes("fixed", inputs=("broken",), suffix=".mcap")
-def recover(broken: str | Path, fixed: str | Path) -> Recovery:
-    """Rebuild an indexed, readable MCAP at `fixed` from what a crashed writer left in `broken`.
-
-    Keeps the header, attachments, schemas, channels and the messages of every run whose
-    `replay_run` record was written; drops the messages of a run cut short.
-
-    Raises:
-      RecoverError: `broken` is missing, is not an MCAP, or holds no header.
-      OutputError: `fixed` cannot be written.
-    """
-    broken, fixed = Path(broken), Path(fixed)
-    if not broken.is_file():
-        raise RecoverError(f"file not found: {broken}")
-    check_writable(fixed)
-    with open(broken, "rb") as f:
-        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise RecoverError(f"{broken}: not an MCAP file (no MCAP magic at its start)")
-        f.seek(0)
-        records, complete = _records(f)
-    header = next((r for r in records if isinstance(r, Header)), None)
-    if header is None or not header.library.startswith(("crank-replay", "crank-recover")):
-        written_by = "no header" if header is None else f"written by {header.library!r}"
-        raise RecoverError(f"{broken}: not a campaign log of crank replay ({written_by})")
-    schemas = [r for r in records if isinstance(r, Schema)]
-    channels = [r for r in records if isinstance(r, Channel)]
-    metadata = [r for r in records if isinstance(r, Metadata)]
-    attachments = [r for r in records if isinstance(r, Attachment)]
-    messages = [r for r in records if isinstance(r, Message)]
-    if not any(m.name == RUN_METADATA for m in metadata):
-        raise RecoverError(f"{broken}: no `{RUN_METADATA}` metadata record; nothing to recover")
-    done = {json.loads(m.metadata["episode"]) for m in metadata if m.name == REPLAY_RUN_METADATA}
-    # Every message of episode e has sequence e * n + k (dataset channels and Foxglove's alike).
-    run = next(m for m in metadata if m.name == RUN_METADATA)
-    n = json.loads(run.metadata["samples_per_run"])
-    keep = [m for m in messages if m.sequence // n in done]
-    with atomic_path(fixed) as tmp, open(tmp, "wb") as out:
-        writer = Writer(out, compression=CompressionType.ZSTD)
-        writer.start(profile="", library=f"crank-recover {__version__}")
-        schema_ids = {}
-        for s in {s.id: s for s in schemas}.values():
-            schema_ids[s.id] = writer.register_schema(s.name, s.encoding, s.data)
-        channel_ids = {}
-        for c in {c.id: c for c in channels}.values():
-            channel_ids[c.id] = writer.register_channel(
-                c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata
-            )
-        for m in metadata:
-            writer.add_metadata(m.name, m.metadata)
-        for a in attachments:
-            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
-        for m in keep:
-            writer.add_message(
-                channel_ids[m.channel_id],
-                log_time=m.log_time,
-                data=m.data,
-                publish_time=m.publish_time,
-                sequence=m.sequence,
-            )
-        writer.finish()
-    return Recovery(
-        runs=len(done),
-        messages=len(keep),
-        dropped_messages=len(messages) - len(keep),
-        complete=complete,
-    )
 
 
 def check_not_partial(path: Path) -> None:

@@ -166,7 +166,7 @@ def test_killed_campaign_is_recovered_with_every_completed_run(
 def test_recover_keeps_the_complete_runs_before_any_cut(
     campaign_files: dict[str, Path], tmp_path: Path, fraction: float
 ) -> None:
-    from replay.campaign_log import recover
+    from replay.recover import recover
 
     full = campaign_files["mcap"].read_bytes()
     broken = tmp_path / "cut.mcap"
