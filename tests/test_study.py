@@ -59,3 +59,40 @@ def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
 )
 def test_parse_seeds(text: str, seeds: tuple[int, ...]) -> None:
     assert parse_seeds(text) == seeds
+
+
+def test_the_verdict_names_seeds_whose_bound_cannot_confirm_the_target() -> None:
+    """A worst seed at 0.2 % meets 0.5 %; a seed at 2 of 1000 (bound 0.63 %) is named as too
+    few machines to confirm it, one at 0 of 1000 (0.30 %) is not."""
+    from crank.study import markdown
+    from replay.rates import rate_upper
+
+    def row(seed: int, below: int) -> dict:
+        return {
+            "seed": seed,
+            "profile": "robust",
+            "error": None,
+            "robust_100": 0,
+            "robust_heldout_rate": below / 1000,
+            "robust_heldout_upper_95": rate_upper(below, 1000),
+        }
+
+    ocp = {"mc_mode": "mixed", "mc_samples": 1000, "tightening": "gaussian"}
+    study = {
+        "seeds": [0, 1],
+        "rows": [row(0, 0), row(1, 2)],
+        "target_heldout_rate": 0.005,
+        "config": {
+            "generation": {"variability": {"name": "paper"}},
+            "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
+            "heldout_seed": 7,
+        },
+    }
+    text = markdown(study)
+    assert (
+        "- robust open loop on held-out machines: worst seed 0.20 % (target <= 0.5 %): **met**"
+        in text
+    )
+    assert "  - on 1 seed(s) the 95 % bound is above the target (worst 0.63 %): too few" in text
+    study["rows"] = [row(0, 0), row(1, 1)]  # 1 of 1000: bound 0.47 %
+    assert "bound is above the target" not in markdown(study)
