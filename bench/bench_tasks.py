@@ -82,13 +82,14 @@ def main() -> None:
                 runs=args.runs,
                 seed=args.heldout_seed,
                 variability=ocp_variability(ocp_path),
-                modes=tuple(dict.fromkeys(sorted(loops.values(), reverse=True))),
+                modes=tuple(m for m in ("open", "closed") if m in loops.values()),
             )
             for name in profiles:
                 row = {"task": task, "mc_seed": mc_seed, "profile": name}
                 if name not in solved:
-                    rows.append(row | _none(solved["refused"][name]))
-                    print(f"{task:<34} mc {mc_seed} {name}: none: {row['error']}", flush=True)
+                    reason = solved["refused"][name]
+                    rows.append(row | _none(reason))
+                    print(f"{task:<34} mc {mc_seed} {name}: none: {reason}", flush=True)
                     continue
                 loop = loops[name]
                 held = heldout["profiles"][name][loop]
