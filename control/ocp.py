@@ -132,7 +132,8 @@ class NominalOCP:
         du = (u[1:] - u[:-1]) / self.dt
         cost = ca.sumsqr(u) + c.smoothness_weight * ca.sumsqr(du)
         index = [k - 1 for k in c.constraint_samples]
-        slider = ca.vertcat(*(self.geometry.slider_position(x[0, i], lib=ca) for i in index))
+        slider, extra = self._slider_rows(x, index)
+        self._extra = np.zeros(extra.numel())
         boundary = ca.vertcat(x[0, 0], x[1, 0], x[0, n - 1], x[1, n - 1])
         g = ca.vertcat(ca.vec(defects), boundary, slider)
         w = ca.vertcat(ca.vec(x), u)
@@ -166,7 +167,7 @@ class NominalOCP:
                 "mu_init": 1e-3,
             },
         }
-        nlp = {"x": w, "p": turns, "f": cost, "g": g}
+        nlp = {"x": w, "p": ca.vertcat(turns, extra), "f": cost, "g": g}
         self.engine = "vm"
         self._workshop = None
         if c.compiled:  # the NLP's functions in C: IPOPT's callbacks are most of a solve
@@ -193,6 +194,15 @@ class NominalOCP:
         )
         self._lbx = np.concatenate([np.full(2 * n, -np.inf), np.full(n, -c.torque_limit)])
         self._ubx = np.concatenate([np.full(2 * n, np.inf), np.full(n, c.torque_limit)])
+
+    def _slider_rows(self, x: ca.MX, index: list[int]) -> tuple[ca.MX, ca.MX]:
+        """The constrained quantity at each constraint sample (0-based `index`) of the states x
+        (2, N), and the NLP parameters it needs beside the turns: here the mean-model slider
+        position and none. A subclass may constrain another function of the states (e.g. the
+        slider less a tightening that depends on theta_k, bench/bench_aware.py); it sets the
+        parameters' values in `self._extra` before each solve."""
+        rows = ca.vertcat(*(self.geometry.slider_position(x[0, i], lib=ca) for i in index))
+        return rows, ca.MX(0, 1)
 
     def initial_guess(self) -> np.ndarray:
         """States on a cosine ramp from the start to the end angle, zero torque."""
@@ -262,7 +272,7 @@ class NominalOCP:
                 w0 = w0.copy()
                 w0[thetas] = np.clip(w0[thetas], lower, upper)
             started = time.perf_counter()
-            result = solver(x0=w0, p=turns, **args)
+            result = solver(x0=w0, p=np.concatenate([turns, self._extra]), **args)
             wall += time.perf_counter() - started
             stats = solver.stats()
             iterations += int(stats["iter_count"])

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -196,6 +196,9 @@ class Uncertainty:
     samples: int
     """Trajectories the Monte-Carlo drew (control/profiles.py may have drawn more than the
     configured count)."""
+    angles: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
+    """The drawn crank angles (with the transmission's) at the constraint samples, (samples,
+    constraint samples), rad: what the slider positions of the tightening were computed from."""
 
 
 def slider_uncertainty(
@@ -240,8 +243,9 @@ def slider_uncertainty(
         length,
         lambda rows: draw(heads.transmission, (rows, n), rng(config.mc_seed, "transmission")),
     ).T
+    angle = bands.samples[:, :, 0] + delta
     with np.errstate(over="ignore", invalid="ignore"):
-        slider = heads.geometry.slider_position(bands.samples[:, :, 0] + delta)
+        slider = heads.geometry.slider_position(angle)
     plan = solution.slider
     columns = [(slider[:, k - 1], plan[k - 1]) for k in config.constraint_samples]
     options = {"k_sigma": config.k_sigma, "method": config.tightening}
@@ -258,4 +262,5 @@ def slider_uncertainty(
         population=population,
         sampling=sampling,
         samples=n,
+        angles=angle[:, np.array(config.constraint_samples) - 1],
     )
