@@ -18,6 +18,7 @@ class OCPConfigError(CrankError, ValueError):
 
 
 TIGHTENINGS = ("gaussian", "quantile")
+MARGIN_SCHEMES = ("aware", "bracket")
 ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed", "robust-pd": "closed"}
 """The robust profiles `crank solve` knows, each with the loop its tightening is sized for:
 `robust`, open loop (the paper's eq. 16); `robust-fb`, the closed loop under the plan's
@@ -110,6 +111,11 @@ class OCPConfig:
     """LQR: acceptable torque correction, N·m."""
     margin_tolerance: float = 1e-4
     """The robust loop stops when k sigma moves by less than this between iterations, m."""
+    margin_scheme: str = "aware"
+    """How the open-loop profile's margins are found: "aware" (the tightening inside the NLP
+    as a function of theta_k, corrected by the Monte-Carlo: control/aware.py; the bracket
+    where it does not settle) or "bracket" (the bracketed secant on the margins alone,
+    control/robust.py). The tubes always use the bracket."""
     max_robust_iterations: int = 30
     max_ipopt_iterations: int = 3000
     compiled: bool = False
@@ -153,6 +159,11 @@ class OCPConfig:
             raise OCPConfigError(
                 f"profiles must be distinct names among {', '.join(ROBUST_PROFILES)}, "
                 f"got {', '.join(self.profiles) or 'none'}"
+            )
+        if self.margin_scheme not in MARGIN_SCHEMES:
+            raise OCPConfigError(
+                f"margin_scheme must be one of {', '.join(MARGIN_SCHEMES)}, "
+                f"got {self.margin_scheme!r}"
             )
         if self.tightening not in TIGHTENINGS:
             raise OCPConfigError(

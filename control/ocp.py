@@ -95,7 +95,8 @@ class Solution:
     states: np.ndarray
     """x_1..x_N as (theta, omega), (N, 2)."""
     heights: np.ndarray
-    """Lower bounds the slider had at the constraint samples in this solve, m."""
+    """Lower bounds the slider had at the constraint samples in this solve, m (a robust solve
+    of control/aware.py: the height plus the margin its slider keeps)."""
     cost: float
     status: str
     iterations: int
@@ -230,10 +231,13 @@ class NominalOCP:
         *,
         warm: Solution | None = None,
         draft: bool = False,
+        multipliers: bool = True,
     ) -> Solution:
         """Solve with slider lower bounds `heights` at the constraint samples (default: the
         configured height everywhere), warm-started from `warm` if given. `draft=True`: one
         loose pass on the warm start's turns (module docstring); needs `warm`.
+        `multipliers=False`: start from the warm start's primal point alone, as after a jump
+        (its multipliers belong to another constraint function, control/aware.py).
 
         Raises:
           OCPError: IPOPT failed, or its answer breaks a constraint by more than 1e-8.
@@ -248,7 +252,8 @@ class NominalOCP:
             w0 = self.initial_guess()
         else:
             w0 = np.concatenate([warm.states.ravel(), warm.tau])
-            args.update(lam_g0=warm.lam_g, lam_x0=warm.lam_x)
+            if multipliers:
+                args.update(lam_g0=warm.lam_g, lam_x0=warm.lam_x)
         iterations, wall = 0, 0.0
         thetas = slice(0, 2 * (n - 1), 2)  # theta_1..theta_{N-1} in the decision vector
         turns = np.floor(w0[thetas] / (2 * math.pi))
@@ -257,10 +262,11 @@ class NominalOCP:
         if draft:
             if warm is None:
                 raise ValueError("a draft solve needs a warm start")
-            jump = np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP
+            jump = not multipliers or np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP
             solver = self._jump_solver if jump else self._draft_solver
             if jump:
-                del args["lam_g0"], args["lam_x0"]
+                args.pop("lam_g0", None)
+                args.pop("lam_x0", None)
         best: Solution | None = None
         for passes in range(1, 2 if draft else MAX_TURN_PASSES + 1):
             tried.add(turns.tobytes())

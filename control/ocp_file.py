@@ -26,7 +26,8 @@ Top-level keys (stable; `version` changes if any meaning does):
                              and its standard error from the finite Monte-Carlo), cost,
                              ipopt_iterations, solve_time_s, monte_carlo_time_s, damping, draft
                              (true: a draft solve, control/ocp.py; each profile's last entry is
-                             always a full solve, the one in its profile)
+                             always a full solve, the one in its profile), scheme ("aware":
+                             control/aware.py, margin = the one the solution keeps; "bracket")
   failed_margins             {profile: margins IPOPT could not meet during its loop, m}
   timing                     build_s, engine (compiled or vm), nominal_solve_s, robust_loop_s
                              ({profile: s})

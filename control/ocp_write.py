@@ -120,6 +120,7 @@ def _history(results: dict[str, RobustResult] | dict[str, Partial]) -> dict[str,
                 "monte_carlo_time_s": it.monte_carlo_time,
                 "damping": it.damping,
                 "draft": it.draft,
+                "scheme": it.scheme,
             }
             for result in results.values()
             for it in result.iterations

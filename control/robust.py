@@ -41,6 +41,11 @@ The three bounds hold together with probability >= c (Bonferroni), so the k-sigm
 on the line, not only on the fitted model of it and its sampled spread. c = 0 is the paper's
 eq. 16 (bit-identical).
 
+The open-loop profile finds its margins first by control/aware.py (OCPConfig.margin_scheme
+"aware", the default): the tightening inside the NLP as a function of theta_k, corrected by each
+solve's Monte-Carlo, under the same acceptance as below; where that does not settle, the
+bracketed loop above decides from the nominal plan (its refusals are the ones reported).
+
 Draft, then final: the iteration runs on draft solves (control/ocp.py: one loose IPOPT pass; its
 torque is all the Monte-Carlo needs), which cost a fraction of a full solve. When a draft meets
 the tolerance, the next proposal is solved in full (turn passes, tolerance 1e-10) and its own
@@ -52,15 +57,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
-from common.errors import NoSolutionError
+from control import aware
 from control.config import OCPConfig, law_of, loop_of
 from control.fixed_point import Bracket
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP, OCPError, Solution
+from control.records import (
+    BeyondStrokeError,
+    Iteration,
+    Partial,
+    RobustError,
+    RobustResult,
+    iteration,
+)
 from control.tightening import Uncertainty, slider_uncertainty
 from ppann.model import PPANN, FusedHeads
 
@@ -68,95 +80,6 @@ MIN_DAMPING = 1 / 256
 STROKE_SHARE = 0.95
 """A margin asks for at most this share of the stroke left above the height: beyond the top
 dead centre the OCP is infeasible by geometry, and IPOPT takes long to say so."""
-
-
-class RobustError(NoSolutionError, RuntimeError):
-    """The robust iteration did not reach a margin that its own Monte-Carlo confirms. Raised by
-    solve_robust with `partial` set: what was solved before it failed; by solve_profiles, when
-    every profile failed, with `partials` set too: each profile's."""
-
-    partial: Partial | None = None
-    partials: dict[str, Partial] | None = None
-
-
-class BeyondStrokeError(RobustError):
-    """The model's tightening at a constraint sample exceeds the stroke left above the height:
-    no open-loop profile exists for this model and task. Carries the figures, m."""
-
-    def __init__(
-        self,
-        message: str,
-        *,
-        sample: int,
-        tightening: float,
-        available: float,
-        line: float,
-        se: float = 0.0,
-    ) -> None:
-        super().__init__(message)
-        self.sample = sample
-        self.tightening = tightening
-        self.available = available
-        self.line = line
-        self.se = se
-        """The tightening's Monte-Carlo standard error, m."""
-
-
-@dataclass(frozen=True)
-class Iteration:
-    """One robust solve: the margin it used, the tightening its solution asks for, its cost."""
-
-    margin: np.ndarray
-    tightening: np.ndarray
-    """The tightening (k·σ or plan − quantile) the solution's Monte-Carlo asks for, m."""
-    tightening_se: np.ndarray
-    cost: float
-    ipopt_iterations: int
-    solve_time: float
-    monte_carlo_time: float
-    damping: float
-    draft: bool
-    """A draft solve (one loose pass) rather than a full one."""
-    profile: str = "robust"
-    """The robust profile (control/config.py ROBUST_PROFILES) this solve was for."""
-    samples: int = 0
-    """Trajectories of its Monte-Carlo (control/profiles.py may draw more than configured)."""
-
-
-@dataclass(frozen=True)
-class Partial:
-    """A robust solve that failed: the nominal plan (with its gains and spreads, as a result has
-    them) and every robust iteration tried."""
-
-    nominal: Solution
-    nominal_uncertainty: Uncertainty
-    nominal_gains: np.ndarray
-    nominal_loops: dict[str, np.ndarray]
-    iterations: tuple[Iteration, ...]
-    failed_proposals: tuple[np.ndarray, ...]
-    wall_time: float
-
-
-@dataclass(frozen=True)
-class RobustResult:
-    nominal: Solution
-    nominal_uncertainty: Uncertainty
-    robust: Solution
-    robust_uncertainty: Uncertainty
-    iterations: tuple[Iteration, ...]
-    """Every robust solve in order (the nominal solve is not among them)."""
-    failed_proposals: tuple[np.ndarray, ...]
-    """Margins IPOPT could not meet, and which halved the damping."""
-    wall_time: float
-    """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
-    nominal_gains: np.ndarray
-    """Gains (N-1, 2) of the profile's law (control/config.py law_of) along the nominal plan,
-    whatever the loop: its LQR (control/lqr.py), or for robust-pd the fixed PD."""
-    robust_gains: np.ndarray
-    nominal_loops: dict[str, np.ndarray]
-    """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
-    whatever the tightening was sized for (the replay's rows compare against these)."""
-    robust_loops: dict[str, np.ndarray]
 
 
 def solve_robust(
@@ -209,18 +132,64 @@ def solve_robust(
         gains = gains_of(nominal) if nominal_gains is None else nominal_gains
         return gains, _loops(heads, nominal, config, gains, nominal_unc, sized=loop)
 
+    scheme = "aware" if loop == "open" and config.margin_scheme == "aware" else "bracket"
+    if scheme == "aware":  # its NLP is built once per task, like the nominal's: not the loop's
+        aware.aware_ocp(model, ocp, samples=config.mc_samples)
     started = time.perf_counter()
+    iterations: list[Iteration] = []
+    failed: list[np.ndarray] = []
+
+    def finish(solution: Solution, unc: Uncertainty, gains: np.ndarray | None) -> RobustResult:
+        wall_time = time.perf_counter() - started
+        # the tube's gains and the sized-for loop's spread are known; only the rest is new
+        feedback_gains, feedback_loops = nominal_feedback()
+        robust_gains = gains_of(solution) if gains is None else gains
+        return RobustResult(
+            nominal=nominal,
+            nominal_uncertainty=nominal_unc,
+            robust=solution,
+            robust_uncertainty=unc,
+            iterations=tuple(iterations),
+            failed_proposals=tuple(failed),
+            wall_time=wall_time,
+            nominal_gains=feedback_gains,
+            robust_gains=robust_gains,
+            nominal_loops=feedback_loops,
+            robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
+        )
+
+    if scheme == "aware":
+
+        def record(solution: Solution, unc: Uncertainty, draft: bool) -> None:
+            kept = solution.slider[index] - config.height
+            iterations.append(iteration(solution, unc, kept, config, profile, draft, "aware"))
+            if on_iteration is not None:
+                on_iteration(iterations[-1])
+
+        try:
+            found = aware.iterate(
+                model,
+                ocp,
+                config,
+                heads=heads,
+                nominal=nominal,
+                nominal_unc=nominal_unc,
+                cap=cap,
+                record=record,
+            )
+            return finish(*found, None)
+        except aware.AwareError:
+            pass  # the bracket decides, from the nominal plan
+    first = len(iterations)  # the aware scheme's solves, if it handed over
     margin = np.zeros(len(index))
     target = nominal_unc.tightening
     current = nominal
     bracket = Bracket(margin, target - margin)
     tolerance = config.margin_tolerance
     beta = 1.0
-    iterations: list[Iteration] = []
-    failed: list[np.ndarray] = []
     draft = True
     try:
-        while len(iterations) < config.max_robust_iterations:
+        while len(iterations) - first < config.max_robust_iterations:
             step = bracket.propose(margin, target - margin, tolerance=tolerance) - margin
             proposal = np.minimum(margin + beta * step, cap)
             try:
@@ -238,19 +207,7 @@ def solve_robust(
             unc = slider_uncertainty(heads, solution, config, constraints_only=draft, gains=gains)
             new_target = unc.tightening
             iterations.append(
-                Iteration(
-                    margin=proposal,
-                    tightening=new_target,
-                    tightening_se=unc.tightening_se,
-                    cost=solution.cost,
-                    ipopt_iterations=solution.iterations,
-                    solve_time=solution.wall_time,
-                    monte_carlo_time=unc.wall_time,
-                    damping=beta,
-                    draft=draft,
-                    profile=profile,
-                    samples=config.mc_samples,
-                )
+                iteration(solution, unc, proposal, config, profile, draft, "bracket", beta)
             )
             if on_iteration is not None:
                 on_iteration(iterations[-1])
@@ -275,23 +232,7 @@ def solve_robust(
                 draft = False  # confirm with a full solve
                 continue
             if settled:
-                wall_time = time.perf_counter() - started
-                # the tube's gains and the sized-for loop's spread are known; only the rest is new
-                feedback_gains, feedback_loops = nominal_feedback()
-                robust_gains = gains_of(solution) if gains is None else gains
-                return RobustResult(
-                    nominal=nominal,
-                    nominal_uncertainty=nominal_unc,
-                    robust=solution,
-                    robust_uncertainty=unc,
-                    iterations=tuple(iterations),
-                    failed_proposals=tuple(failed),
-                    wall_time=wall_time,
-                    nominal_gains=feedback_gains,
-                    robust_gains=robust_gains,
-                    nominal_loops=feedback_loops,
-                    robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
-                )
+                return finish(solution, unc, gains)
             beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
             draft = True
         raise RobustError(

@@ -53,7 +53,7 @@ def test_pd_tube_is_sized_for_the_pd_spread(model: PPANN) -> None:
 def test_pd_tube_with_zero_gains_is_the_open_loop_profile(model: PPANN) -> None:
     """A PD of zero gains is no feedback: the closed-loop Monte-Carlo is the open loop's bit for
     bit, so the tube is the open-loop robust torque to the last bit."""
-    config = OCPConfig(pd_kp=0.0, pd_kd=0.0)
+    config = OCPConfig(pd_kp=0.0, pd_kd=0.0, margin_scheme="bracket")  # the tubes' scheme
     zero = solve_robust(model, config, profile="robust-pd")
     open_loop = solve_robust(model, config, profile="robust")
     np.testing.assert_array_equal(zero.robust.tau, open_loop.robust.tau)

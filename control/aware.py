@@ -1,0 +1,161 @@
+"""The open-loop robust profile's margins with the tightening inside the NLP, as a function of
+theta_k ("aware", OCPConfig.margin_scheme; the default), corrected by the Monte-Carlo.
+
+The bracketed loop of control/robust.py solves the NLP for a margin m per constraint sample and
+asks the Monte-Carlo for the tightening T(m) of the torque found; its root takes ~8 draft solves
+on a trained model, because T falls steeply with m (a torque that keeps the slider nearer top
+dead centre spreads it less) and jumps where the 2 pi crossing moves a sample. Most of that
+dependence is one of theta_k alone: the slider at sample k is x(theta_k + e) for the drawn angle
+deviations e from the plan, and near top dead centre x hardly moves with e. This scheme puts it
+in the NLP:
+
+    x(theta_k) - s_k std_i x(theta_k + e_ik) >= height + p_k
+
+with e_ik the first SURROGATE angle deviations (transmission included) of the last solve's
+Monte-Carlo from its plan at sample k, p_k its line allowance for the mean (`population`), and
+s_k the factor that makes the term equal that Monte-Carlo's tightening less p_k at the last
+solution (it carries k, the other trajectories, the sampling allowance and, for quantile
+tightening, the quantile's shape). All are frozen per solve and refreshed from each solve's own
+Monte-Carlo; the NLP places theta_k itself against the cost. At the fixed point the margin a
+solution keeps, slider - height, equals its own Monte-Carlo's tightening: the residual
+tightening - margin is the bracketed loop's, and so is the acceptance.
+
+The first solve starts from the nominal's primal point alone (its multipliers belong to the
+nominal's constraint function: 15 IPOPT iterations with them, 8 without, on the seed-0 model).
+Drafts follow while any residual is outside the tolerance, then full solves until one is within
+it at every sample, or sits on the safe side of a jump there (residual <= 0 where the solve just
+before had residual > 0 at a margin within the tolerance; control/fixed_point.py's "Jumps").
+A solve that fails, a margin or tightening beyond the stroke share a margin may take
+(control/robust.py STROKE_SHARE), or MAX_SOLVES without settling raise AwareError; the bracketed
+loop then decides from the nominal plan, with its own refusals. The tubes (closed-loop profiles)
+keep the bracket: they settle in one draft and one full solve.
+
+Measured with bench/bench_aware.py (README, Benchmarks): the same margins to 0.1 mm and cost to
+0.25 % as the bracket on three trained models and four tasks, in 3-5 solves against 6-9, the
+loop 1.1-2x faster.
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Callable
+from dataclasses import replace
+
+import casadi as ca
+import numpy as np
+
+from common.errors import CrankError
+from control.config import OCPConfig
+from control.ocp import NominalOCP, OCPError, Solution
+from control.tightening import Uncertainty, slider_uncertainty
+from ppann.model import PPANN, FusedHeads
+
+SURROGATE = 200
+"""Angle deviations per constraint sample in the NLP's tightening term (the Monte-Carlo's
+first ones; its other trajectories enter through s_k). 50, 200 and 1000 took the same solves
+on the seed-0 model; 200 keeps an IPOPT iteration within ~5 % of the nominal's."""
+MAX_SOLVES = 10
+"""Solves before the scheme hands over to the bracket (it settled in 3-7 in the benchmark)."""
+
+
+class AwareError(CrankError, RuntimeError):
+    """The aware scheme did not settle; control/robust.py falls back to the bracket (never
+    reaches a user)."""
+
+
+class AwareOCP(NominalOCP):
+    """The OCP whose constraint rows are the slider less its theta-dependent tightening
+    (module docstring), with `surrogate` frozen deviations per constraint sample."""
+
+    def __init__(self, model: PPANN, config: OCPConfig, *, surrogate: int) -> None:
+        self.surrogate = surrogate
+        super().__init__(model, config)
+
+    def _slider_rows(self, x: ca.MX, index: list[int]) -> tuple[ca.MX, ca.MX]:
+        n, k = self.surrogate, len(index)
+        deviation, scale = ca.MX.sym("deviation", n, k), ca.MX.sym("scale", k)
+        rows = []
+        for j, i in enumerate(index):
+            drawn = self.geometry.slider_position(x[0, i] + deviation[:, j], lib=ca)
+            spread = ca.sqrt(ca.sumsqr(drawn - ca.sum1(drawn) / n) / (n - 1))
+            rows.append(self.geometry.slider_position(x[0, i], lib=ca) - scale[j] * spread)
+        return ca.vertcat(*rows), ca.vertcat(ca.vec(deviation), scale)
+
+    def freeze(self, solution: Solution, unc: Uncertainty) -> None:
+        """Take the deviations and scale of `solution`'s Monte-Carlo `unc` for the next solve:
+        at `solution`, the tightening term then equals unc.tightening - unc.population."""
+        plan = solution.states[np.array(self.config.constraint_samples) - 1, 0]
+        deviation = unc.angles[: self.surrogate] - plan
+        self._extra = np.concatenate(
+            [deviation.T.ravel(), (unc.tightening - unc.population) / self.spread(plan, deviation)]
+        )
+
+    def spread(self, plan: np.ndarray, deviation: np.ndarray) -> np.ndarray:
+        """The NLP's std_i x(theta_k + e_ik) per constraint sample, for plan angles (K,) and
+        deviations (surrogate, K)."""
+        return self.geometry.slider_position(plan + deviation).std(axis=0, ddof=1)
+
+
+_BUILT: weakref.WeakKeyDictionary[NominalOCP, dict[int, AwareOCP]] = weakref.WeakKeyDictionary()
+
+
+def aware_ocp(model: PPANN, ocp: NominalOCP, *, samples: int) -> AwareOCP:
+    """The aware NLP of `ocp`'s task for a Monte-Carlo of `samples` trajectories, built once per
+    `ocp` (a second IPOPT build, ~4 s on a trained model)."""
+    surrogate = min(SURROGATE, samples)
+    built = _BUILT.setdefault(ocp, {})
+    if surrogate not in built:
+        built[surrogate] = AwareOCP(model, ocp.config, surrogate=surrogate)
+    return built[surrogate]
+
+
+def iterate(
+    model: PPANN,
+    ocp: NominalOCP,
+    config: OCPConfig,
+    *,
+    heads: FusedHeads,
+    nominal: Solution,
+    nominal_unc: Uncertainty,
+    cap: np.ndarray,
+    record: Callable[[Solution, Uncertainty, bool], None],
+) -> tuple[Solution, Uncertainty]:
+    """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
+    sees each solve, its Monte-Carlo and whether it was a draft. Returns the accepted full
+    solve, its `heights` the height plus the margin its slider keeps (the bounds under which
+    the bracketed loop's NLP has this solution), and its Monte-Carlo.
+
+    Raises:
+      AwareError: a solve failed, a margin or tightening passed `cap`, or MAX_SOLVES passed.
+    """
+    aware = aware_ocp(model, ocp, samples=config.mc_samples)
+    index = np.array(config.constraint_samples) - 1
+    base = np.full(len(index), config.height)
+    tolerance = config.margin_tolerance
+    current, unc, draft, fresh = nominal, nominal_unc, True, True
+    previous: tuple[np.ndarray, np.ndarray] | None = None
+    for _ in range(MAX_SOLVES):
+        aware.freeze(current, unc)
+        try:
+            solution = aware.solve(
+                base + unc.population, warm=current, draft=draft, multipliers=not fresh
+            )
+        except OCPError as exc:
+            raise AwareError(f"solve failed: {exc}") from None
+        unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
+        record(solution, unc, draft)
+        margin = solution.slider[index] - config.height
+        if np.any(margin > cap) or np.any(unc.tightening > cap):
+            raise AwareError("beyond the stroke share a margin may take")
+        residual = unc.tightening - margin
+        settled = np.abs(residual) < tolerance
+        if previous is not None:  # the safe side of a jump
+            last_margin, last_residual = previous
+            jumped = (last_residual > 0) & (np.abs(margin - last_margin) < tolerance)
+            settled |= jumped & (residual <= 0)
+        if settled.all() and not draft:
+            # the bounds a margin solve of this torque would have had (the constraint is active)
+            return replace(solution, heights=config.height + margin), unc
+        draft = draft and not bool(np.all(np.abs(residual) < tolerance))
+        previous, current, fresh = (margin, residual), solution, False
+    raise AwareError(f"not settled in {MAX_SOLVES} solves")
