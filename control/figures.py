@@ -103,12 +103,14 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     middle.set_xlabel("t [s]")
     middle.legend(loc="lower center", fontsize=7)
     iterations = [it for it in ocp.raw.get("robust_iterations", []) if it["profile"] == name]
+    schemes = {it.get("scheme", "bracket") for it in iterations}
+    kept = "kept (aware) or used" if len(schemes) > 1 else "kept" if "aware" in schemes else "used"
     for i, k in enumerate(ocp.config.constraint_samples):
         margins = [1e3 * it["margin"][i] for it in iterations]
         sigmas = [1e3 * it["tightening"][i] for it in iterations]
         errors = [1e3 * it.get("tightening_se", [0.0] * (i + 1))[i] for it in iterations]
         steps = range(1, len(iterations) + 1)
-        bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin used, sample {k}")
+        bottom.plot(steps, margins, "o-", color=f"C{i}", label=f"margin {kept}, sample {k}")
         bottom.errorbar(
             steps,
             sigmas,
@@ -122,7 +124,8 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     full = [step for step, it in enumerate(iterations, 1) if not it.get("draft", False)]
     for step in full:
         bottom.axvline(step, color="0.6", lw=0.8, ls=":")
-    bottom.set_xlabel("robust iteration (dotted: full solve, others drafts)")
+    scheme = " then ".join(sorted(schemes))  # aware, then the bracket it hands over to
+    bottom.set_xlabel(f"robust iteration, {scheme} margins (dotted: full solve, others drafts)")
     bottom.set_ylabel("[mm]")
     bottom.legend(fontsize=7)
     return fig

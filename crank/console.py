@@ -312,8 +312,10 @@ def show_iteration(it: Iteration) -> None:
         for v, se in zip(it.tightening, it.tightening_se, strict=True)
     )
     kind = "draft" if it.draft else "full "
+    kept = "kept" if it.scheme == "aware" else "used"  # control/aware.py: the slider's margin
     typer.echo(
-        f"  {it.profile} iteration ({kind}, {it.samples} trajectories): margin [{margin}] mm -> "
+        f"  {it.profile} iteration ({kind}, {it.scheme}, {it.samples} trajectories): margin "
+        f"{kept} [{margin}] mm -> "
         f"tightening [{k_sigma}] mm, "
         f"cost {it.cost:.5g}, {it.ipopt_iterations} IPOPT iterations",
         err=True,
