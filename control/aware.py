@@ -33,8 +33,8 @@ tasks at the stroke's edge that are refused, three solves passed before a margin
 tubes (closed-loop profiles) keep the bracket: they settle in one draft and one full solve.
 
 Measured with bench/bench_aware.py (README, Benchmarks): the same margins to 0.1 mm and cost to
-0.25 % as the bracket on three trained models and four tasks, in 3-5 solves against 6-9, the
-loop 1.1-2x faster.
+0.25 % as the bracket on three trained models and four tasks, in 4-7 solves against 6-9, the
+loop 1.25-2x faster.
 """
 
 from __future__ import annotations
