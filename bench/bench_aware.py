@@ -2,10 +2,9 @@
 default) against the bracketed one (control/robust.py), on the same models and tasks, each timed
 in the same run against the nominal solve (issue 11's ratio, target <= 3).
 
-    python bench/bench_aware.py --model M [--model M2 ...] [--tasks paper,height,...]
-        [--repeat 3]
+    python bench/bench_aware.py --model M [--model M2 ...] [--only "horizon 200"] [--repeat 3]
 
-Per model and task (bench/bench_tasks.py's, by a short name): the nominal solve (cold start),
+Per model and task (bench/bench_tasks.py's): the nominal solve (cold start),
 each scheme's loop (drafts + full solves, IPOPT iterations; the loop as solve_robust times it,
 from after the nominal's Monte-Carlo; the aware NLP's build, once per task like the nominal's,
 outside it), their ratios to the nominal, the premiums, the margins at the constraint samples and
@@ -20,6 +19,7 @@ import statistics
 import time
 
 import numpy as np
+from bench_tasks import TASKS  # the script's folder is on the path
 
 from control.config import OCPConfig
 from control.ocp import NominalOCP
@@ -27,14 +27,6 @@ from control.records import RobustResult
 from control.robust import RobustError, solve_robust
 from ppann.checkpoint import load
 
-TASKS: dict[str, dict] = {
-    "paper": {},
-    "height": {"height": 0.085},
-    "samples": {"constraint_samples": (60, 90)},
-    "horizon": {"horizon": 200, "constraint_samples": (70, 130)},
-    "edge": {"height": 0.075, "constraint_samples": (40, 120)},
-}
-"""bench/bench_tasks.py's tasks, by a short name."""
 SCHEMES = ("bracket", "aware")
 
 
@@ -80,13 +72,12 @@ def _mm(values: np.ndarray) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", action="append", required=True, help="PPANN checkpoint(s)")
-    parser.add_argument("--tasks", default=",".join(TASKS), help=f"of {', '.join(TASKS)}")
+    parser.add_argument("--only", default="", help="run the tasks whose name contains this")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
-    tasks = [t.strip() for t in args.tasks.split(",")]
-    unknown = [t for t in tasks if t not in TASKS]
-    if unknown:
-        parser.error(f"unknown task(s) {', '.join(unknown)}; known: {', '.join(TASKS)}")
+    tasks = [t for t in TASKS if args.only in t]
+    if not tasks:
+        parser.error(f"no task's name contains {args.only!r}; the tasks: {'; '.join(TASKS)}")
     print(
         "| task | nominal ms | bracket loop ms (drafts+full, IPOPT it.) | aware loop ms | "
         "ratio, bracket | ratio, aware | premium, bracket / aware | margins mm | "
