@@ -29,8 +29,12 @@ A solve that fails, a margin beyond the stroke share a margin may take
 (control/robust.py STROKE_SHARE), or MAX_SOLVES without settling raise AwareError; the bracketed
 loop then decides from the nominal plan, with its own refusals (a tightening above that share is
 no reason to stop: the first solve from the nominal often asks more than the next ones; on the
-tasks at the stroke's edge that are refused, three solves passed before a margin did). The
-tubes (closed-loop profiles) keep the bracket: they settle in one draft and one full solve.
+tasks at the stroke's edge that are refused, three solves passed before a margin did). Before
+the first solve, `reachable` checks that some crank angle keeps each frozen row above its
+floor; where none does (a spread wider than the stroke, e.g. the open loop on line-15) the
+bracket decides at once: IPOPT took 14 s to call that NLP infeasible on a line-15 model, and
+each aware solve is capped at MAX_IPOPT iterations for the same reason. The tubes (closed-loop
+profiles) keep the bracket: they settle in one draft and one full solve.
 
 Measured with bench/bench_aware.py (README, Benchmarks): the same margins to 0.1 mm and cost to
 0.25 % as the bracket on three trained models and four tasks, in 4-7 solves against 6-9, the
@@ -58,6 +62,11 @@ first ones; its other trajectories enter through s_k). 50, 200 and 1000 took the
 on the seed-0 model; 200 keeps an IPOPT iteration within ~5 % of the nominal's."""
 MAX_SOLVES = 10
 """Solves before the scheme hands over to the bracket (it settled in 3-7 in the benchmark)."""
+MAX_IPOPT = 100
+"""IPOPT iterations of one aware solve before it counts as failed (one took 21 at most in the
+benchmark; an infeasible one ran 14 s on a line-15 model before IPOPT said so)."""
+ANGLES = 720
+"""Crank angles over one turn on which `reachable` looks for one that keeps a row up."""
 
 
 class AwareError(CrankError, RuntimeError):
@@ -71,7 +80,9 @@ class AwareOCP(NominalOCP):
 
     def __init__(self, model: PPANN, config: OCPConfig, *, surrogate: int) -> None:
         self.surrogate = surrogate
-        super().__init__(model, config)
+        capped = min(config.max_ipopt_iterations, MAX_IPOPT)
+        super().__init__(model, replace(config, max_ipopt_iterations=capped))
+        self._frozen = (np.zeros(0), np.zeros((surrogate, 0)), np.zeros(0))
 
     def _slider_rows(self, x: ca.MX, index: list[int]) -> tuple[ca.MX, ca.MX]:
         n, k = self.surrogate, len(index)
@@ -88,9 +99,23 @@ class AwareOCP(NominalOCP):
         at `solution`, the tightening term then equals unc.tightening - unc.population."""
         plan = solution.states[np.array(self.config.constraint_samples) - 1, 0]
         deviation = unc.angles[: self.surrogate] - plan
-        self._extra = np.concatenate(
-            [deviation.T.ravel(), (unc.tightening - unc.population) / self.spread(plan, deviation)]
-        )
+        scale = (unc.tightening - unc.population) / self.spread(plan, deviation)
+        self._frozen = (plan, deviation, scale)
+        self._extra = np.concatenate([deviation.T.ravel(), scale])
+
+    def reachable(self, floor: np.ndarray) -> np.ndarray:
+        """Per constraint sample, whether some crank angle (of ANGLES over a turn) keeps the
+        frozen row at or above `floor` (m): where none does, the NLP is infeasible by the
+        geometry alone, whatever the torque."""
+        plan, deviation, scale = self._frozen
+        turn = np.linspace(-np.pi, np.pi, ANGLES, endpoint=False)
+        best = np.empty(len(plan))
+        for j in range(len(plan)):
+            theta = plan[j] + turn
+            drawn = self.geometry.slider_position(theta[:, None] + deviation[None, :, j])
+            rows = self.geometry.slider_position(theta) - scale[j] * drawn.std(axis=1, ddof=1)
+            best[j] = rows.max()
+        return best >= floor
 
     def spread(self, plan: np.ndarray, deviation: np.ndarray) -> np.ndarray:
         """The NLP's std_i x(theta_k + e_ik) per constraint sample, for plan angles (K,) and
@@ -136,8 +161,10 @@ def iterate(
     tolerance = config.margin_tolerance
     current, unc, draft, fresh = nominal, nominal_unc, True, True
     previous: tuple[np.ndarray, np.ndarray] | None = None
-    for _ in range(MAX_SOLVES):
+    for attempt in range(MAX_SOLVES):
         aware.freeze(current, unc)
+        if attempt == 0 and not aware.reachable(base + unc.population).all():
+            raise AwareError("no crank angle keeps the slider above the height with this spread")
         try:
             solution = aware.solve(
                 base + unc.population, warm=current, draft=draft, multipliers=not fresh

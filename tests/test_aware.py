@@ -57,6 +57,19 @@ def test_the_nlp_row_is_the_slider_less_its_frozen_spread(model: PPANN, aware: A
     np.testing.assert_allclose(_rows(aware, moved), numpy, rtol=0, atol=1e-13)
 
 
+def test_reachable_finds_an_angle_where_one_exists(model: PPANN, aware: AwareOCP) -> None:
+    """Frozen at a plan, the plan's own row value is reachable (its angle is on the grid) and a
+    floor above the stroke is not; the wide line of the hand-over test below is refused here,
+    before IPOPT (which took 14 s to call such an NLP infeasible on a line-15 model)."""
+    nominal = NominalOCP(model, CONFIG).solve()
+    unc = slider_uncertainty(FusedHeads(model), nominal, CONFIG)
+    aware.freeze(nominal, unc)
+    row = nominal.slider[INDEX] - (unc.tightening - unc.population)
+    assert aware.reachable(row - 1e-12).all()
+    top = nominal.geometry.stroke_top
+    np.testing.assert_array_equal(aware.reachable(np.array([top + 1e-3, row[1]])), [False, True])
+
+
 def test_with_a_zero_scale_it_is_the_nominal_ocp(model: PPANN, aware: AwareOCP) -> None:
     """Scale 0 leaves the slider alone in the rows: the nominal NLP's solution, from the same
     start, to the solver's tolerance."""
