@@ -200,7 +200,7 @@ class NominalOCP:
         """The constrained quantity at each constraint sample (0-based `index`) of the states x
         (2, N), and the NLP parameters it needs beside the turns: here the mean-model slider
         position and none. A subclass may constrain another function of the states (e.g. the
-        slider less a tightening that depends on theta_k, bench/bench_aware.py); it sets the
+        slider less a tightening that depends on theta_k, control/aware.py); it sets the
         parameters' values in `self._extra` before each solve."""
         rows = ca.vertcat(*(self.geometry.slider_position(x[0, i], lib=ca) for i in index))
         return rows, ca.MX(0, 1)
