@@ -145,12 +145,12 @@ def iterate(
     nominal: Solution,
     nominal_unc: Uncertainty,
     cap: np.ndarray,
-    record: Callable[[Solution, Uncertainty, bool], None],
+    record: Callable[[Solution, Uncertainty, np.ndarray, bool], None],
 ) -> tuple[Solution, Uncertainty]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
-    sees each solve, its Monte-Carlo and whether it was a draft. Returns the accepted full
-    solve, its `heights` the height plus the margin its slider keeps (the bounds under which
-    the bracketed loop's NLP has this solution), and its Monte-Carlo.
+    sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
+    Returns the accepted full solve, its `heights` the height plus that margin (the bounds
+    under which the bracketed loop's NLP has this solution), and its Monte-Carlo.
 
     Raises:
       AwareError: a solve failed, a margin passed `cap`, or MAX_SOLVES passed.
@@ -172,19 +172,20 @@ def iterate(
         except OCPError as exc:
             raise AwareError(f"solve failed: {exc}") from None
         unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
-        record(solution, unc, draft)
         margin = solution.slider[index] - config.height
+        record(solution, unc, margin, draft)
         if np.any(margin > cap):
             raise AwareError("beyond the stroke share a margin may take")
         residual = unc.tightening - margin
-        settled = np.abs(residual) < tolerance
-        if previous is not None:  # the safe side of a jump
+        near = np.abs(residual) < tolerance
+        safe_jump = np.zeros_like(near)  # the safe side of a jump
+        if previous is not None:
             last_margin, last_residual = previous
             jumped = (last_residual > 0) & (np.abs(margin - last_margin) < tolerance)
-            settled |= jumped & (residual <= 0)
-        if settled.all() and not draft:
+            safe_jump = jumped & (residual <= 0)
+        if (near | safe_jump).all() and not draft:
             # the bounds a margin solve of this torque would have had (the constraint is active)
             return replace(solution, heights=config.height + margin), unc
-        draft = draft and not bool(np.all(np.abs(residual) < tolerance))
+        draft = draft and not bool(near.all())
         previous, current, fresh = (margin, residual), solution, False
     raise AwareError(f"not settled in {MAX_SOLVES} solves")

@@ -160,8 +160,7 @@ def solve_robust(
 
     if scheme == "aware":
 
-        def record(solution: Solution, unc: Uncertainty, draft: bool) -> None:
-            kept = solution.slider[index] - config.height
+        def record(solution: Solution, unc: Uncertainty, kept: np.ndarray, draft: bool) -> None:
             iterations.append(iteration(solution, unc, kept, config, profile, draft, "aware"))
             if on_iteration is not None:
                 on_iteration(iterations[-1])
