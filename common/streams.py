@@ -27,6 +27,7 @@ STREAMS: dict[str, str] = {
     "dataset_states": "initial states of the dataset's episodes",
     "dataset_excitation": "excitation torque of the dataset's episodes",
     "dataset_noise": "slider disturbance of the dataset's episodes",
+    "dataset_start_times": "how long each dataset machine has run before its episode",
     "training": "network initialisation and minibatch order",
     "monte_carlo": "Monte-Carlo draws of the OCP's robust loop",
     "validation_monte_carlo": "Monte-Carlo bands of the validation report",

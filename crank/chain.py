@@ -97,14 +97,22 @@ class RunConfig:
         **options: Any,
     ) -> RunConfig:
         """Stage configs from their defaults, `seed` as every stage's root seed, and the
-        dataset's variability for the replays. Keyword dicts override stage fields."""
+        dataset's variability and operating time (max_start_time) for the replays. Keyword dicts
+        override stage fields."""
         gen = GenerationConfig(**{**(generation or {}), "seed": seed})
         return cls(
             seed=seed,
             generation=gen,
             train=TrainConfig(**{**(train or {}), "seed": seed}),
             ocp=OCPConfig(**{**(ocp or {}), "mc_seed": seed}),
-            replay=ReplayConfig(**{**(replay or {}), "seed": seed, "variability": gen.variability}),
+            replay=ReplayConfig(
+                **{
+                    "max_start_time": gen.max_start_time,
+                    **(replay or {}),
+                    "seed": seed,
+                    "variability": gen.variability,
+                }
+            ),
             **options,
         )
 
@@ -137,6 +145,7 @@ class RunConfig:
             gen, rep = dict(values["generation"]), dict(values["replay"])
             gen["variability"] = Variability.from_dict(gen["variability"])
             gen["excitation"] = Excitation(**gen["excitation"])
+            gen.setdefault("max_start_time", 0.0)  # runs of before it: every machine started cold
             rep["variability"] = Variability.from_dict(rep["variability"])
             rep["modes"] = tuple(rep["modes"])
             rep["mpc"] = MPCConfig(**rep.get("mpc", {}))  # runs of before the MPC: defaults

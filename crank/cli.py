@@ -35,7 +35,7 @@ from crank.console import (
     show_iteration,
 )
 from ppann.train_config import TrainConfig
-from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
+from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH, OPERATING_SECONDS
 from twin.excitation import Excitation
 from twin.variability import Variability
 
@@ -71,6 +71,7 @@ def _config(
     drift: bool,
     amplitude: float,
     variability: str,
+    max_start_time: float = OPERATING_SECONDS,
 ) -> GenerationConfig:
     from twin.dataset import GenerationConfig
 
@@ -80,6 +81,7 @@ def _config(
         episode_seconds=episode_seconds,
         variability=Variability.resolve(variability, drift=drift),
         excitation=Excitation(amplitude=amplitude),
+        max_start_time=max_start_time,
     )
 
 
@@ -95,6 +97,13 @@ def generate_command(
     variability: VariabilityOption = "paper",
     model: ModelPath = MODEL_PATH,
     figures: Annotated[bool, typer.Option(help="Write coverage and excitation PNGs.")] = True,
+    max_start_time: Annotated[
+        float,
+        typer.Option(
+            help="Each machine has run U[0, this] s before its episode (warm-up drift); the "
+            "replays' default, so that training and checked machines are one population."
+        ),
+    ] = OPERATING_SECONDS,
 ) -> None:
     """Simulate the twin under semi-random torque and write a 500 Hz dataset MCAP."""
     config = _config(
@@ -104,6 +113,7 @@ def generate_command(
         drift=drift,
         amplitude=amplitude,
         variability=variability,
+        max_start_time=max_start_time,
     )
     summary = generate_dataset(config=config, out=out, model_path=model, figures=figures)
     print_summary(f"wrote {out}", summary)

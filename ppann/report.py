@@ -6,7 +6,8 @@ On the validation split (the last 3 s by default):
 - the fraction of validation samples inside the PPANN's Monte-Carlo ±3σ band, per draw mode;
 - calibration: the validation torque replayed 100 times on the twin from the segment's initial
   state, each run a fresh machine of the dataset's variability distribution (friction, backlash,
-  warm-up at the segment's time in its episode, disturbance). Observed σ(t) of theta and of the
+  disturbance; warm-up: run for as long as the dataset's machines, U[0, max_start_time] s, plus
+  the segment's time in its episode). Observed σ(t) of theta and of the
   slider position against the Monte-Carlo σ(t); the ratio predicted / observed is summarised by
   its median and 10th-90th percentiles over t (samples where the observed σ is still below
   1e-6 are left out).
@@ -110,6 +111,9 @@ def twin_replay(
     variability = Variability.from_dict(dataset.run["config"]["variability"])
     rng = streams.rng(seed, "calibration_machines")
     draws = [variability.sample(rng) for _ in range(n_runs)]
+    # datasets from before max_start_time started every machine cold
+    operating = float(dataset.run["config"].get("max_start_time", 0.0))
+    running = rng.uniform(0.0, operating, n_runs)
     noise = streams.rng(seed, "calibration_noise")
     state = physics.initial_state(dataset.theta[segment.start], dataset.omega[segment.start])
     episode_start = np.flatnonzero(dataset.episode == dataset.episode[segment.start])[0]
@@ -122,7 +126,7 @@ def twin_replay(
         initial_states=np.tile(state, (n_runs, 1)),
         tau=tau,
         disturbance=variability.disturbance(noise, tau.size).reshape(tau.shape),
-        start_times=np.full(n_runs, warm),
+        start_times=running + warm,
     )
     return TwinReplay(
         theta=physics.sensor(runs.sensordata, "theta"),

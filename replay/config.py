@@ -10,6 +10,7 @@ from common.errors import CrankError
 from common.resources import check_memory
 from control.config import PD_GAINS
 from control.mpc_config import MPCConfig
+from twin import OPERATING_SECONDS
 from twin.variability import Variability
 
 MODES = ("open", "closed", "mpc")
@@ -68,8 +69,9 @@ class ReplayConfig:
     """PD: proportional gain on the angle error, N·m/rad (control/config.py PD_GAINS)."""
     kd: float = PD_GAINS[1]
     """PD: derivative gain on the speed error, N·m·s/rad."""
-    max_start_time: float = 60.0
-    """Each machine has run U[0, max_start_time] s before its replay (warm-up drift), s."""
+    max_start_time: float = OPERATING_SECONDS
+    """Each machine has run U[0, max_start_time] s before its replay (warm-up drift), s; the
+    same range as the dataset's episodes (twin.OPERATING_SECONDS)."""
     variability: Variability = field(default_factory=Variability)
     mpc: MPCConfig = field(default_factory=MPCConfig)
     """The online MPC of the mpc mode (control/mpc.py)."""

@@ -69,6 +69,7 @@ from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
 from replay.rates import TARGET_RATE, rate_upper, verdict
 from replay.statistics import mpc_timing
+from twin import OPERATING_SECONDS
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
@@ -108,7 +109,7 @@ def heldout_check(
     runs: int,
     seed: int,
     variability: Variability,
-    max_start_time: float = 60.0,
+    max_start_time: float = OPERATING_SECONDS,
     mc_samples: int = 1000,
     modes: tuple[str, ...] = ("open",),
     mpc: MPCConfig | None = None,
@@ -256,7 +257,7 @@ def heldout_file(
     runs: int = 1000,
     seed: int,
     variability: Variability,
-    max_start_time: float = 60.0,
+    max_start_time: float = OPERATING_SECONDS,
     modes: tuple[str, ...] = ("open",),
     model_path: str | Path = MODEL_PATH,
     mpc: MPCConfig | None = None,

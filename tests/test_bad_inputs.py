@@ -151,6 +151,8 @@ CASES: list[tuple[str, str]] = [
     # --- generate ---
     ("generate --seconds 0 --out o/d.mcap", "seconds must be > 0"),
     ("generate --seconds -2 --out o/d.mcap", "seconds must be > 0"),
+    ("generate --max-start-time -1 --out o/d.mcap", "max_start_time must be >= 0"),
+    ("generate --max-start-time nan --out o/d.mcap", "max_start_time must be a finite number"),
     ("generate --seconds nan --out o/d.mcap", "seconds must be a finite number"),
     ("generate --seconds inf --out o/d.mcap", "seconds must be a finite number"),
     ("generate --seconds 1e9 --out o/d.mcap", "needs about 5e+05 GB of memory"),

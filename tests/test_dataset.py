@@ -98,6 +98,29 @@ def test_other_seed_other_machines_and_noise(physics: SliderCrank) -> None:
     assert not np.any(truth_a.disturbance_force == truth_b.disturbance_force)
 
 
+def test_episodes_run_warm_like_the_replays(physics: SliderCrank) -> None:
+    """Each machine has run U[0, max_start_time] s before its episode: its first sample's
+    friction is the warm-up drift at that time; max_start_time = 0 starts every machine cold and
+    changes nothing else (machines, initial angles, torques)."""
+    from replay.config import ReplayConfig
+    from twin import OPERATING_SECONDS
+
+    assert SHORT.max_start_time == OPERATING_SECONDS == ReplayConfig.max_start_time
+    _, warm, episodes = generate(SHORT, physics=physics)
+    _, cold, cold_episodes = generate(replace(SHORT, max_start_time=0.0), physics=physics)
+    starts = np.array([e.start_time for e in episodes])
+    assert np.all((starts > 0) & (starts < OPERATING_SECONDS)) and len(set(starts)) == len(starts)
+    first = np.flatnonzero(np.diff(warm.episode, prepend=-1))
+    variability = SHORT.variability
+    for e, i in zip(episodes, first, strict=True):
+        # the friction of the sample's first physics substep (twin/stepping.py: chunk midpoint)
+        expected = variability.friction_at(e.machine, e.start_time)
+        assert warm.motor_damping[i] == pytest.approx(expected.motor_damping, rel=1e-3)
+        assert warm.motor_damping[i] < cold.motor_damping[i]
+    for e, c in zip(episodes, cold_episodes, strict=True):
+        assert (e.machine, e.theta0, c.start_time) == (c.machine, c.theta0, 0.0)
+
+
 def test_episodes_are_different_machines(paper_dataset, physics: SliderCrank) -> None:
     truth = paper_dataset.truth
     starts = np.flatnonzero(np.diff(truth.episode, prepend=-1))

@@ -65,6 +65,18 @@ def test_no_drift_reaches_the_replay() -> None:
         replace(run, replay=replace(run.replay, variability=Variability()))
 
 
+def test_the_dataset_operating_time_reaches_the_replay() -> None:
+    """The replays run their machines as long as the dataset's had run, unless told otherwise;
+    a run record of before the field (every machine cold) reads back as 0 s."""
+    run = RunConfig.for_seed(3, generation={"max_start_time": 5.0})
+    assert run.replay.max_start_time == 5.0
+    told = RunConfig.for_seed(3, generation={"max_start_time": 5.0}, replay={"max_start_time": 9})
+    assert told.replay.max_start_time == 9.0
+    old = json.loads(json.dumps(RunConfig.for_seed(3).as_dict()))
+    del old["generation"]["max_start_time"]
+    assert RunConfig.from_dict(old).generation.max_start_time == 0.0
+
+
 def test_changing_the_replay_seed_changes_nothing_upstream(physics) -> None:
     base = RunConfig.for_seed(4, generation={"seconds": 2.0, "episode_seconds": 1.0})
     other = replace(base, replay=replace(base.replay, seed=99))

@@ -1,14 +1,18 @@
 """Datasets: episodes of the twin under semi-random torque, as measurement and ground truth.
 
 A dataset is a sequence of episodes (default 18 × 10 s; the paper's 9 × 10 s). Each episode is
-a fresh machine draw (friction, backlash, warm-up) starting cold from a state drawn uniformly over
-the whole stroke, under the slider disturbance throughout. `t` keeps running across episodes and
-every sample carries its episode index, so training windows never cross a boundary.
+a fresh machine draw (friction, backlash, warm-up) that has been running U[0, max_start_time] s
+(twin.OPERATING_SECONDS, the replays' range: the machines learnt from and the machines checked
+come from one population), from a state drawn uniformly over the whole stroke, under the slider
+disturbance throughout. Until session 17 every episode started cold: the model never saw a warm
+machine, while the held-out machines had run up to 60 s (README, *Warm machines*). `t` keeps
+running across episodes and every sample carries its episode index, so training windows never
+cross a boundary.
 
 Random streams (common/streams.py): the named streams dataset_machines, dataset_states,
-dataset_excitation and dataset_noise of the seed each spawn one child per episode. Changing one of
-them, or the number of episodes, leaves the others as they were, and no other stage of the
-project (replays, Monte-Carlo, training) draws from them.
+dataset_excitation, dataset_noise and dataset_start_times of the seed each spawn one child per
+episode. Changing one of them, or the number of episodes, leaves the others as they were, and no
+other stage of the project (replays, Monte-Carlo, training) draws from them.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 from common.checks import check_finite, check_seed
 from common.errors import ConfigError
 from common.streams import stream
-from twin import DATASET_SECONDS, EPISODE_SECONDS
+from twin import DATASET_SECONDS, EPISODE_SECONDS, OPERATING_SECONDS
 from twin.excitation import Excitation
 from twin.geometry import Geometry
 from twin.physics import SAMPLE_RATE, SliderCrank
@@ -57,10 +61,14 @@ class GenerationConfig:
     episode_seconds: float = EPISODE_SECONDS
     variability: Variability = field(default_factory=Variability)
     excitation: Excitation = field(default_factory=Excitation)
+    max_start_time: float = OPERATING_SECONDS
+    """Each episode's machine has run U[0, max_start_time] s before its first sample (warm-up
+    drift), s; 0: every machine starts cold."""
 
     def __post_init__(self) -> None:
         check_finite("seconds", self.seconds, positive=True)
         check_finite("episode_seconds", self.episode_seconds, positive=True)
+        check_finite("max_start_time", self.max_start_time, nonneg=True)
         check_seed("seed", self.seed)
         if self.n_samples < 2:
             raise ConfigError(
@@ -129,6 +137,8 @@ class Episode:
     machine: MachineDraw
     theta0: float
     omega0: float
+    start_time: float = 0.0
+    """How long the machine had run before the episode's first sample, s."""
 
 
 def generate(
@@ -151,19 +161,26 @@ def generate(
     longest = max(lengths)
     per_episode = {
         name: stream(config.seed, name).spawn(len(lengths))
-        for name in ("dataset_machines", "dataset_states", "dataset_excitation", "dataset_noise")
+        for name in (
+            "dataset_machines",
+            "dataset_states",
+            "dataset_excitation",
+            "dataset_noise",
+            "dataset_start_times",
+        )
     }
 
     episodes, states = [], []
     tau = np.zeros((len(lengths), longest))
     disturbance = np.zeros((len(lengths), longest))
     for i, n in enumerate(lengths):
-        machine_rng, state_rng, torque_rng, noise_rng = (
+        machine_rng, state_rng, torque_rng, noise_rng, start_rng = (
             np.random.default_rng(children[i]) for children in per_episode.values()
         )
         machine = config.variability.sample(machine_rng)
         theta0 = float(state_rng.uniform(0.0, 2.0 * np.pi))
-        episodes.append(Episode(i, n, machine, theta0, 0.0))
+        start = float(start_rng.uniform(0.0, config.max_start_time))
+        episodes.append(Episode(i, n, machine, theta0, 0.0, start))
         states.append(physics.initial_state(theta0, 0.0))
         tau[i] = config.excitation.torque(
             torque_rng, longest, rate=SAMPLE_RATE, limit=physics.torque_limit
@@ -177,6 +194,7 @@ def generate(
         initial_states=np.array(states),
         tau=tau,
         disturbance=disturbance,
+        start_times=np.array([e.start_time for e in episodes]),
         nthread=nthread,
         on_chunk=None if on_progress is None else (lambda n: on_progress(n * len(lengths))),
     )

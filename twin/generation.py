@@ -45,6 +45,7 @@ def run_metadata(
                 "n_samples": e.n_samples,
                 "theta0": e.theta0,
                 "omega0": e.omega0,
+                "start_time": e.start_time,
                 "machine": e.machine.as_dict(),
             }
             for e in episodes
