@@ -17,7 +17,7 @@ class OCPConfigError(CrankError, ValueError):
     """An OCP setting is out of range."""
 
 
-TIGHTENINGS = ("gaussian", "quantile")
+TIGHTENINGS = ("centred", "gaussian", "quantile")
 MARGIN_SCHEMES = ("aware", "bracket")
 ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed", "robust-pd": "closed"}
 """The robust profiles `crank solve` knows, each with the loop its tightening is sized for:
@@ -80,13 +80,15 @@ class OCPConfig:
     """k of the robust constraint slider - k sigma >= height (eq. 16)."""
     mc_samples: int = 0
     """Monte-Carlo trajectories per tightening; 0 chooses them for the tightening's precision:
-    GAUSSIAN_SAMPLES for gaussian (k·σ to ~2 % standard error), and for quantile enough that
-    QUANTILE_TAIL samples fall beyond the quantile."""
+    GAUSSIAN_SAMPLES for centred and gaussian (k·σ to ~2 % standard error), and for quantile
+    enough that QUANTILE_TAIL samples fall beyond the quantile."""
     mc_mode: str = "mixed"
     """Monte-Carlo mode (ppann/montecarlo.py): step (eq. 11), trajectory, machine or mixed (the
     default: one machine per trajectory plus white noise, the machine-level model)."""
-    tightening: str = "gaussian"
-    """gaussian: k·σ (eq. 16); quantile: plan − the lower quantile at Φ(−k) (control/robust.py)."""
+    tightening: str = "centred"
+    """centred (the default since session 17): plan − mean + k·σ, k·σ below the Monte-Carlo's
+    mean rather than below the plan; gaussian: k·σ (eq. 16); quantile: plan − the lower quantile
+    at Φ(−k) (control/robust.py, control/tightening.py)."""
     confidence: float = DEFAULT_CONFIDENCE
     """Confidence that the robust tightening is not short, beyond the paper (control/robust.py):
     the training machines are a few draws of the line, so its mean and spread are known only to

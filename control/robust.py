@@ -2,24 +2,25 @@
 
 Eq. 16 tightens the slider constraint to slider_k - k sigma_k >= height, with sigma_k the
 Monte-Carlo standard deviation (eq. 11) of the slider position under the torque being computed.
-Beside this "gaussian" tightening, "quantile" uses plan_k - Q_p (Q_p the Monte-Carlo's lower
-quantile at p = Phi(-k)), which holds at the confidence k sigma stands for when the spread is
-skewed (near top dead centre x(theta) is concave) or its mean is not the plan; below, "k sigma"
-stands for either. sigma depends on the torque: near top dead centre the slider hardly moves
-with theta, so a torque that reaches the constraint far from it (the nominal one) has a far
-larger sigma than one that dwells near it. The margin m (one per constraint sample) is
-therefore a fixed point, m = k sigma(u*(height + m)), a root of the residual
-F(m) = k sigma(u*(height + m)) - m, found per constraint sample by a bracketed secant from m = 0
-(the nominal solve; control/fixed_point.py): the first step is the nominal's k sigma, as in a
-plain fixed-point iteration; once a margin with F < 0 is known, every step is regula falsi
-(Illinois) inside the bracket. A proposal IPOPT cannot meet (the nominal sigma can eat the whole
-stroke) halves a damping beta of the step and retries from the last solved margin; beta doubles
-back towards 1 after each solve. Each proposal is capped at 95 % of the stroke left above the
-height. The loop stops when k sigma of the latest solution is within `margin_tolerance` of the
-margin it was solved with (or, where the map jumps, at most the margin: control/fixed_point.py),
-at every sample, so that slider - k sigma >= height - margin_tolerance holds there. Each solve is
-warm-started from the previous one; the Monte-Carlo reuses one seed, so the map m -> k sigma is
-deterministic.
+Beside this "gaussian" tightening, "centred" (the default since session 17) counts k sigma below the
+Monte-Carlo's mean slider, plan_k - mean_k + k sigma_k: near top dead centre x(theta) is concave, so
+the machines' mean slider sits below the plan's and eq. 16 reads that offset as margin
+(control/tightening.py). "quantile" uses plan_k - Q_p (Q_p the Monte-Carlo's lower quantile at p =
+Phi(-k)), which holds at the confidence k sigma stands for when the spread is also skewed; below, "k
+sigma" stands for any of them. sigma depends on the torque: near top dead centre the slider hardly
+moves with theta, so a torque that reaches the constraint far from it (the nominal one) has a far
+larger sigma than one that dwells near it. The margin m (one per constraint sample) is therefore a
+fixed point, m = k sigma(u*(height + m)), a root of the residual F(m) = k sigma(u*(height + m)) - m,
+found per constraint sample by a bracketed secant from m = 0 (the nominal solve;
+control/fixed_point.py): the first step is the nominal's k sigma, as in a plain fixed-point
+iteration; once a margin with F < 0 is known, every step is regula falsi (Illinois) inside the
+bracket. A proposal IPOPT cannot meet (the nominal sigma can eat the whole stroke) halves a damping
+beta of the step and retries from the last solved margin; beta doubles back towards 1 after each
+solve. Each proposal is capped at 95 % of the stroke left above the height. The loop stops when k
+sigma of the latest solution is within `margin_tolerance` of the margin it was solved with (or,
+where the map jumps, at most the margin: control/fixed_point.py), at every sample, so that slider -
+k sigma >= height - margin_tolerance holds there. Each solve is warm-started from the previous one;
+the Monte-Carlo reuses one seed, so the map m -> k sigma is deterministic.
 
 Beyond the paper, the line as known from a few machines and the tightening as known from a
 finite Monte-Carlo (`confidence`, ppann/confidence.py, ppann/machine.py): the machines the PPANN

@@ -229,7 +229,11 @@ def solve_command(
         str, typer.Option(help="Monte-Carlo: mixed (machines + white), step (eq. 11), machine.")
     ] = OCPConfig.mc_mode,
     tightening: Annotated[
-        str, typer.Option(help="gaussian (k·σ, eq. 16) or quantile (at Φ(−k)).")
+        str,
+        typer.Option(
+            help="centred (k·σ below the Monte-Carlo's mean), gaussian (k·σ below the plan, "
+            "eq. 16) or quantile (at Φ(−k))."
+        ),
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,

@@ -270,9 +270,9 @@ def study_command(
     mc_mode: Annotated[str, typer.Option(help="Monte-Carlo mode of the robust OCP.")] = (
         OCPConfig.mc_mode
     ),
-    tightening: Annotated[str, typer.Option(help="gaussian (k·σ) or quantile.")] = (
-        OCPConfig.tightening
-    ),
+    tightening: Annotated[
+        str, typer.Option(help="centred (k·σ below the mean), gaussian (k·σ, eq. 16) or quantile.")
+    ] = (OCPConfig.tightening),
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
     pd: PDOption = None,

@@ -218,9 +218,11 @@ def test_ocp_json_round_trips(solved: Path) -> None:
     for name in loaded.robust_names:
         assert loaded.profiles[name].cost >= loaded.nominal.cost
         assert raw["robust_iterations"][-1 if name == "robust-fb" else 0]["profile"] == name
-    # the open loop's margins by control/aware.py, the tube's by the bracket (control/robust.py)
-    schemes = {(it["profile"], it["scheme"]) for it in raw["robust_iterations"]}
-    assert schemes == {("robust", "aware"), ("robust-fb", "bracket")}
+    # the open loop's margins by control/aware.py first (on this model's steep map the bracket
+    # then settles them: tests/test_aware.py), the tube's by the bracket (control/robust.py)
+    schemes = [(it["profile"], it["scheme"]) for it in raw["robust_iterations"]]
+    assert schemes[0] == ("robust", "aware")
+    assert {s for p, s in schemes if p == "robust-fb"} == {"bracket"}
     # the tube is sized for the closed loop's spread: a smaller premium than the open loop's
     assert 0 <= loaded.premium("robust-fb") < loaded.premium("robust")
     assert set(raw["timing"]["robust_loop_s"]) == {"robust", "robust-fb"}

@@ -69,6 +69,27 @@ def test_gaussian_tightening_and_its_standard_error() -> None:
     assert errors.mean() == pytest.approx(margins.std(ddof=1), rel=0.15)
 
 
+def test_centred_tightening_counts_the_mean_below_the_plan() -> None:
+    """k·σ below the samples' mean: a spread whose mean sits 2 mm below the plan asks 2 mm more
+    than eq. 16's k·σ; on the twin's skewed law (plan − Gamma) the reported standard error is
+    the estimates' real spread (within 15 %), larger than k·σ's alone (mean and s correlate)."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(PLAN - 2e-3, 4e-3, 1000)
+    centred = tightening(x, PLAN, k_sigma=3.0, method="centred")[0]
+    gaussian = tightening(x, PLAN, k_sigma=3.0, method="gaussian")[0]
+    assert centred - gaussian == pytest.approx(PLAN - x.mean(), rel=0, abs=1e-15)
+    assert centred == pytest.approx(2e-3 + 12e-3, abs=3 * 4e-3 / math.sqrt(500))
+    values = [
+        tightening(_skewed(rng, 1000), PLAN, k_sigma=3.0, method="centred") for _ in range(400)
+    ]
+    margins, errors = np.array([m for m, _ in values]), np.array([s for _, s in values])
+    assert errors.mean() == pytest.approx(margins.std(ddof=1), rel=0.15)
+    plain = [
+        tightening(_skewed(rng, 1000), PLAN, k_sigma=3.0, method="gaussian")[1] for _ in range(50)
+    ]
+    assert errors.mean() > 1.1 * np.mean(plain)
+
+
 def test_gaussian_standard_error_holds_for_a_heavy_tailed_law() -> None:
     """An exponential spread (kurtosis 9): the standard error of k·σ is twice the normal law's
     k·σ / sqrt(2 n); the reported one must be the estimates' real spread (within 15 %)."""
@@ -162,7 +183,11 @@ def test_confidence_zero_is_the_papers_tightening_bit_for_bit() -> None:
 
 @pytest.mark.parametrize(
     ("law", "method", "n", "reps"),
-    [("normal", "gaussian", 1000, 4000), ("normal", "quantile", 14816, 1000)],
+    [
+        ("normal", "gaussian", 1000, 4000),
+        ("normal", "centred", 1000, 4000),
+        ("normal", "quantile", 14816, 1000),
+    ],
 )
 def test_sampling_allowance_is_an_upper_confidence_bound(law, method, n, reps) -> None:
     """tightening + allowance at z = confidence_quantile(0.95) (each of the three bounds at
@@ -205,11 +230,13 @@ def test_sampling_allowance_on_the_twins_skew() -> None:
     assert misses / reps < 2 * 0.05 / 3
 
 
-def test_tightening_is_k_sigma_plus_the_line_and_sampling_allowances() -> None:
+@pytest.mark.parametrize("method", ["gaussian", "centred"])
+def test_tightening_is_k_sigma_plus_the_line_and_sampling_allowances(method: str) -> None:
     """At confidence 0.95 each constraint sample's tightening is k·σ + population + sampling,
-    the last about z·SE (the machine spread drawn at its upper bound)."""
+    the last about z·SE (the machine spread drawn at its upper bound); centred adds how far the
+    Monte-Carlo's mean slider sits below the plan's."""
     model = _line_model()
-    config = OCPConfig(confidence=0.95)
+    config = OCPConfig(confidence=0.95, tightening=method)
     solution = NominalOCP(model, config).solve()
     unc = slider_uncertainty(FusedHeads(model), solution, config)
     z = confidence_quantile(0.95)
@@ -217,6 +244,8 @@ def test_tightening_is_k_sigma_plus_the_line_and_sampling_allowances() -> None:
     assert unc.sampling == pytest.approx(z * unc.tightening_se, rel=0.1)
     index = np.array(config.constraint_samples) - 1
     k_sigma = config.k_sigma * unc.std[index]
+    if method == "centred":
+        k_sigma += solution.slider[index] - unc.mean[index]
     assert unc.tightening == pytest.approx(k_sigma + unc.population + unc.sampling, rel=1e-12)
 
 
