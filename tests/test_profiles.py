@@ -64,9 +64,10 @@ def test_a_refusal_at_the_edge_is_decided_with_more_trajectories() -> None:
     """A line whose tightening at sample 100 sits at the cap: 1000 trajectories ask 19.19 mm of
     the 19.0 a margin may take (se 0.68 mm), a refusal inside the band; 4000 ask 18.79 mm (se
     0.37) and 16000 18.88 mm (se 0.18), still inside it: the last count decides, a torque whose
-    tightening fits under the cap."""
+    tightening fits under the cap. Eq. 16's tightening: the line was sized for it (the centred
+    one asks 22.5 mm, a plain refusal)."""
     edge = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.15, 0.25, 0.25))
-    config = OCPConfig(confidence=0.0)
+    config = OCPConfig(confidence=0.0, tightening="gaussian")
     ocp = NominalOCP(edge, config)
     nominal = ocp.solve()
     with pytest.raises(BeyondStrokeError) as refused:

@@ -48,6 +48,7 @@ sigma_epochs = 20
 k_sigma = 0.5
 mc_samples = 200
 confidence = 0.0
+tightening = "gaussian"  # tests/test_chain.py SHORT: the centred default refuses a 12 s model
 [base.replay]
 runs = 4
 """
