@@ -272,7 +272,7 @@ def study_command(
     ),
     tightening: Annotated[
         str, typer.Option(help="centred (k·σ below the mean), gaussian (k·σ, eq. 16) or quantile.")
-    ] = (OCPConfig.tightening),
+    ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
     pd: PDOption = None,
