@@ -1,6 +1,6 @@
 """Benchmark: nominal OCP solve against the whole robust loop (every re-solve and Monte-Carlo),
 measured in the same run (target: robust loop <= 3 × the nominal solve), with today's default
-Monte-Carlo (1000 mixed trajectories, gaussian tightening, the line allowance at confidence 0.95),
+Monte-Carlo (1000 mixed trajectories, centred tightening, the line allowance at confidence 0.95),
 with its margins by the aware scheme (control/aware.py) and by the bracketed loop, the same at
 confidence 0, the same sized for the LQR closed loop (robust-fb, a tube) and for the
 fixed PD (robust-pd, a tube), for
@@ -47,7 +47,7 @@ def main() -> None:
         model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
         source = "constant networks"
     configs = {
-        "default (1000 mixed, gaussian, confidence 0.95, aware margins)": (OCPConfig(), "robust"),
+        "default (1000 mixed, centred, confidence 0.95, aware margins)": (OCPConfig(), "robust"),
         "the same with the bracketed margin loop (margin_scheme bracket)": (
             OCPConfig(margin_scheme="bracket"),
             "robust",
@@ -56,11 +56,17 @@ def main() -> None:
         "default for the LQR closed loop (robust-fb, a tube)": (OCPConfig(), "robust-fb"),
         "default for the fixed-PD closed loop (robust-pd, a tube)": (OCPConfig(), "robust-pd"),
         "paper (100 step, gaussian, confidence 0)": (
-            OCPConfig(mc_samples=100, mc_mode="step", confidence=0.0),
+            OCPConfig(mc_samples=100, mc_mode="step", confidence=0.0, tightening="gaussian"),
             "robust",
         ),
         "paper, bracketed margin loop": (
-            OCPConfig(mc_samples=100, mc_mode="step", confidence=0.0, margin_scheme="bracket"),
+            OCPConfig(
+                mc_samples=100,
+                mc_mode="step",
+                confidence=0.0,
+                tightening="gaussian",
+                margin_scheme="bracket",
+            ),
             "robust",
         ),
         "default, NLP compiled to C (--compiled)": (OCPConfig(compiled=True), "robust"),
