@@ -174,12 +174,13 @@ def sampling_allowance(
         from scipy.special import chdtri  # SciPy where it is used: the CLI does not load it
 
         sigma = float(np.std(samples, ddof=1))
-        dof = 2 * n / max(_kurtosis(samples) - 1, 1e-12)
+        kurtosis = _kurtosis(samples)
+        dof = 2 * n / max(kurtosis - 1, 1e-12)
         lower = float(chdtri(dof, 1 - 0.5 * math.erfc(z / math.sqrt(2))))
         allowance = k_sigma * sigma * (math.sqrt(dof / lower) - 1)
         if method == "gaussian":
             return allowance
-        plain = tightening(samples, plan, k_sigma=k_sigma, method="gaussian")[1]
+        plain = k_sigma * sigma * math.sqrt((kurtosis - 1) / (4 * n))  # `tightening`'s gaussian se
         return allowance * _centred_se(samples, k_sigma) / plain if plain > 0 else 0.0
     p = lower_tail(k_sigma)
     ordered = np.sort(samples)
@@ -187,13 +188,17 @@ def sampling_allowance(
     return float(np.quantile(samples, p)) - float(low)
 
 
+def _moments(samples: np.ndarray) -> tuple[float, float, float]:
+    """The samples' central moments m2, m3, m4."""
+    centred = samples - samples.mean()
+    return tuple(float(np.mean(centred**i)) for i in (2, 3, 4))
+
+
 def _centred_se(samples: np.ndarray, k_sigma: float) -> float:
     """Standard error of mean − k·s of `samples` (the delta method, `tightening`'s docstring)."""
-    centred = samples - samples.mean()
-    m2 = float(np.mean(centred**2))
+    m2, m3, m4 = _moments(samples)
     if m2 == 0:
         return 0.0
-    m3, m4 = float(np.mean(centred**3)), float(np.mean(centred**4))
     sigma = math.sqrt(m2)
     variance = m2 + k_sigma**2 * (m4 - m2**2) / (4 * m2) - k_sigma * m3 / sigma
     return math.sqrt(max(variance, 0.0) / samples.shape[0])
@@ -201,9 +206,8 @@ def _centred_se(samples: np.ndarray, k_sigma: float) -> float:
 
 def _kurtosis(samples: np.ndarray) -> float:
     """The samples' kurtosis m4 / m2² (3 for a normal law; 3 for constant samples)."""
-    centred = samples - samples.mean()
-    second = float(np.mean(centred**2))
-    return float(np.mean(centred**4)) / second**2 if second > 0 else 3.0
+    m2, _, m4 = _moments(samples)
+    return m4 / m2**2 if m2 > 0 else 3.0
 
 
 @dataclass(frozen=True)
@@ -219,7 +223,8 @@ class Uncertainty:
     (quantile), plus `population`
     and `sampling`, m."""
     tightening_se: np.ndarray
-    """Standard error of k·σ (or plan − quantile) from the finite Monte-Carlo, m."""
+    """Standard error of plan − mean + k·σ, k·σ or plan − quantile from the finite Monte-Carlo,
+    m."""
     population: np.ndarray
     """The part of `tightening` that allows for the line's uncertain mean, m (module docstring);
     zeros at confidence 0."""
