@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from control.config import OCPConfig
+from control.config import MAX_MC_SAMPLES, OCPConfig
 from control.ocp import NominalOCP, Solution
 from control.robust import (
     STROKE_SHARE,
@@ -39,7 +39,9 @@ with more trajectories."""
 ESCALATION = 4
 """Each re-decision draws this many times the trajectories (the se halves)."""
 MAX_ESCALATIONS = 2
-"""At most this many re-decisions: up to 16x the configured trajectories."""
+"""At most this many re-decisions: up to 16x the configured trajectories, and never more than
+control/config.py MAX_MC_SAMPLES (the quantile tightening's 14 816 at k = 3 escalate once, to
+59 264, then to the cap)."""
 
 
 @dataclass(frozen=True)
@@ -75,10 +77,14 @@ def solve_decided(
       RobustError: no robust torque (or none confirmed) at the last trajectory count tried.
     """
     cap = STROKE_SHARE * (model.geometry.stroke_top - config.height)
-    samples, spent = config.mc_samples, 0.0
-    for attempt in range(MAX_ESCALATIONS + 1):
+    counts = [config.mc_samples]
+    for _ in range(MAX_ESCALATIONS):
+        if counts[-1] < MAX_MC_SAMPLES:
+            counts.append(min(counts[-1] * ESCALATION, MAX_MC_SAMPLES))
+    spent = 0.0
+    for attempt, samples in enumerate(counts):
         trial = replace(config, mc_samples=samples)
-        final = attempt == MAX_ESCALATIONS
+        final = attempt == len(counts) - 1
         try:
             result = solve_robust(
                 model, trial, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
@@ -93,7 +99,6 @@ def solve_decided(
                 # the loop's time is every decision's, not only the last one's
                 return replace(result, wall_time=spent + result.wall_time)
             spent += result.wall_time
-        samples *= ESCALATION
     raise AssertionError("unreachable: the last attempt returns or raises")
 
 

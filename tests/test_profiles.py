@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import control.profiles as profiles
-from control.config import OCPConfig
+from control.config import MAX_MC_SAMPLES, OCPConfig
 from control.ocp import NominalOCP
 from control.profiles import ESCALATION, MAX_ESCALATIONS, solve_decided, undecided
 from control.robust import BeyondStrokeError, solve_robust
@@ -58,6 +58,25 @@ def test_an_undecided_verdict_draws_more_trajectories(monkeypatch: pytest.Monkey
         solve_decided(WIDE, CONFIG, profile="robust", ocp=wide, nominal=wide.solve())
     assert refused.value.se > 0
     assert refused.value.partial.nominal_uncertainty.samples == most
+
+
+def test_escalation_stops_at_the_monte_carlos_cap(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The quantile tightening's own count (14 816 at k = 3) escalated 16x would be 237 056,
+    beyond MAX_MC_SAMPLES, which OCPConfig refuses: the re-decisions stop at the cap (a seed-0
+    paper task asked for it and got a configuration error in place of a verdict)."""
+    config = OCPConfig(confidence=0.0, tightening="quantile")
+    drawn: list[int] = []
+
+    def fake(model, trial, **_):
+        drawn.append(trial.mc_samples)
+        raise BeyondStrokeError(
+            "refused", sample=100, tightening=0.019, available=0.019, line=0.0, se=1.0
+        )
+
+    monkeypatch.setattr(profiles, "solve_robust", fake)
+    with pytest.raises(BeyondStrokeError):
+        solve_decided(NARROW, config, profile="robust", ocp=None, nominal=None)
+    assert drawn == [14816, 14816 * ESCALATION, MAX_MC_SAMPLES]
 
 
 def test_a_refusal_at_the_edge_is_decided_with_more_trajectories() -> None:
