@@ -81,7 +81,19 @@ def read_values(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config {path}: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"config {path} is not TOML: {exc}") from None
-    return merge(defaults(), given, source=str(path))
+    return follow_dataset(merge(defaults(), given, source=str(path)), given)
+
+
+def follow_dataset(values: dict[str, Any], *given: dict[str, Any]) -> dict[str, Any]:
+    """`values` with the replays' operating time the dataset's (replay.max_start_time =
+    generation.max_start_time) unless one of the `given` layers sets replay.max_start_time
+    itself: the machines a torque is checked on have run as long as those it was learnt from,
+    from a file as from the command line or the library (crank/chain.py RunConfig.for_seed).
+    Before this a file's `[generation] max_start_time = 0` replayed on machines of 60 s."""
+    if any("max_start_time" in layer.get("replay", {}) for layer in given):
+        return values
+    replay = {**values["replay"], "max_start_time": values["generation"]["max_start_time"]}
+    return {**values, "replay": replay}
 
 
 REPLACED = {

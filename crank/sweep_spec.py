@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from common.errors import ConfigError
-from crank.config_file import build, defaults, merge
+from crank.config_file import build, defaults, follow_dataset, merge
 
 if TYPE_CHECKING:
     from crank.chain import RunConfig
@@ -141,6 +141,8 @@ def leaves_of(spec: dict[str, Any], *, source: str) -> list[Leaf]:
             options = at | ({"case": name} if cases else {})
             label = " ".join(f"{k}={_label(v)}" for k, v in options.items())
             leaf_values = merge(with_point, case, source=f"{source} case {name!r}")
+            layers = [base, *(_nested(axis, value) for axis, value in at.items()), case]
+            leaf_values = follow_dataset(leaf_values, *layers)
             config = build(leaf_values, source=f"{source}: leaf {label}")
             steps = tuple(node_key(kind, config) for kind in KINDS)
             if steps[-1] in seen:

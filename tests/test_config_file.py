@@ -56,6 +56,19 @@ def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
     assert config.heldout_runs == HELDOUT_RUNS  # untouched keys keep their defaults
 
 
+def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) -> None:
+    """A file that starts the dataset's machines cold replays on cold machines too, as the
+    command line and the library do; a file that sets the replays' own time keeps it."""
+    path = tmp_path / "crank.toml"
+    path.write_text("[generation]\nmax_start_time = 0\n")
+    config = build(read_values(path), source=str(path))
+    assert config.generation.max_start_time == config.replay.max_start_time == 0.0
+    path.write_text("[generation]\nmax_start_time = 5\n[replay]\nmax_start_time = 30\n")
+    config = build(read_values(path), source=str(path))
+    assert (config.generation.max_start_time, config.replay.max_start_time) == (5.0, 30.0)
+    assert build(defaults()).replay.max_start_time == build(defaults()).generation.max_start_time
+
+
 @pytest.mark.parametrize(
     ("text", "match"),
     [

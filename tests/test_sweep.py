@@ -288,6 +288,27 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     assert found is not None and int(found[1]) >= 2 and int(found[1]) + int(found[2]) == 6
 
 
+def test_a_leafs_replays_run_as_long_as_its_datasets_machines() -> None:
+    """A grid over the dataset's operating time replays each leaf on machines of its own
+    time; a case that sets the replays' own keeps it."""
+    spec = {
+        "grid": {"generation.max_start_time": [0.0, 20.0]},
+        "cases": [{"name": "follow"}, {"name": "fixed", "replay": {"max_start_time": 60.0}}],
+    }
+    got = {
+        (leaf.config.generation.max_start_time, leaf.options["case"]): (
+            leaf.config.replay.max_start_time
+        )
+        for leaf in leaves_of(spec, source="spec")
+    }
+    assert got == {
+        (0.0, "follow"): 0.0,
+        (20.0, "follow"): 20.0,
+        (0.0, "fixed"): 60.0,
+        (20.0, "fixed"): 60.0,
+    }
+
+
 def test_the_graph_shares_each_step_between_the_leaves_that_agree_on_it() -> None:
     """Seeds x cases: a case changing the task shares the model, one changing the training does
     not, one changing only the replay shares the solve; keys follow what each step reads."""
