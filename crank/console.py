@@ -284,6 +284,13 @@ class EpochBars:
             self.done(kind)
 
 
+def _predicted(entry: dict[str, Any]) -> str:
+    """The model's own rate beside the observed one (heldout.json version 4), or nothing."""
+    if "model_rate" not in entry:
+        return ""
+    return f"; the model predicted {100 * entry['model_rate']['rate']:.2f} %"
+
+
 def print_heldout(heldout: dict[str, Any]) -> None:
     from control.config import loop_of
     from replay.config import loop_label
@@ -296,7 +303,7 @@ def print_heldout(heldout: dict[str, Any]) -> None:
             typer.echo(
                 f"  {profile:<9} {loop:<6} {entry['violating_runs']:>5} below the height "
                 f"({100 * entry['rate']:.2f} %, 95 % upper bound "
-                f"{100 * entry['rate_upper_95']:.2f} %)"
+                f"{100 * entry['rate_upper_95']:.2f} %)" + _predicted(entry)
             )
     for profile in heldout["holds"]:
         below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]

@@ -192,6 +192,16 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     return "\n".join(lines)
 
 
+def _own_rate(entry: dict[str, Any]) -> str:
+    """What the model's own Monte-Carlo put below the height (heldout.json version 4)."""
+    if "model_rate" not in entry:
+        return ""
+    own = entry["model_rate"]
+    return (
+        f" (the model's own Monte-Carlo of {own['draws']} trajectories: {100 * own['rate']:.2f} %)"
+    )
+
+
 def _verdict_words(entry: dict[str, Any], heldout: dict[str, Any]) -> str:
     """A profile's held-out verdict in a sentence's words (replay/rates.py)."""
     from replay.rates import machines_to_confirm, verdict
@@ -231,8 +241,8 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
             lines.append(
                 f"- {words}{own}, the {name} torque left the slider below the height "
                 f"on {100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
-                f"{100 * robust['rate_upper_95']:.2f} %), the nominal one on "
-                f"{100 * nominal['rate']:.1f} %. Against the target of <= "
+                f"{100 * robust['rate_upper_95']:.2f} %){_own_rate(robust)}, the nominal one "
+                f"on {100 * nominal['rate']:.1f} %. Against the target of <= "
                 f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}"
             )
     lines += [

@@ -113,6 +113,8 @@ def _profile_row(
             "nominal_heldout_rate": nominal["rate"],
             "robust_heldout_lowest_mm": 1e3 * min(s["lowest"] for s in robust["samples"].values()),
         }
+        if "model_rate" in robust:  # heldout.json version 4
+            row["robust_model_rate"] = robust["model_rate"]["rate"]
         for sample, entry in robust["samples"].items():
             predicted = entry["predicted"][mode]
             row[f"pred_{k:g}sigma_{sample}_mm"] = 1e3 * k * predicted["sigma"]

@@ -17,11 +17,11 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.mpc_config import MPCConfig
 from control.ocp_file import OCPFile
-from ppann.model import PPANN, constant_ppann
+from ppann.model import PPANN, FusedHeads, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
-from replay.heldout import heldout_check
+from replay.heldout import heldout_check, model_rate
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.replay_ocp import N, nominal_twin_trajectory, twin_state
 from twin.geometry import PAPER
@@ -191,6 +191,7 @@ def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
         seed=11,
         variability=variability,
         mc_samples=50,
+        tail_draws=300,
         modes=modes,
         feedback=feedback,
         kp=pd[0],
@@ -281,6 +282,45 @@ def _check_heldout_entry(
             bands.samples[:, int(k) - 1, 0].mean(), rel=1e-12
         )
     assert result["theta_final"]["observed_sigma"] == float(replay.theta[:, -1].std(ddof=1))
+    # the model's own rate below the height: its Monte-Carlo of the same loop, 300 draws
+    tail = monte_carlo(
+        model,
+        [profile.theta[0], profile.omega[0]],
+        profile.tau[:-1],
+        n_samples=300,
+        mode=ocp.config.mc_mode,
+        seed=stream(ocp.config.mc_seed, "monte_carlo"),
+        feedback=law,
+    )
+    index = np.array(ocp.config.constraint_samples) - 1
+    below = PAPER.slider_position(tail.samples[:, index, 0]) < ocp.config.height
+    rate = result["model_rate"]
+    assert (rate["draws"], rate["mode"]) == (300, ocp.config.mc_mode)
+    assert rate["rate"] == below.any(axis=1).mean()
+    assert rate["samples"] == {str(k): below[:, j].mean() for j, k in enumerate(index + 1)}
+
+
+def testmodel_rate_is_the_share_of_its_own_draws_below_the_height(ocp: OCPFile) -> None:
+    """heldout.json's model_rate at a height set to the median of the same Monte-Carlo's slider
+    at sample 50 is one half there (its own draws, exactly), and the rate at any sample is at
+    least the largest per-sample rate and at most their sum."""
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    profile = ocp.profiles["robust"]
+    config = replace(ocp.config, constraint_samples=(50, 100))
+    bands = monte_carlo(
+        model,
+        [profile.theta[0], profile.omega[0]],
+        profile.tau[:-1],
+        n_samples=400,
+        mode=config.mc_mode,
+        seed=stream(config.mc_seed, "monte_carlo"),
+    )
+    slider = PAPER.slider_position(bands.samples[:, [49, 99], 0])
+    config = replace(config, height=float(np.median(slider[:, 0])))
+    rate = model_rate(FusedHeads(model), profile, config, n_samples=400, law=None)
+    assert rate["samples"]["50"] == 0.5
+    assert rate["samples"]["100"] == np.mean(slider[:, 1] < config.height)
+    assert max(rate["samples"].values()) <= rate["rate"] <= sum(rate["samples"].values())
 
 
 def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) -> None:

@@ -125,3 +125,16 @@ def test_heldout_verdict_needs_its_bound_within_the_target(
     heldout["runs"] = runs
     text = "\n".join(heldout_lines(heldout))
     assert f"Against the target of <= 0.5 % the robust torque {word}" in text
+
+
+def test_the_models_own_rate_stands_beside_the_observed_one() -> None:
+    """heldout.json version 4 carries the model's own rate below the height; report.md puts it
+    beside the machines' (an older heldout.json without it reads as before)."""
+    heldout = _heldout("open", 1.1)
+    before = "\n".join(heldout_lines(heldout))
+    assert "own Monte-Carlo" not in before
+    own = {"mode": "mixed", "draws": 20000, "rate": 0.0064, "samples": {"50": 0.0064}}
+    heldout["profiles"]["robust"]["open"] = {**heldout["profiles"]["robust"]["open"]}
+    heldout["profiles"]["robust"]["open"]["model_rate"] = own
+    text = "\n".join(heldout_lines(heldout))
+    assert "upper bound 0.30 %) (the model's own Monte-Carlo of 20000 trajectories: 0.64 %)" in text
