@@ -1,2 +1,3 @@
-"""Optimal control on the PPANN. So far: the PPANN as CasADi SX functions (dynamics.py); the
-nominal (eqs. 10, 15) and robust (eq. 16) OCPs are not built yet."""
+"""Optimal control on the PPANN: the nominal OCP (eqs. 10, 15, ocp.py), the robust profiles
+(eq. 16 and beyond: robust.py, aware.py, tightening.py, profiles.py), the LQR tubes and the
+online MPC (lqr.py, mpc.py), and ocp.json (ocp_write.py, ocp_file.py)."""

@@ -77,10 +77,16 @@ def nominal_figure(ocp: OCPFile) -> Figure:
 
 
 TITLES = {
-    "robust": "Robust OCP (eq. 16, tightened open loop)",
+    "robust": "Robust OCP tightened for the open loop",
     "robust-fb": "Robust OCP tightened for the LQR closed loop (a tube)",
     "robust-pd": "Robust OCP tightened for the fixed-PD closed loop (a tube)",
 }
+TIGHTENING_WORDS = {
+    "centred": "k·σ below the Monte-Carlo's mean",
+    "gaussian": "eq. 16, k·σ below the plan",
+    "quantile": "the Monte-Carlo's Φ(−k) quantile",
+}
+"""How each tightening (control/tightening.py) is named in the robust figure's title."""
 COLORS = {"nominal": "C0", "robust": "C3", "robust-fb": "C2", "robust-pd": "C4"}
 
 
@@ -94,7 +100,11 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     top.plot(robust.time, robust.tau, color=COLORS[name], label=name)
     torque_limits(top, ocp)
     top.set_ylabel("τ [N·m]")
-    top.set_title(f"{TITLES[name]}: cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal")
+    how = TIGHTENING_WORDS.get(ocp.config.tightening, ocp.config.tightening)
+    top.set_title(
+        f"{TITLES[name]} ({how}): cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal",
+        fontsize=10,
+    )
     top.legend(fontsize=8)
     _slider(middle, ocp, ocp.nominal, COLORS["nominal"], "nominal", loop=robust.loop)
     _slider(middle, ocp, robust, COLORS[name], name)
