@@ -111,6 +111,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         "worst 95 % bound",
         "robust campaign",
         "premium (min–max)",
+        "model's own rate (mean, worst)",
         "errors",
     ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -118,7 +119,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
         bad = len(members) - len(good)
         if not good:
-            lines.append(f"| {label} | {len(members)} | n/a | n/a | n/a | n/a | n/a | {bad} |")
+            lines.append(f"| {label} | {len(members)} |" + " n/a |" * 6 + f" {bad} |")
             continue
         machines = sum(r["heldout_runs"] for r in good)
         violated = sum(round(r["robust_heldout_rate"] * r["heldout_runs"]) for r in good)
@@ -133,6 +134,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             _pct(max(r["robust_heldout_upper_95"] for r in good)),
             f"{campaign[0]}/{campaign[1]}",
             f"{_pct(mean, 1)} ({_pct(min(premium), 1)}–{_pct(max(premium), 1)})",
+            _own(good),
             str(bad),
         ]
         lines.append("| " + " | ".join(cells) + " |")
@@ -143,6 +145,15 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             where = f"{r['profile']} refused" if refused else f"{r['failed_step']} step"
             lines.append(f"- {r['leaf']}: {where}: {r['error']}")
     return "\n".join(lines) + "\n"
+
+
+def _own(rows: list[dict[str, Any]]) -> str:
+    """The mean and the worst of the model's own rates below the height (heldout.json version
+    4, `robust_model_rate`), "n/a" where a row has none."""
+    own = [r["robust_model_rate"] for r in rows if r.get("robust_model_rate") is not None]
+    if len(own) < len(rows):
+        return "n/a"
+    return f"{_pct(sum(own) / len(own), 3)}, {_pct(max(own), 3)}"
 
 
 TICK_WIDTH = 15

@@ -35,6 +35,9 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     text = markdown(sweep, [row(0, 0.006, 0.011)])
     assert "worst 0.60 % (seed=0, robust), target <= 0.5 %: **NOT met**" in text
     assert "| all | 1 | 6/1000 (0.60 %) |" in text
+    assert text.rstrip().endswith("| 30.0 % (30.0 %–30.0 %) | n/a | 0 |")  # no model_rate yet
+    own = [row(0, 0.001, 0.0047) | {"robust_model_rate": r} for r in (0.001, 0.002)]
+    assert "| 30.0 % (30.0 %–30.0 %) | 0.150 %, 0.200 % | 0 |" in markdown(sweep, own)
 
 
 def test_sweep_figure_names_each_column_by_its_values() -> None:
