@@ -63,9 +63,9 @@ from scipy import stats as scistats
 from common import streams
 from common.atomic import check_writable, writes
 from common.jsonio import recorded_path, write_json
-from control.config import PD_GAINS, lower_tail
+from control.config import PD_GAINS, OCPConfig, lower_tail
 from control.mpc_config import MPCConfig, check_fits
-from control.ocp_file import read_ocp
+from control.ocp_file import Profile, read_ocp
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
@@ -112,9 +112,15 @@ def _theta_calibration(
 
 
 def model_rate(
-    heads: FusedHeads, planned: Any, c: Any, *, n_samples: int, law: Feedback | None
+    heads: FusedHeads,
+    planned: Profile,
+    c: OCPConfig,
+    *,
+    n_samples: int,
+    law: Feedback | None,
 ) -> dict[str, Any]:
-    """heldout.json's model_rate for one profile and loop (module docstring)."""
+    """heldout.json's model_rate for one profile and loop (module docstring): `n_samples`
+    trajectories of the model under `planned`'s torque, open loop or under `law`."""
     bands = monte_carlo(
         heads,
         [planned.theta[0], planned.omega[0]],
