@@ -134,15 +134,15 @@ def leaves_of(spec: dict[str, Any], *, source: str) -> list[Leaf]:
     seen: dict[str, str] = {}
     for point in itertools.product(*grid.values()):
         at = dict(zip(grid, point, strict=True))
+        point_layers = [_nested(axis, value) for axis, value in at.items()]
         with_point = values
-        for axis, value in at.items():
-            with_point = merge(with_point, _nested(axis, value), source=f"{source} [grid]")
+        for layer in point_layers:
+            with_point = merge(with_point, layer, source=f"{source} [grid]")
         for name, case in zip(names, named, strict=True):
             options = at | ({"case": name} if cases else {})
             label = " ".join(f"{k}={_label(v)}" for k, v in options.items())
             leaf_values = merge(with_point, case, source=f"{source} case {name!r}")
-            layers = [base, *(_nested(axis, value) for axis, value in at.items()), case]
-            leaf_values = follow_dataset(leaf_values, *layers)
+            leaf_values = follow_dataset(leaf_values, base, *point_layers, case)
             config = build(leaf_values, source=f"{source}: leaf {label}")
             steps = tuple(node_key(kind, config) for kind in KINDS)
             if steps[-1] in seen:

@@ -120,18 +120,19 @@ def model_rate(
     law: Feedback | None,
 ) -> dict[str, Any]:
     """heldout.json's model_rate for one profile and loop (module docstring): `n_samples`
-    trajectories of the model under `planned`'s torque, open loop or under `law`."""
+    trajectories of the model under `planned`'s torque, open loop or under `law`, simulated up
+    to the last constraint sample only (every draw a prefix of the whole run's)."""
+    index = np.array(c.constraint_samples) - 1
     bands = monte_carlo(
         heads,
         [planned.theta[0], planned.omega[0]],
-        planned.tau[:-1],
+        planned.tau[: index.max()],
         n_samples=n_samples,
         mode=c.mc_mode,
         seed=streams.stream(c.mc_seed, "monte_carlo"),
         feedback=law,
     )
     delta = draw(heads.transmission, (n_samples,), streams.rng(c.mc_seed, "transmission"))
-    index = np.array(c.constraint_samples) - 1
     with np.errstate(over="ignore", invalid="ignore"):
         slider = heads.geometry.slider_position(bands.samples[:, index, 0] + delta[:, None])
     below = ~(slider >= c.height)  # a diverged draw (NaN) counts as below
