@@ -70,6 +70,7 @@ def _config(
     episode_seconds: float,
     drift: bool,
     amplitude: float,
+    amplitude_spread: float = 0.0,
     variability: str,
     max_start_time: float = OPERATING_SECONDS,
 ) -> GenerationConfig:
@@ -80,7 +81,7 @@ def _config(
         seed=seed,
         episode_seconds=episode_seconds,
         variability=Variability.resolve(variability, drift=drift),
-        excitation=Excitation(amplitude=amplitude),
+        excitation=Excitation(amplitude=amplitude, amplitude_spread=amplitude_spread),
         max_start_time=max_start_time,
     )
 
@@ -94,6 +95,13 @@ def generate_command(
     episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     drift: Drift = True,
     amplitude: Amplitude = Excitation.amplitude,
+    amplitude_spread: Annotated[
+        float,
+        typer.Option(
+            help="Each episode draws its peak level in [amplitude - this, amplitude] N·m "
+            "(0: every episode at --amplitude)."
+        ),
+    ] = Excitation.amplitude_spread,
     variability: VariabilityOption = "paper",
     model: ModelPath = MODEL_PATH,
     figures: Annotated[bool, typer.Option(help="Write coverage and excitation PNGs.")] = True,
@@ -112,6 +120,7 @@ def generate_command(
         episode_seconds=episode_seconds,
         drift=drift,
         amplitude=amplitude,
+        amplitude_spread=amplitude_spread,
         variability=variability,
         max_start_time=max_start_time,
     )

@@ -9,6 +9,7 @@ import pytest
 
 from common.errors import ConfigError
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
+from twin.excitation import Excitation
 from twin.physics import SliderCrank
 from twin.variability import Variability
 
@@ -146,3 +147,46 @@ def test_episodes_are_different_machines(paper_dataset, physics: SliderCrank) ->
 def test_bad_generation_config(kwargs: dict, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         GenerationConfig(**kwargs)
+
+
+def _levels(torque: np.ndarray, excitation: Excitation) -> np.ndarray:
+    """The held levels before the filter: invert the Butterworth (b0 != 0) exactly."""
+    from scipy import signal
+
+    b, a = signal.butter(2, excitation.cutoff_hz, fs=500.0)
+    return signal.lfilter(a, b, torque)
+
+
+def test_amplitude_spread_draws_one_level_range_per_episode() -> None:
+    """Each episode's levels stay within one amplitude drawn in [amplitude - spread, amplitude];
+    different episodes draw different ones; spread 0 is the fixed amplitude, bit for bit."""
+    fixed = Excitation(amplitude=7.0)
+    spread = Excitation(amplitude=7.0, amplitude_spread=5.0)
+    largest = []
+    for episode in range(12):
+        raw = _levels(
+            spread.torque(np.random.default_rng(episode), 5000, rate=500.0, limit=50.0), spread
+        )
+        largest.append(np.abs(raw).max())
+        again = Excitation(amplitude=7.0, amplitude_spread=0.0)
+        np.testing.assert_array_equal(
+            again.torque(np.random.default_rng(episode), 500, rate=500.0, limit=50.0),
+            fixed.torque(np.random.default_rng(episode), 500, rate=500.0, limit=50.0),
+        )
+    largest = np.array(largest)
+    # ~50 levels per 10 s episode: the largest |level| sits within a few % of the episode's range
+    assert np.all(largest <= 7.0 + 1e-9) and np.all(largest >= 2.0 * 0.9)
+    assert largest.max() - largest.min() > 2.5, largest
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"amplitude_spread": -1.0}, "amplitude_spread must be >= 0"),
+        ({"amplitude_spread": float("nan")}, "amplitude_spread must be a finite number"),
+        ({"amplitude": 3.0, "amplitude_spread": 4.0}, "must not exceed amplitude"),
+    ],
+)
+def test_bad_excitation(kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        Excitation(**kwargs)

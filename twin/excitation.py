@@ -31,6 +31,11 @@ class Excitation:
 
     amplitude: float = 3.5
     """Largest torque level before filtering, in N·m (module docstring: why 3.5)."""
+    amplitude_spread: float = 0.0
+    """Above 0: every episode draws its own largest level uniformly in [amplitude -
+    amplitude_spread, amplitude], in N·m, so that slow episodes crawling over top dead centre
+    lie beside fast ones. 0: every episode uses `amplitude` (no draw: the torques are exactly
+    those of a dataset made before this option)."""
     cutoff_hz: float = 20.0
     """Cut-off of the second-order Butterworth low-pass filter, in Hz."""
     min_hold: float = 0.05
@@ -40,6 +45,12 @@ class Excitation:
 
     def __post_init__(self) -> None:
         check_finite("excitation.amplitude", self.amplitude, nonneg=True)
+        check_finite("excitation.amplitude_spread", self.amplitude_spread, nonneg=True)
+        if self.amplitude_spread > self.amplitude:
+            raise ConfigError(
+                f"excitation.amplitude_spread ({self.amplitude_spread}) must not exceed "
+                f"amplitude ({self.amplitude}): a level range reaching below 0 N·m"
+            )
         check_finite("excitation.cutoff_hz", self.cutoff_hz, positive=True)
         check_finite("excitation.min_hold", self.min_hold, positive=True)
         check_finite("excitation.max_hold", self.max_hold, positive=True)
@@ -60,7 +71,10 @@ class Excitation:
         # Enough held levels to cover n_samples even if every hold is the shortest one.
         n_levels = int(np.ceil(n_samples / (self.min_hold * rate))) + 1
         holds = np.maximum(1, np.round(rng.uniform(self.min_hold, self.max_hold, n_levels) * rate))
-        levels = rng.uniform(-self.amplitude, self.amplitude, n_levels)
+        amplitude = self.amplitude
+        if self.amplitude_spread > 0:  # after the holds: they stay those of a fixed amplitude
+            amplitude = float(rng.uniform(self.amplitude - self.amplitude_spread, self.amplitude))
+        levels = rng.uniform(-amplitude, amplitude, n_levels)
         raw = np.repeat(levels, holds.astype(int))[:n_samples]
         from scipy import signal  # here: the command line shows Excitation's defaults
 
