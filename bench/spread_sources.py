@@ -1,0 +1,199 @@
+"""Where a model's predicted spread comes from, against the twin's (issue 11, session 19).
+
+    python bench/spread_sources.py --model M/model.pt --dataset D/dataset.mcap --ocp S/ocp.json
+        [--profile robust] [--more-epochs 400] [--trajectories 2000]
+
+Prints, for a trained PPANN, its training dataset and a solved ocp.json:
+
+1. **Along the profile**: the model's white torque variance per sample (eq. 9, the sigma networks
+   through dr/dz) summed over stretches of 25 samples, beside the twin's white slider force
+   through the lever, Var(F) · x'(θ)² (uniform ±A N: A²/3), and the profile's speed and angle.
+   At a dead centre (θ = 0 or π) the slider force has no lever on the crank.
+2. **Binned over a dataset of the twin** with the same excitation and seed: nominal machines
+   with the white force alone, and nominal machines with no randomness at all. The residual's
+   power in blocks of the model's `sigma_block` samples, against the model's white variance
+   there, binned by the force's power: what the data show near the dead centres, what the
+   networks put there, and how much of it no randomness made (the mean model's own error).
+3. **The machine part**: each training episode's posterior log-factor offset (J, B, K;
+   ppann/machine.py) correlated with its machine's drawn friction, damping and backlash.
+4. With `--more-epochs N`: phase 2 continued N epochs on a copy of the model (sigma networks from
+   where they are, the machine spread from its start), and the profile's predicted σ of θ at
+   samples 25, 50, 75, 100 (mixed mode) before and after, with the phase-2 loss.
+
+Runs on one core in about a minute (the two twin datasets dominate) plus ~20 s per 100 epochs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from control.ocp_file import read_ocp
+from ppann.checkpoint import load
+from ppann.losses import propagated_terms
+from ppann.machine import EpisodeTerms, posterior_offsets
+from ppann.model import PPANN, FusedHeads
+from ppann.montecarlo import monte_carlo
+from ppann.train import History, make_splits, sigma_data, train_sigma
+from ppann.train_config import TrainConfig
+from ppann.transmission import slope
+from twin.dataset import Dataset, GenerationConfig, generate
+from twin.excitation import Excitation
+from twin.mcap_dataset import read_dataset, read_run
+from twin.variability import Variability
+
+STRETCH = 25
+"""Samples per row of the along-the-profile table."""
+MACHINE_FIELDS = (
+    "motor_damping",
+    "motor_frictionloss",
+    "slider_damping",
+    "slider_frictionloss",
+    "backlash_width",
+)
+
+
+def _white_variance(model: PPANN, theta, omega, tau, alpha) -> np.ndarray:
+    """Per-sample white torque variance of eq. 9, (n,)."""
+    with torch.no_grad():
+        _, derivative = propagated_terms(model, theta, omega, tau, alpha)
+        return ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1).numpy()
+
+
+def along_profile(model: PPANN, ocp_path: str, profile: str, force_variance: float) -> None:
+    plan = read_ocp(ocp_path).profiles[profile]
+    n = len(plan.tau) - 1
+    dt = read_ocp(ocp_path).dt
+    tensors = [
+        torch.from_numpy(np.ascontiguousarray(v))
+        for v in (plan.theta[:n], plan.omega[:n], plan.tau[:n], np.diff(plan.omega) / dt)
+    ]
+    white = _white_variance(model, *tensors)
+    force = force_variance * slope(model.geometry, plan.theta[:n]) ** 2
+    print(f"1. along {profile} of {ocp_path} (model white torque variance / the twin's force):")
+    for a in range(0, n - n % STRETCH, STRETCH):
+        b = a + STRETCH
+        speed = np.abs(plan.omega[a:b])
+        w, f = white[a:b].sum(), force[a:b].sum()
+        print(
+            f"   samples {a:3d}-{b:3d}: {w:8.3f} / {f:8.3f} = {w / f:5.2f}   "
+            f"|ω| {speed.min():5.1f}-{speed.max():5.1f}"
+            f" rad/s, θ {plan.theta[a] % (2 * np.pi):4.2f}-{plan.theta[b - 1] % (2 * np.pi):4.2f}"
+        )
+    for b in (50, 100):
+        if b <= n:
+            print(f"   samples   0-{b:3d}: ratio {white[:b].sum() / force[:b].sum():5.2f}")
+
+
+def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
+    force_variance = config.variability.disturbance_amplitude**2 / 3
+    print(f"2. twin datasets of {config.seconds:g} s, seed {config.seed}, blocks of {block}:")
+    white = config.variability.disturbance_amplitude
+    for label, amplitude in (("white force alone", white), ("no randomness", 0.0)):
+        variability = replace(Variability.none(), disturbance_amplitude=amplitude)
+        data, _, _ = generate(replace(config, variability=variability), nthread=1)
+        theta, omega, tau, alpha, episode = sigma_data(data, len(data))
+        with torch.no_grad():
+            residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
+            terms = EpisodeTerms.build(
+                residual, derivative, derivative, episode, block_length=block
+            )
+            fitted = terms.white_variance(model.z_sigma(theta, omega)).numpy()
+        lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
+        force = torch.zeros_like(terms.residual).index_add(0, terms.block, lever).numpy()
+        power = terms.residual.numpy() ** 2
+        edges = np.quantile(force, [0, 0.05, 0.15, 0.3, 0.5, 0.75, 1.0])
+        print(f"   {label}: residual power | model white variance | force power, per block")
+        for a, b in itertools.pairwise(edges):
+            s = (force >= a) & (force <= b)
+            print(
+                f"     force power {a:6.3f}-{b:6.3f} ({s.sum():5d} blocks): "
+                f"{power[s].mean():7.3f} | {fitted[s].mean():7.3f} | {force[s].mean():7.3f}"
+            )
+
+
+def machine_part(model: PPANN, dataset: Dataset, episodes: list[dict], train: TrainConfig) -> None:
+    split = make_splits(dataset, train).split
+    theta, omega, tau, alpha, episode = sigma_data(dataset, split)
+    with torch.no_grad():
+        residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
+        design = (1 + model.z_mean(theta, omega)) * derivative
+        terms = EpisodeTerms.build(
+            residual, derivative, design, episode, block_length=train.sigma_block
+        )
+        eta = posterior_offsets(terms, model.z_sigma(theta, omega), model.machine_sigma).numpy()
+    present = np.unique(dataset.episode[:split])
+    print(f"3. machine spread (J, B, K) {np.round(model.machine_sigma.numpy(), 4)}; correlation")
+    print(f"   of the {len(present)} training episodes' posterior offsets with their machines:")
+    for name in MACHINE_FIELDS:
+        drawn = np.array([episodes[int(e)]["machine"][name] for e in present])
+        r = [np.corrcoef(drawn, eta[:, i])[0, 1] for i in range(3)]
+        print(f"   {name:20s} J {r[0]:+.2f}  B {r[1]:+.2f}  K {r[2]:+.2f}")
+
+
+def profile_sigma(model: PPANN, ocp_path: str, profile: str, n: int) -> str:
+    plan = read_ocp(ocp_path).profiles[profile]
+    bands = monte_carlo(
+        FusedHeads(model),
+        [plan.theta[0], plan.omega[0]],
+        plan.tau[:-1],
+        n_samples=n,
+        mode="mixed",
+        seed=1,
+    )
+    ks = [k for k in (25, 50, 75, 100) if k <= bands.samples.shape[1]]
+    return " ".join(f"{k}: {bands.samples[:, k - 1, 0].std(ddof=1):.3f}" for k in ks)
+
+
+def more_epochs(model, dataset, train, ocp_path, profile, epochs: int, n: int) -> None:
+    print(f"4. predicted σθ (rad) along {profile}, mixed, {n} trajectories:")
+    print(f"   as trained:                {profile_sigma(model, ocp_path, profile, n)}")
+    longer = copy.deepcopy(model)
+    history = History()
+    train_sigma(
+        longer,
+        dataset,
+        make_splits(dataset, train),
+        replace(train, sigma_epochs=epochs),
+        history=history,
+    )
+    print(
+        f"   phase 2 {epochs} epochs more: {profile_sigma(longer, ocp_path, profile, n)}"
+        f"   (loss {history.sigma[0]:.4f} -> {history.sigma[-1]:.4f})"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--model", required=True)
+    parser.add_argument("--dataset", required=True, help="the model's training dataset MCAP")
+    parser.add_argument("--ocp", required=True)
+    parser.add_argument("--profile", default="robust")
+    parser.add_argument("--more-epochs", type=int, default=0)
+    parser.add_argument("--trajectories", type=int, default=2000)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    model, meta = load(args.model)
+    train = TrainConfig(**meta["train_config"])
+    dataset = read_dataset(args.dataset)
+    run = read_run(args.dataset)
+    generation = dict(run["config"])
+    variability = Variability.from_dict(generation.pop("variability"))
+    excitation = Excitation(**generation.pop("excitation"))
+    config = GenerationConfig(**generation, variability=variability, excitation=excitation)
+    along_profile(model, args.ocp, args.profile, variability.disturbance_amplitude**2 / 3)
+    binned(model, config, train.sigma_block)
+    machine_part(model, dataset, run["episodes"], train)
+    if args.more_epochs:
+        more_epochs(
+            model, dataset, train, args.ocp, args.profile, args.more_epochs, args.trajectories
+        )
+
+
+if __name__ == "__main__":
+    main()
