@@ -1,7 +1,7 @@
 """Where a model's predicted spread comes from, against the twin's (issue 11, session 19).
 
     python bench/spread_sources.py --model M/model.pt --dataset D/dataset.mcap --ocp S/ocp.json
-        [--profile robust] [--more-epochs 400] [--trajectories 2000]
+        [--profile robust] [--more-epochs 400] [--trajectories 2000] [--figure along.png]
 
 Prints, for a trained PPANN, its training dataset and a solved ocp.json:
 
@@ -65,7 +65,9 @@ def _white_variance(model: PPANN, theta, omega, tau, alpha) -> np.ndarray:
         return ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1).numpy()
 
 
-def along_profile(model: PPANN, ocp_path: str, profile: str, force_variance: float) -> None:
+def along_profile(
+    model: PPANN, ocp_path: str, profile: str, force_variance: float, figure: str = ""
+) -> None:
     plan = read_ocp(ocp_path).profiles[profile]
     n = len(plan.tau) - 1
     dt = read_ocp(ocp_path).dt
@@ -88,6 +90,35 @@ def along_profile(model: PPANN, ocp_path: str, profile: str, force_variance: flo
     for b in (50, 100):
         if b <= n:
             print(f"   samples   0-{b:3d}: ratio {white[:b].sum() / force[:b].sum():5.2f}")
+    if figure:
+        _figure(figure, plan, white, force, model)
+        print(f"   wrote {figure}")
+
+
+def _figure(path: str, plan, white: np.ndarray, force: np.ndarray, model: PPANN) -> None:
+    """Crank angle and slider along the profile over the two white variances, per sample."""
+    from matplotlib.figure import Figure
+
+    from common.figures import save_figure
+
+    n = len(white)
+    k = np.arange(1, n + 1)
+    fig = Figure(figsize=(8.0, 5.6), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(1, 1.4))
+    angle = np.mod(plan.theta[:n], 2 * np.pi)
+    top.plot(k, angle, color="tab:blue")
+    top.set_ylabel("crank angle θ mod 2π [rad]", color="tab:blue")
+    top.set_yticks([0, np.pi, 2 * np.pi], ["0 (TDC)", "π (BDC)", "2π"])
+    slider = top.twinx()
+    slider.plot(k, model.geometry.slider_position(plan.theta[:n]) * 1e3, color="tab:gray", lw=1)
+    slider.set_ylabel("slider [mm]", color="tab:gray")
+    bottom.plot(k, white, color="tab:red", label="model: eq. 9 white torque variance")
+    bottom.plot(k, force, color="black", label="twin: white slider force through the lever")
+    bottom.set_ylabel("variance per sample [(N·m)²]")
+    bottom.set_xlabel("sample k")
+    bottom.legend(loc="upper right", fontsize=8)
+    fig.suptitle("Noise the model injects along the robust torque, against the twin's")
+    save_figure(fig, path)
 
 
 def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
@@ -176,6 +207,7 @@ def main() -> None:
     parser.add_argument("--profile", default="robust")
     parser.add_argument("--more-epochs", type=int, default=0)
     parser.add_argument("--trajectories", type=int, default=2000)
+    parser.add_argument("--figure", default="", help="PNG of the along-the-profile comparison")
     args = parser.parse_args()
     torch.set_num_threads(1)
     model, meta = load(args.model)
@@ -186,7 +218,9 @@ def main() -> None:
     variability = Variability.from_dict(generation.pop("variability"))
     excitation = Excitation(**generation.pop("excitation"))
     config = GenerationConfig(**generation, variability=variability, excitation=excitation)
-    along_profile(model, args.ocp, args.profile, variability.disturbance_amplitude**2 / 3)
+    along_profile(
+        model, args.ocp, args.profile, variability.disturbance_amplitude**2 / 3, args.figure
+    )
     binned(model, config, train.sigma_block)
     machine_part(model, dataset, run["episodes"], train)
     if args.more_epochs:
