@@ -149,34 +149,61 @@ def test_bad_generation_config(kwargs: dict, match: str) -> None:
         GenerationConfig(**kwargs)
 
 
-def _levels(torque: np.ndarray, excitation: Excitation) -> np.ndarray:
-    """The held levels before the filter: invert the Butterworth (b0 != 0) exactly."""
+def _reference_torque(
+    rng: np.random.Generator, n: int, *, amplitude: float, spread: float, rate: float = 500.0
+) -> tuple[np.ndarray, float]:
+    """The excitation written out from its docstring, and the episode's drawn peak level: the
+    holds, then (with a spread) the level range, then the levels; filter; no clip needed."""
     from scipy import signal
 
-    b, a = signal.butter(2, excitation.cutoff_hz, fs=500.0)
-    return signal.lfilter(a, b, torque)
+    e = Excitation()
+    n_levels = int(np.ceil(n / (e.min_hold * rate))) + 1
+    holds = np.maximum(1, np.round(rng.uniform(e.min_hold, e.max_hold, n_levels) * rate))
+    peak = float(rng.uniform(amplitude - spread, amplitude)) if spread > 0 else amplitude
+    raw = np.repeat(rng.uniform(-peak, peak, n_levels), holds.astype(int))[:n]
+    b, a = signal.butter(2, e.cutoff_hz, fs=rate)
+    return signal.lfilter(b, a, raw), peak
 
 
 def test_amplitude_spread_draws_one_level_range_per_episode() -> None:
-    """Each episode's levels stay within one amplitude drawn in [amplitude - spread, amplitude];
-    different episodes draw different ones; spread 0 is the fixed amplitude, bit for bit."""
+    """Spread 0 is the excitation as it was before the option, bit for bit; with a spread every
+    episode (its own generator) draws its own peak level in [amplitude - spread, amplitude]."""
     fixed = Excitation(amplitude=7.0)
     spread = Excitation(amplitude=7.0, amplitude_spread=5.0)
-    largest = []
+    peaks = []
     for episode in range(12):
-        raw = _levels(
-            spread.torque(np.random.default_rng(episode), 5000, rate=500.0, limit=50.0), spread
+        torque = fixed.torque(np.random.default_rng(episode), 2000, rate=500.0, limit=50.0)
+        reference, _ = _reference_torque(
+            np.random.default_rng(episode), 2000, amplitude=7.0, spread=0.0
         )
-        largest.append(np.abs(raw).max())
-        again = Excitation(amplitude=7.0, amplitude_spread=0.0)
-        np.testing.assert_array_equal(
-            again.torque(np.random.default_rng(episode), 500, rate=500.0, limit=50.0),
-            fixed.torque(np.random.default_rng(episode), 500, rate=500.0, limit=50.0),
+        np.testing.assert_array_equal(torque, reference)
+        torque = spread.torque(np.random.default_rng(episode), 2000, rate=500.0, limit=50.0)
+        reference, peak = _reference_torque(
+            np.random.default_rng(episode), 2000, amplitude=7.0, spread=5.0
         )
-    largest = np.array(largest)
-    # ~50 levels per 10 s episode: the largest |level| sits within a few % of the episode's range
-    assert np.all(largest <= 7.0 + 1e-9) and np.all(largest >= 2.0 * 0.9)
-    assert largest.max() - largest.min() > 2.5, largest
+        np.testing.assert_array_equal(torque, reference)
+        peaks.append(peak)
+    peaks = np.array(peaks)
+    assert np.all((peaks >= 2.0) & (peaks <= 7.0)), peaks
+    assert peaks.max() - peaks.min() > 2.5, peaks  # 12 uniform draws in a 5 N·m range
+
+
+def test_amplitude_spread_reaches_the_dataset(physics: SliderCrank) -> None:
+    """generate() plays, on every episode, the spread excitation drawn from that episode's own
+    excitation stream, and the run records the spread."""
+    from common.streams import stream
+
+    excitation = Excitation(amplitude=7.0, amplitude_spread=5.0)
+    config = GenerationConfig(seconds=4.0, episode_seconds=1.0, seed=3, excitation=excitation)
+    data, _, _ = generate(config, physics=physics, nthread=1)
+    children = stream(config.seed, "dataset_excitation").spawn(4)
+    for e, child in enumerate(children):
+        tau = data.tau[data.episode == e]
+        expected = excitation.torque(
+            np.random.default_rng(child), len(tau), rate=500.0, limit=physics.torque_limit
+        )
+        np.testing.assert_allclose(tau, expected, rtol=1e-6, atol=1e-6)
+    assert config.as_dict()["excitation"]["amplitude_spread"] == 5.0
 
 
 @pytest.mark.parametrize(
