@@ -1,7 +1,8 @@
 """Where a model's predicted spread comes from, against the twin's (issue 11, session 19).
 
     python bench/spread_sources.py --model M/model.pt --dataset D/dataset.mcap --ocp S/ocp.json
-        [--profile robust] [--more-epochs 400] [--trajectories 2000] [--figure along.png]
+        [--profile robust] [--lever-oracle] [--more-epochs 400] [--trajectories 2000]
+        [--figure along.png]
 
 Prints, for a trained PPANN, its training dataset and a solved ocp.json:
 
@@ -16,7 +17,11 @@ Prints, for a trained PPANN, its training dataset and a solved ocp.json:
    networks put there, and how much of it no randomness made (the mean model's own error).
 3. **The machine part**: each training episode's posterior log-factor offset (J, B, K;
    ppann/machine.py) correlated with its machine's drawn friction, damping and backlash.
-4. With `--more-epochs N`: phase 2 continued N epochs on a copy of the model (sigma networks from
+4. With `--lever-oracle`: the model's Monte-Carlo along the profile as trained, and with its
+   white noise scaled down per step to the twin's force variance wherever it injects more
+   (an oracle: it uses the twin's force, which a user does not know), at the constraint samples:
+   σ of θ and of the slider, the slider's Φ(−3) quantile and the share below the height.
+5. With `--more-epochs N`: phase 2 continued N epochs on a copy of the model (sigma networks from
    where they are, the machine spread from its start), and the profile's predicted σ of θ at
    samples 25, 50, 75, 100 (mixed mode) before and after, with the phase-2 loss.
 
@@ -33,6 +38,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from control.config import lower_tail
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
 from ppann.losses import propagated_terms
@@ -181,8 +187,46 @@ def profile_sigma(model: PPANN, ocp_path: str, profile: str, n: int) -> str:
     return " ".join(f"{k}: {bands.samples[:, k - 1, 0].std(ddof=1):.3f}" for k in ks)
 
 
+def lever_oracle(model: PPANN, ocp_path: str, profile: str, force_variance: float, n: int) -> None:
+    ocp = read_ocp(ocp_path)
+    plan, config = ocp.profiles[profile], ocp.config
+    steps = len(plan.tau) - 1
+    tensors = [
+        torch.from_numpy(np.ascontiguousarray(v))
+        for v in (plan.theta[:steps], plan.omega[:steps], plan.tau[:steps])
+    ]
+    white = _white_variance(model, *tensors, torch.from_numpy(np.diff(plan.omega) / ocp.dt))
+    force = force_variance * slope(model.geometry, plan.theta[:steps]) ** 2
+    heads = FusedHeads(model)
+    machines = np.exp(np.random.default_rng(7).standard_normal((n, 3)) * heads.machine_sigma)
+    print(f"4. the Monte-Carlo along {profile}, mixed, {n} trajectories (slider in mm):")
+    for label, scale in (
+        ("as trained    ", np.ones(steps)),
+        ("lever oracle  ", np.minimum(1.0, np.sqrt(force / white))),
+    ):
+        rng = np.random.default_rng(11)
+        theta, omega = np.full(n, plan.theta[0]), np.full(n, plan.omega[0])
+        angles = np.empty((n, steps + 1))
+        angles[:, 0] = theta
+        for k in range(steps):
+            mean, sigma = heads(theta, omega)
+            z = mean + sigma * rng.standard_normal((n, 3)) * scale[k]
+            alpha = heads.acceleration(theta, omega, plan.tau[k], z, factors=machines)
+            theta, omega = theta + heads.dt * omega, omega + heads.dt * alpha
+            angles[:, k + 1] = theta
+        cells = []
+        for k in config.constraint_samples:
+            x = model.geometry.slider_position(angles[:, k - 1]) * 1e3
+            cells.append(
+                f"{k}: σθ {angles[:, k - 1].std(ddof=1):.3f} σx {x.std(ddof=1):.2f} "
+                f"q {np.quantile(x, lower_tail(config.k_sigma)):.1f} "
+                f"below {np.mean(x < config.height * 1e3) * 100:.3f} %"
+            )
+        print(f"   {label}" + " | ".join(cells))
+
+
 def more_epochs(model, dataset, train, ocp_path, profile, epochs: int, n: int) -> None:
-    print(f"4. predicted σθ (rad) along {profile}, mixed, {n} trajectories:")
+    print(f"5. predicted σθ (rad) along {profile}, mixed, {n} trajectories:")
     print(f"   as trained:                {profile_sigma(model, ocp_path, profile, n)}")
     longer = copy.deepcopy(model)
     history = History()
@@ -206,6 +250,7 @@ def main() -> None:
     parser.add_argument("--ocp", required=True)
     parser.add_argument("--profile", default="robust")
     parser.add_argument("--more-epochs", type=int, default=0)
+    parser.add_argument("--lever-oracle", action="store_true")
     parser.add_argument("--trajectories", type=int, default=2000)
     parser.add_argument("--figure", default="", help="PNG of the along-the-profile comparison")
     args = parser.parse_args()
@@ -223,6 +268,9 @@ def main() -> None:
     )
     binned(model, config, train.sigma_block)
     machine_part(model, dataset, run["episodes"], train)
+    if args.lever_oracle:
+        force_variance = variability.disturbance_amplitude**2 / 3
+        lever_oracle(model, args.ocp, args.profile, force_variance, args.trajectories)
     if args.more_epochs:
         more_epochs(
             model, dataset, train, args.ocp, args.profile, args.more_epochs, args.trajectories
