@@ -71,18 +71,24 @@ def _white_variance(model: PPANN, theta, omega, tau, alpha) -> np.ndarray:
         return ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1).numpy()
 
 
+def plan_variances(model: PPANN, ocp, profile: str, force_variance: float):
+    """The plan of `profile` in `ocp`, and along it per sample the model's white torque
+    variance and the twin's white slider force through the lever, (N-1,) each."""
+    plan = ocp.profiles[profile]
+    n = len(plan.tau) - 1
+    tensors = [
+        torch.from_numpy(np.ascontiguousarray(v))
+        for v in (plan.theta[:n], plan.omega[:n], plan.tau[:n], np.diff(plan.omega) / ocp.dt)
+    ]
+    white = _white_variance(model, *tensors)
+    return plan, white, force_variance * slope(model.geometry, plan.theta[:n]) ** 2
+
+
 def along_profile(
     model: PPANN, ocp_path: str, profile: str, force_variance: float, figure: str = ""
 ) -> None:
-    plan = read_ocp(ocp_path).profiles[profile]
-    n = len(plan.tau) - 1
-    dt = read_ocp(ocp_path).dt
-    tensors = [
-        torch.from_numpy(np.ascontiguousarray(v))
-        for v in (plan.theta[:n], plan.omega[:n], plan.tau[:n], np.diff(plan.omega) / dt)
-    ]
-    white = _white_variance(model, *tensors)
-    force = force_variance * slope(model.geometry, plan.theta[:n]) ** 2
+    plan, white, force = plan_variances(model, read_ocp(ocp_path), profile, force_variance)
+    n = len(white)
     print(f"1. along {profile} of {ocp_path} (model white torque variance / the twin's force):")
     for a in range(0, n - n % STRETCH, STRETCH):
         b = a + STRETCH
@@ -97,11 +103,13 @@ def along_profile(
         if b <= n:
             print(f"   samples   0-{b:3d}: ratio {white[:b].sum() / force[:b].sum():5.2f}")
     if figure:
-        _figure(figure, plan, white, force, model)
+        _figure(figure, plan, white, force, model, profile)
         print(f"   wrote {figure}")
 
 
-def _figure(path: str, plan, white: np.ndarray, force: np.ndarray, model: PPANN) -> None:
+def _figure(
+    path: str, plan, white: np.ndarray, force: np.ndarray, model: PPANN, profile: str
+) -> None:
     """Crank angle and slider along the profile over the two white variances, per sample."""
     from matplotlib.figure import Figure
 
@@ -123,7 +131,7 @@ def _figure(path: str, plan, white: np.ndarray, force: np.ndarray, model: PPANN)
     bottom.set_ylabel("variance per sample [(N·m)²]")
     bottom.set_xlabel("sample k")
     bottom.legend(loc="upper right", fontsize=8)
-    fig.suptitle("Noise the model injects along the robust torque, against the twin's")
+    fig.suptitle(f"Noise the model injects along the {profile} torque, against the twin's")
     save_figure(fig, path)
 
 
@@ -189,14 +197,8 @@ def profile_sigma(model: PPANN, ocp_path: str, profile: str, n: int) -> str:
 
 def lever_oracle(model: PPANN, ocp_path: str, profile: str, force_variance: float, n: int) -> None:
     ocp = read_ocp(ocp_path)
-    plan, config = ocp.profiles[profile], ocp.config
-    steps = len(plan.tau) - 1
-    tensors = [
-        torch.from_numpy(np.ascontiguousarray(v))
-        for v in (plan.theta[:steps], plan.omega[:steps], plan.tau[:steps])
-    ]
-    white = _white_variance(model, *tensors, torch.from_numpy(np.diff(plan.omega) / ocp.dt))
-    force = force_variance * slope(model.geometry, plan.theta[:steps]) ** 2
+    plan, white, force = plan_variances(model, ocp, profile, force_variance)
+    config, steps = ocp.config, len(white)
     heads = FusedHeads(model)
     machines = np.exp(np.random.default_rng(7).standard_normal((n, 3)) * heads.machine_sigma)
     print(f"4. the Monte-Carlo along {profile}, mixed, {n} trajectories (slider in mm):")
