@@ -19,8 +19,9 @@ Prints, for a trained PPANN, its training dataset and a solved ocp.json:
    ppann/machine.py) correlated with its machine's drawn friction, damping and backlash.
 4. With `--lever-oracle`: the model's Monte-Carlo along the profile as trained, and with its
    white noise scaled down per step to the twin's force variance wherever it injects more
-   (an oracle: it uses the twin's force, which a user does not know), at the constraint samples:
-   σ of θ and of the slider, the slider's Φ(−3) quantile and the share below the height.
+   (an oracle: it uses the twin's force, which a user does not know), by the project's rollout
+   with the held-out check's transmission draw, at the constraint samples: σ of θ and of the
+   slider, the slider's Φ(−3) quantile and the share below the height.
 5. With `--more-epochs N`: phase 2 continued N epochs on a copy of the model (sigma networks from
    where they are, the machine spread from its start), and the profile's predicted σ of θ at
    samples 25, 50, 75, 100 (mixed mode) before and after, with the phase-2 loss.
@@ -44,10 +45,10 @@ from ppann.checkpoint import load
 from ppann.losses import propagated_terms
 from ppann.machine import EpisodeTerms, posterior_offsets
 from ppann.model import PPANN, FusedHeads
-from ppann.montecarlo import monte_carlo
+from ppann.montecarlo import machine_factors, monte_carlo, rollout
 from ppann.train import History, make_splits, sigma_data, train_sigma
 from ppann.train_config import TrainConfig
-from ppann.transmission import slope
+from ppann.transmission import draw, slope
 from twin.dataset import Dataset, GenerationConfig, generate
 from twin.excitation import Excitation
 from twin.mcap_dataset import read_dataset, read_run
@@ -200,25 +201,26 @@ def lever_oracle(model: PPANN, ocp_path: str, profile: str, force_variance: floa
     plan, white, force = plan_variances(model, ocp, profile, force_variance)
     config, steps = ocp.config, len(white)
     heads = FusedHeads(model)
-    machines = np.exp(np.random.default_rng(7).standard_normal((n, 3)) * heads.machine_sigma)
+    machines = machine_factors(heads.machine_sigma, n, np.random.default_rng(7))
+    delta = draw(heads.transmission, (n,), np.random.default_rng(13))
+    normals = np.random.default_rng(11).standard_normal((steps, n, 3))
     print(f"4. the Monte-Carlo along {profile}, mixed, {n} trajectories (slider in mm):")
     for label, scale in (
         ("as trained    ", np.ones(steps)),
         ("lever oracle  ", np.minimum(1.0, np.sqrt(force / white))),
     ):
-        rng = np.random.default_rng(11)
-        theta, omega = np.full(n, plan.theta[0]), np.full(n, plan.omega[0])
-        angles = np.empty((n, steps + 1))
-        angles[:, 0] = theta
-        for k in range(steps):
-            mean, sigma = heads(theta, omega)
-            z = mean + sigma * rng.standard_normal((n, 3)) * scale[k]
-            alpha = heads.acceleration(theta, omega, plan.tau[k], z, factors=machines)
-            theta, omega = theta + heads.dt * omega, omega + heads.dt * alpha
-            angles[:, k + 1] = theta
+        states = rollout(
+            heads,
+            [plan.theta[0], plan.omega[0]],
+            plan.tau[:steps],
+            n_samples=n,
+            eps=normals * scale[:, None, None],
+            factors=machines,
+        )
+        angles = states[:, :, 0]
         cells = []
         for k in config.constraint_samples:
-            x = model.geometry.slider_position(angles[:, k - 1]) * 1e3
+            x = model.geometry.slider_position(angles[:, k - 1] + delta) * 1e3
             cells.append(
                 f"{k}: σθ {angles[:, k - 1].std(ddof=1):.3f} σx {x.std(ddof=1):.2f} "
                 f"q {np.quantile(x, lower_tail(config.k_sigma)):.1f} "
