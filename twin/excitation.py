@@ -1,9 +1,10 @@
 """Excitation torque for dataset generation: semi-random, low-pass filtered (paper Fig. 5).
 
-Random torque levels, drawn uniformly from [-amplitude, amplitude] and each held for a random time
-in [min_hold, max_hold], pass through a second-order Butterworth low-pass filter and are clipped
-to the motor's torque limit. With the defaults the motor turns both ways through whole
-revolutions, θ covers [0, 2π) and the speeds span what the OCPs use (paper Fig. 6).
+Random torque levels, drawn uniformly from [-amplitude, amplitude] (with `amplitude_spread`, from
+a range each episode draws) and each held for a random time in [min_hold, max_hold], pass
+through a second-order Butterworth low-pass filter and are clipped to the motor's torque limit.
+With the defaults the motor turns both ways through whole revolutions, θ covers [0, 2π) and the
+speeds span what the OCPs use (paper Fig. 6).
 
 Why ±3.5 N·m (since session 18; it was ±7): the OCPs' profiles on the paper task and four others
 run at 21-37 rad/s at most, while at ±7 N·m half the training samples ran faster than 33 rad/s
