@@ -191,6 +191,12 @@ def train_command(
             "training episode) or tail (the paper's: the validation split, one machine)."
         ),
     ] = TrainConfig.early_stopping,
+    sigma_lever: Annotated[
+        bool,
+        typer.Option(
+            help="Fit a white slider force through the kinematics beside the sigma networks."
+        ),
+    ] = TrainConfig.sigma_lever,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -203,6 +209,7 @@ def train_command(
         horizon=horizon,
         sigma_block=sigma_block,
         early_stopping=early_stopping,
+        sigma_lever=sigma_lever,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

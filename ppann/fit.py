@@ -120,6 +120,8 @@ def new_model(
     spec = model_kind(kind)
     if kind == "ppann" and config.sigma_wrap:  # asked for in the training config
         ppann_config = replace(ppann_config or PPANNConfig(), sigma_wrap=True)
+    if kind == "ppann" and config.sigma_lever:
+        ppann_config = replace(ppann_config or PPANNConfig(), sigma_lever=True)
     model = spec.new(ppann_config if kind == "ppann" else None)
     if hasattr(model, "geometry"):
         model.geometry = dataset.geometry

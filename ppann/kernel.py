@@ -66,6 +66,7 @@ int crank_rollout(
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
+    const double *lever_eps, const double *lever_table, /* the slider force's channel, or NULL */
     double *samples)
 {
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
@@ -138,6 +139,15 @@ int crank_rollout(
                 u = tau[k] - gains[2 * k] * (th[s] - plan[2 * k])
                     - gains[2 * k + 1] * (om[s] - plan[2 * k + 1]);
                 u = u < -limit ? -limit : (u > limit ? limit : u);
+            }
+            if (lever_eps) {  /* a load disturbance, after the law's saturation */
+                double at = ang[s] * cellscale;
+                if (!finite_bits(at) || at < 0 || at > table_rows - 1) at = 0;
+                int cell = (int)at;
+                if (cell > table_rows - 2) cell = table_rows - 2;
+                double frac = at - cell;
+                u += (lever_table[cell] * (1 - frac) + lever_table[cell + 1] * frac)
+                    * lever_eps[(size_t)(eps_per_step ? k : 0) * n + src];
             }
             double f0 = 1 + z0;
             double inertia = jm * (f0 > ifloor ? f0 : ifloor);
@@ -242,10 +252,12 @@ def rollout(
     gains: np.ndarray | None,
     limit: float,
     per_step: bool,
+    lever_eps: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or None when the kernel is
-    not available (the caller then runs NumPy's); `per_step`: eps has a row per step (else one
-    row for the whole run), as the caller decided."""
+    not available (the caller then runs NumPy's); `per_step`: eps (and `lever_eps`, the slider
+    force's normals) has a row per step (else one row for the whole run), as the caller
+    decided."""
     library = load()
     if library is None:
         return None
@@ -286,6 +298,8 @@ def rollout(
     ends = ints([r.stop for r in heads.rows])
     angle_out, speed_out = ints(heads.angle_outputs), ints(heads.speed_outputs)
     b_out = c64(heads.b_out.ravel())
+    lever_eps = c64(lever_eps)
+    lever_table = None if lever_eps is None else c64(heads.lever_table)
     failed = library.crank_rollout(
         ctypes.c_int(n_samples),
         ctypes.c_int(steps),
@@ -306,6 +320,8 @@ def rollout(
         _ptr(ends),
         _ptr(w_out),
         _ptr(b_out),
+        _ptr(lever_eps),
+        _ptr(lever_table),
         _ptr(samples),
     )
     return None if failed else samples

@@ -93,6 +93,8 @@ class EpisodeTerms:
     episode: torch.Tensor
     """(B,) integer episode index of each block, in 0..n_episodes-1."""
     n_episodes: int
+    lever: torch.Tensor | None = None
+    """x'(theta_k)^2 per sample, (n,), for the slider force's channel (ppann/lever.py)."""
 
     @classmethod
     def build(
@@ -103,9 +105,11 @@ class EpisodeTerms:
         episode: torch.Tensor,
         *,
         block_length: int = 1,
+        lever: torch.Tensor | None = None,
     ) -> EpisodeTerms:
         """Blocks of `block_length` consecutive samples (the last of an episode may be shorter)
-        from per-sample residual (n,), derivative and design (n, 3), episode (n,) in time order."""
+        from per-sample residual (n,), derivative and design (n, 3), episode (n,) in time order;
+        `lever`: x'(theta)^2 per sample (n,) for a model with the slider force's channel."""
         n = residual.shape[0]
         start = torch.ones(n, dtype=torch.bool)
         start[1:] = episode[1:] != episode[:-1]
@@ -127,16 +131,22 @@ class EpisodeTerms:
             block=block,
             episode=episode[new_block],
             n_episodes=int(episode.max()) + 1 if n else 0,
+            lever=lever,
         )
 
     def shifted(self, common: torch.Tensor) -> EpisodeTerms:
         """The same with the common log-factor offset (3,) taken out of the residual."""
         return replace(self, residual=self.residual + self.design @ common)
 
-    def white_variance(self, sigma: torch.Tensor) -> torch.Tensor:
+    def white_variance(
+        self, sigma: torch.Tensor, lever_sigma: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Each block's white variance, the sum of its samples' s_k^2, for sigma-network outputs
-        sigma (n, 3), (B,)."""
+        sigma (n, 3) and the slider force's standard deviation `lever_sigma` (None: no such
+        channel), (B,)."""
         per_sample = ((self.derivative * sigma) ** 2).sum(dim=-1)
+        if lever_sigma is not None and self.lever is not None:
+            per_sample = per_sample + lever_sigma**2 * self.lever
         summed = torch.zeros_like(self.residual).index_add(0, self.block, per_sample)
         return summed + VARIANCE_FLOOR
 
@@ -150,19 +160,25 @@ class EpisodeTerms:
         return g, s[None, :] * b, torch.eye(3, dtype=g.dtype).expand_as(g) + g
 
 
-def white_nll(terms: EpisodeTerms, sigma: torch.Tensor) -> torch.Tensor:
+def white_nll(
+    terms: EpisodeTerms, sigma: torch.Tensor, lever_sigma: torch.Tensor | None = None
+) -> torch.Tensor:
     """Eq. 9 on blocks, averaged over blocks: (1 / 2B) sum_b (R_b^2 / V_b + log V_b); with blocks
     of one sample, eq. 9 itself."""
-    variance = terms.white_variance(sigma)
+    variance = terms.white_variance(sigma, lever_sigma)
     return 0.5 * (terms.residual**2 / variance + torch.log(variance)).mean()
 
 
 def marginal_nll(
-    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor
+    terms: EpisodeTerms,
+    sigma: torch.Tensor,
+    machine_sigma: torch.Tensor,
+    lever_sigma: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """The phase-2 loss of the module docstring, averaged over blocks, for white sigma-network
-    outputs `sigma` (n, 3) and the machine spread `machine_sigma` (3,) >= 0."""
-    variance = terms.white_variance(sigma)
+    outputs `sigma` (n, 3), the machine spread `machine_sigma` (3,) >= 0 and the slider force's
+    `lever_sigma` (ppann/lever.py; None: no such channel)."""
+    variance = terms.white_variance(sigma, lever_sigma)
     white = (terms.residual**2 / variance + torch.log(variance)).sum()
     _, c, identity_plus_g = terms.scaled(variance, machine_sigma)
     chol = torch.linalg.cholesky(identity_plus_g)
@@ -173,10 +189,14 @@ def marginal_nll(
 
 
 def posterior_offsets(
-    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor
+    terms: EpisodeTerms,
+    sigma: torch.Tensor,
+    machine_sigma: torch.Tensor,
+    lever_sigma: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Posterior mean of each episode's log-factors eta_e, (E, 3)."""
-    _, c, identity_plus_g = terms.scaled(terms.white_variance(sigma), machine_sigma)
+    variance = terms.white_variance(sigma, lever_sigma)
+    _, c, identity_plus_g = terms.scaled(variance, machine_sigma)
     return -machine_sigma[None, :] * torch.linalg.solve(identity_plus_g, c[:, :, None])[:, :, 0]
 
 
@@ -191,27 +211,32 @@ class Population:
 
 
 def population(
-    terms: EpisodeTerms, sigma: torch.Tensor, machine_sigma: torch.Tensor, common: torch.Tensor
+    terms: EpisodeTerms,
+    sigma: torch.Tensor,
+    machine_sigma: torch.Tensor,
+    common: torch.Tensor,
+    lever_sigma: torch.Tensor | None = None,
 ) -> Population:
     """`Population` at the phase-2 estimate: white sigma-network outputs `sigma` (n, 3), the fitted
-    `machine_sigma` (3,) and common offset (3,)."""
+    `machine_sigma` (3,), common offset (3,) and slider force (None: no such channel)."""
     sigma, machine_sigma, common = sigma.detach(), machine_sigma.detach(), common.detach()
+    lever = None if lever_sigma is None else lever_sigma.detach()
     n = terms.residual.shape[0]
 
     def total(offset: torch.Tensor) -> torch.Tensor:
-        return n * marginal_nll(terms.shifted(offset), sigma, machine_sigma)
+        return n * marginal_nll(terms.shifted(offset), sigma, machine_sigma, lever)
 
     hessian = torch.autograd.functional.hessian(total, common)
     hessian = 0.5 * (hessian + hessian.T)
     shifted = terms.shifted(common)
     with torch.no_grad():
-        base = n * marginal_nll(shifted, sigma, machine_sigma)
+        base = n * marginal_nll(shifted, sigma, machine_sigma, lever)
         profile = torch.empty((3, len(PROFILE_GRID)), dtype=torch.float64)
         for i in range(3):
             for j, value in enumerate(PROFILE_GRID):
                 moved = machine_sigma.clone()
                 moved[i] = float(value)
-                profile[i, j] = n * marginal_nll(shifted, sigma, moved) - base
+                profile[i, j] = n * marginal_nll(shifted, sigma, moved, lever) - base
     return Population(torch.linalg.inv(hessian), profile)
 
 

@@ -25,6 +25,7 @@ from torch import nn
 
 from common.checks import check_finite
 from common.errors import CrankError
+from ppann.lever import lever_arm
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 from twin.geometry import PAPER, Geometry
 
@@ -75,6 +76,10 @@ class PPANNConfig:
     centre), and a network of (sin, cos) alone must give it one σ on both sides; with the
     wrapped angle it can make the noise small just before the wrap. Not with `sigma_speed`.
     A checkpoint without this key is of the paper's architecture (False)."""
+    sigma_lever: bool = False
+    """A white force on the slider beside the sigma networks (beyond the paper; ppann/lever.py):
+    eq. 14's torque balance gets x'(theta) F, F ~ N(0, lever_sigma^2), which vanishes at the
+    dead centres where the networks' channels cannot. A checkpoint without this key has none."""
 
     def __post_init__(self) -> None:
         for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
@@ -141,6 +146,8 @@ class PPANN(nn.Module):
         self.register_buffer(
             "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)
         )
+        if c.sigma_lever:  # the slider force's standard deviation, N (ppann/lever.py); 0: none
+            self.register_buffer("lever_sigma", torch.zeros(1, dtype=torch.float64))
         self.double()
 
     @property
@@ -295,6 +302,7 @@ class FusedHeads:
         self.machine_profile = model.machine_profile.detach().numpy().copy()
         self.transmission = model.transmission.detach().numpy().copy()
         self.geometry = model.geometry
+        self.lever_sigma = float(getattr(model, "lever_sigma", torch.zeros(1))[0])
         nets = [model.mean_nets[n] for n in Z_NAMES] + [model.sigma_nets[n] for n in Z_NAMES]
         # outputs 0-2 the means, 3-5 the sigmas; of the angle alone (a table) or of the state
         angle_alone = sees_angle_alone(c)
@@ -304,6 +312,7 @@ class FusedHeads:
         # row ANGLE_TABLE is 2 pi: row 0 again, or with `sigma_wrap` the limit from below
         self.table = tabulate(model, grid)[:, self.angle_outputs].copy()
         self.cell = ANGLE_TABLE / (2 * math.pi)
+        self.lever_table = self.lever_sigma * lever_arm(self.geometry, grid)  # N·m per unit eps
         hidden = sum(nets[i][0].out_features for i in self.speed_outputs)
         self.w_in = np.zeros((4, hidden), dtype=np.float32)  # row 3: the biases
         self.w_out: list[np.ndarray] = []

@@ -17,7 +17,10 @@ sign of the mean model's at any number of σ: no machine draw diverges.
 
 Random numbers: the seed's SeedSequence spawns two children, white (eps) and machine (eta), so
 "mixed" uses exactly the white draws of "step" and the machine draws of "machine" (common random
-numbers across modes and across the iterations of the robust loop).
+numbers across modes and across the iterations of the robust loop). A model with the slider
+force's channel (ppann/lever.py) draws its force from the white child's first child, drawn per
+step or per trajectory as eps is; a model without it draws nothing more, so its numbers are
+those of before the channel existed.
 
 The loop runs in NumPy on the fused weights (`FusedHeads`): a few dozen array operations per step
 on (n_samples,) arrays, where torch's per-operation overhead would dominate.
@@ -32,6 +35,7 @@ import numpy.typing as npt
 
 from common.streams import PrefixDraws, sequence_key
 from ppann import kernel
+from ppann.lever import lever_torque_sigma
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MONTE_CARLO_MODES, check_mode
 
@@ -89,7 +93,7 @@ def monte_carlo(
     white_seq, machine_seq = root.spawn(2)
     steps = tau.shape[0]
     draw = MONTE_CARLO_MODES[mode]
-    eps = None
+    eps = lever_eps = None
     if draw.white is not None:
         per = steps if draw.white == "step" else 1
         eps = _WHITE.get(
@@ -97,6 +101,11 @@ def monte_carlo(
             per,
             lambda rows: np.random.default_rng(white_seq).standard_normal((rows, n_samples, 3)),
         )
+        if heads.lever_sigma > 0:
+            force_seq = np.random.SeedSequence(
+                white_seq.entropy, spawn_key=(*white_seq.spawn_key, 0)
+            )
+            lever_eps = np.random.default_rng(force_seq).standard_normal((per, n_samples))
     factors = None
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma
@@ -110,6 +119,7 @@ def monte_carlo(
         factors=factors,
         feedback=feedback,
         compiled=compiled,
+        lever_eps=lever_eps,
     )
     with np.errstate(over="ignore", invalid="ignore"):
         return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
@@ -138,12 +148,14 @@ def rollout(
     factors: np.ndarray | None = None,
     feedback: Feedback | None = None,
     compiled: bool = True,
+    lever_eps: np.ndarray | None = None,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
     mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine), open loop
-    or under `feedback`. `compiled`: by the C kernel of ppann/kernel.py where it builds (the
-    same numbers to float32 rounding), else by the NumPy loop below."""
+    or under `feedback`; `lever_eps` (T or 1, n): the slider force's normals (ppann/lever.py),
+    with eps, for a model that has the channel. `compiled`: by the C kernel of ppann/kernel.py
+    where it builds (the same numbers to float32 rounding), else by the NumPy loop below."""
     steps = tau.shape[0]
     per_step = eps is not None and eps.shape[0] == steps and steps > 1
     if compiled:
@@ -158,6 +170,7 @@ def rollout(
             gains=None if feedback is None else feedback.gains,
             limit=0.0 if feedback is None else feedback.limit,
             per_step=per_step,
+            lever_eps=lever_eps,
         )
         if samples is not None:
             return samples
@@ -175,6 +188,9 @@ def rollout(
                 ref, gain = feedback.plan[k], feedback.gains[k]
                 u = tau[k] - gain[0] * (theta - ref[0]) - gain[1] * (omega - ref[1])
                 u = np.clip(u, -feedback.limit, feedback.limit)
+            if lever_eps is not None:  # a load disturbance: after the law's saturation
+                force = lever_eps[k if per_step else 0]
+                u = u + lever_torque_sigma(heads.lever_table, heads.cell, theta) * force
             alpha = heads.acceleration(theta, omega, u, z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega

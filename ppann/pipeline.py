@@ -158,6 +158,8 @@ def train_and_report(
         if kind == "ppann":
             entry["machine_sigma"] = dict(zip(Z_NAMES, f.model.machine_sigma.tolist(), strict=True))
             entry["machine_offsets"] = f.history.machine_offsets
+            if f.history.lever_sigma is not None:  # the slider force (ppann/lever.py), N
+                entry["lever_sigma"] = f.history.lever_sigma
             # What the training machines leave open about the line (ppann/machine.py).
             upper = sigma_upper(
                 f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), LINE_Z

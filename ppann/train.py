@@ -30,6 +30,7 @@ from ppann.data import (
     windows,
     windows_over,
 )
+from ppann.lever import LEVER_START, lever_squared
 from ppann.losses import n_step_mse, propagated_terms
 from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets, white_nll
 from ppann.model import PPANN, n_step_prediction
@@ -54,6 +55,8 @@ class History:
     machine_common: list[float] = field(default_factory=list)
     """Log-factor offset shared by every episode: the one-step bias of the N-step-trained mean
     model, estimated so that it is not read as machine spread (never propagated)."""
+    lever_sigma: float | None = None
+    """The slider force's standard deviation, N (ppann/lever.py); None: no such channel."""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -165,16 +168,23 @@ def train_sigma(
 
     With `config.machine_model` the sigma networks and the machine-level spread are fitted
     jointly by the marginal likelihood of ppann/machine.py (every episode one machine); without
-    it, by eq. 9 alone and machine_sigma stays zero.
+    it, by eq. 9 alone and machine_sigma stays zero. A model with the slider force's channel
+    (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the machine spread's rate.
     """
     theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = (1 + model.z_mean(theta, omega)) * derivative
+    lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
     terms = EpisodeTerms.build(
-        residual, derivative, design, episode, block_length=config.sigma_block
+        residual, derivative, design, episode, block_length=config.sigma_block, lever=lever
     )
     groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
+    log_force = None
+    if lever is not None:
+        log_force = torch.tensor([math.log(LEVER_START)], dtype=torch.float64)
+        log_force.requires_grad_(True)
+        groups.append({"params": [log_force], "lr": config.machine_lr})
     log_machine = common = None
     if config.machine_model:
         log_machine = torch.full((3,), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
@@ -185,22 +195,29 @@ def train_sigma(
     optimizer = torch.optim.Adam(groups)
     for epoch in range(config.sigma_epochs):
         sigma = model.z_sigma(theta, omega)
+        force = None if log_force is None else log_force.exp()
         if log_machine is None:
-            loss = white_nll(terms, sigma)
+            loss = white_nll(terms, sigma, force)
         else:
-            loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp())
+            loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp(), force)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         history.sigma.append(float(loss.detach()))
         if on_epoch is not None:
             on_epoch(epoch, history.sigma[-1])
+    force = None
+    if log_force is not None:
+        with torch.no_grad():
+            model.lever_sigma.copy_(log_force.exp())
+        force = model.lever_sigma
+        history.lever_sigma = float(force[0])
     if log_machine is not None:
         with torch.no_grad():
             model.machine_sigma.copy_(log_machine.exp())
             sigma = model.z_sigma(theta, omega)
-            offsets = posterior_offsets(terms.shifted(common), sigma, model.machine_sigma)
-        line = population(terms, sigma, model.machine_sigma, common)
+            offsets = posterior_offsets(terms.shifted(common), sigma, model.machine_sigma, force)
+        line = population(terms, sigma, model.machine_sigma, common, force)
         with torch.no_grad():
             model.common_covariance.copy_(line.common_covariance)
             model.machine_profile.copy_(line.profile)

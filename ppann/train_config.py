@@ -64,6 +64,10 @@ class TrainConfig:
     robust torque's predicted / observed slider σ at sample 100 on every seed (inside 0.8-1.25 on
     9 of 10 against 4), every verdict kept (README, the calibration at sample 100). The default
     since session 9."""
+    sigma_lever: bool = False
+    """The PPANN gets the slider force's channel (`PPANNConfig.sigma_lever`, ppann/lever.py;
+    beyond the paper): a white force on the slider through x'(theta), fitted in phase 2 beside
+    the sigma networks."""
 
     def __post_init__(self) -> None:
         for name in (
