@@ -289,6 +289,7 @@ class FusedHeads:
     the same kernel: equal states give bit-equal z. The arrays live in a workspace reused across
     calls of the same n (a fresh array per step cost more in page faults than the arithmetic). A
     snapshot of the current weights: rebuild after training; not to be shared between threads.
+    `lever_table`: the slider force's lever_sigma x'(theta) on the same grid (ppann/lever.py).
     """
 
     def __init__(self, model: PPANN) -> None:
