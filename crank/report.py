@@ -69,6 +69,9 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
         rows[f"σ predicted/observed ({mode})"] = (
             f"θ {_ratio(c['theta']['median'])}, slider {_ratio(c['slider_position']['median'])}"
         )
+    force = report["models"]["ppann"].get("lever_sigma")
+    if force is not None:  # the slider force's channel (ppann/lever.py)
+        rows["slider force σ (fitted)"] = f"{force:.1f} N"
     rows["PPANN training"] = f"{report['models']['ppann']['train_seconds']:.1f} s"
     return rows
 

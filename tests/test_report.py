@@ -84,6 +84,9 @@ def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
     rows = train_summary(report)
     assert rows["σ predicted/observed (trajectory)"] == "θ diverged (1.5e+68), slider 1.00"
     assert rows["σ predicted/observed (mixed)"] == "θ 0.90, slider 1.00"
+    assert "slider force σ (fitted)" not in rows
+    ppann["lever_sigma"] = 17.26
+    assert train_summary(report)["slider force σ (fitted)"] == "17.3 N"
 
 
 def test_theta_is_calibrated_at_each_constraint_sample_and_the_last() -> None:
