@@ -2,7 +2,7 @@
 
     python bench/spread_sources.py --model M/model.pt --dataset D/dataset.mcap --ocp S/ocp.json
         [--profile robust] [--lever-oracle] [--more-epochs 400] [--trajectories 2000]
-        [--figure along.png]
+        [--figure along.png] [--twin-parts 1000]
 
 Prints, for a trained PPANN, its training dataset and a solved ocp.json:
 
@@ -25,6 +25,9 @@ Prints, for a trained PPANN, its training dataset and a solved ocp.json:
 5. With `--more-epochs N`: phase 2 continued N epochs on a copy of the model (sigma networks from
    where they are, the machine spread from its start), and the profile's predicted σ of θ at
    samples 25, 50, 75, 100 (mixed mode) before and after, with the phase-2 loss.
+6. With `--twin-parts N`: the twin's spread under the robust torque taken apart (machines alone,
+   the force alone, both; N machines each) against the model's machine, step and mixed modes, and
+   the mean model's sensitivity to the motor's damping against the twin's.
 
 Runs on one core in about a minute (the two twin datasets dominate) plus ~20 s per 100 epochs.
 """
@@ -42,6 +45,7 @@ import torch
 from control.config import lower_tail
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
+from ppann.lever import lever_squared
 from ppann.losses import propagated_terms
 from ppann.machine import EpisodeTerms, posterior_offsets
 from ppann.model import PPANN, FusedHeads
@@ -49,10 +53,13 @@ from ppann.montecarlo import machine_factors, monte_carlo, rollout
 from ppann.train import History, make_splits, sigma_data, train_sigma
 from ppann.train_config import TrainConfig
 from ppann.transmission import draw, slope
+from replay.heldout import heldout_check
 from twin.dataset import Dataset, GenerationConfig, generate
 from twin.excitation import Excitation
 from twin.mcap_dataset import read_dataset, read_run
-from twin.variability import Variability
+from twin.physics import SliderCrank
+from twin.stepping import simulate
+from twin.variability import MachineDraw, Variability
 
 STRETCH = 25
 """Samples per row of the along-the-profile table."""
@@ -66,10 +73,14 @@ MACHINE_FIELDS = (
 
 
 def _white_variance(model: PPANN, theta, omega, tau, alpha) -> np.ndarray:
-    """Per-sample white torque variance of eq. 9, (n,)."""
+    """Per-sample white torque variance of eq. 9 and, for a model with the slider force's
+    channel (ppann/lever.py), its lever_sigma² x'(θ)², (n,)."""
     with torch.no_grad():
         _, derivative = propagated_terms(model, theta, omega, tau, alpha)
-        return ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1).numpy()
+        variance = ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1)
+        if model.config.sigma_lever:
+            variance = variance + model.lever_sigma**2 * lever_squared(model.geometry, theta)
+        return variance.numpy()
 
 
 def plan_variances(model: PPANN, ocp, profile: str, force_variance: float):
@@ -138,6 +149,11 @@ def _figure(
 
 def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
     force_variance = config.variability.disturbance_amplitude**2 / 3
+    force_of = model.lever_sigma if model.config.sigma_lever else None
+
+    def lever_of(theta: torch.Tensor) -> torch.Tensor | None:
+        return None if force_of is None else lever_squared(model.geometry, theta)
+
     print(f"2. twin datasets of {config.seconds:g} s, seed {config.seed}, blocks of {block}:")
     white = config.variability.disturbance_amplitude
     for label, amplitude in (("white force alone", white), ("no randomness", 0.0)):
@@ -147,9 +163,9 @@ def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
         with torch.no_grad():
             residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
             terms = EpisodeTerms.build(
-                residual, derivative, derivative, episode, block_length=block
+                residual, derivative, derivative, episode, block_length=block, lever=lever_of(theta)
             )
-            fitted = terms.white_variance(model.z_sigma(theta, omega)).numpy()
+            fitted = terms.white_variance(model.z_sigma(theta, omega), force_of).numpy()
         lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
         force = torch.zeros_like(terms.residual).index_add(0, terms.block, lever).numpy()
         power = terms.residual.numpy() ** 2
@@ -169,10 +185,13 @@ def machine_part(model: PPANN, dataset: Dataset, episodes: list[dict], train: Tr
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = (1 + model.z_mean(theta, omega)) * derivative
+        force = model.lever_sigma if model.config.sigma_lever else None
+        lever = None if force is None else lever_squared(model.geometry, theta)
         terms = EpisodeTerms.build(
-            residual, derivative, design, episode, block_length=train.sigma_block
+            residual, derivative, design, episode, block_length=train.sigma_block, lever=lever
         )
-        eta = posterior_offsets(terms, model.z_sigma(theta, omega), model.machine_sigma).numpy()
+        sigma = model.z_sigma(theta, omega)
+        eta = posterior_offsets(terms, sigma, model.machine_sigma, force).numpy()
     present = np.unique(dataset.episode[:split])
     print(f"3. machine spread (J, B, K) {np.round(model.machine_sigma.numpy(), 4)}; correlation")
     print(f"   of the {len(present)} training episodes' posterior offsets with their machines:")
@@ -247,6 +266,63 @@ def more_epochs(model, dataset, train, ocp_path, profile, epochs: int, n: int) -
     )
 
 
+def twin_parts(model: PPANN, ocp_path: str, variability: Variability, runs: int) -> None:
+    """The twin's spread taken apart under the robust torque, each against the model's mode that
+    stands for it: machines alone (no slider force) against "machine", the force alone on the
+    nominal machine against "step", both against "mixed"; then the mean model's sensitivity to
+    the motor's damping: the twin with it 5 % up against the model with the same torque
+    (0.05 x nominal x omega) added to its damping."""
+    ocp = read_ocp(ocp_path)
+    print(f"6. the twin's parts under robust, {runs} machines each (slider σ, mm):")
+    for label, mode, parts in (
+        ("machines alone", "machine", replace(variability, disturbance_amplitude=0.0)),
+        ("force alone   ", "step", replace(Variability.none(), disturbance_amplitude=30.0)),
+        ("both          ", "mixed", variability),
+    ):
+        out = heldout_check(SliderCrank(), ocp_path, model, runs=runs, seed=1, variability=parts)
+        cells = out["profiles"]["robust"]["open"]["samples"]
+        print(
+            f"   {label}: "
+            + " | ".join(
+                f"{k}: twin {v['observed_sigma'] * 1e3:.2f}, model ({mode}) "
+                f"{v['predicted'][mode]['sigma'] * 1e3:.2f}"
+                for k, v in cells.items()
+            )
+        )
+    plan, physics = ocp.profiles["robust"], SliderCrank()
+    n, damping = len(plan.tau) - 1, variability.motor_damping.nominal
+    nominal = MachineDraw(*(p.nominal for p in Variability.none().parameters()))
+    x = []
+    for draw_ in (nominal, replace(nominal, motor_damping=1.05 * damping)):
+        runs_ = simulate(
+            physics,
+            Variability.none(),
+            draws=[draw_],
+            initial_states=physics.initial_state(plan.theta[0], plan.omega[0])[None],
+            tau=plan.tau[None, :n],
+            disturbance=np.zeros((1, n)),
+        )
+        x.append(physics.sensor(runs_.sensordata, "slider_position")[0])
+    heads = FusedHeads(model)
+    theta = np.full(2, plan.theta[0])
+    omega, extra = np.full(2, plan.omega[0]), np.array([0.0, 0.05 * damping])
+    model_x = [theta.copy()]
+    for k in range(n):
+        mean, _ = heads(theta, omega)
+        alpha = heads.acceleration(theta, omega, plan.tau[k] - extra * omega, mean)
+        theta, omega = theta + heads.dt * omega, omega + heads.dt * alpha
+        model_x.append(theta.copy())
+    slider = model.geometry.slider_position(np.array(model_x))
+    print(
+        "   motor damping +5 %, slider moves (mm): "
+        + " | ".join(
+            f"{k}: twin {(x[1][k - 1] - x[0][k - 1]) * 1e3:+.2f}, "
+            f"model {(slider[k - 1, 1] - slider[k - 1, 0]) * 1e3:+.2f}"
+            for k in ocp.config.constraint_samples
+        )
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--model", required=True)
@@ -255,6 +331,9 @@ def main() -> None:
     parser.add_argument("--profile", default="robust")
     parser.add_argument("--more-epochs", type=int, default=0)
     parser.add_argument("--lever-oracle", action="store_true")
+    parser.add_argument(
+        "--twin-parts", type=int, default=0, help="machines per twin part (6.); 0: skip"
+    )
     parser.add_argument("--trajectories", type=int, default=2000)
     parser.add_argument("--figure", default="", help="PNG of the along-the-profile comparison")
     args = parser.parse_args()
@@ -275,6 +354,8 @@ def main() -> None:
     if args.lever_oracle:
         force_variance = variability.disturbance_amplitude**2 / 3
         lever_oracle(model, args.ocp, args.profile, force_variance, args.trajectories)
+    if args.twin_parts:
+        twin_parts(model, args.ocp, variability, args.twin_parts)
     if args.more_epochs:
         more_epochs(
             model, dataset, train, args.ocp, args.profile, args.more_epochs, args.trajectories
