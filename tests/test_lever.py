@@ -185,3 +185,15 @@ def test_the_training_config_asks_for_the_channel() -> None:
     with_it = new_model(dataset, kind="ppann", config=TrainConfig(sigma_lever=True))
     assert with_it.config.sigma_lever and float(with_it.lever_sigma[0]) == 0.0
     assert not hasattr(new_model(dataset, kind="ppann", config=TrainConfig()), "lever_sigma")
+
+
+def test_the_force_draws_are_common_across_horizons() -> None:
+    """A run of 80 steps is the first 80 steps of a run of 120 with the same seed, force and
+    all: the robust loop's iterations and horizons share their random numbers."""
+    model = _lever_model(10.0, z_sigma=0.01)
+    short, long = (
+        monte_carlo(model, [1.0, 0.0], np.full(steps, 0.5), n_samples=64, seed=4).samples
+        for steps in (80, 120)
+    )
+    assert np.array_equal(short, long[:, :81])
+    assert short[:, -1, 0].std() > 0
