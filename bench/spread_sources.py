@@ -72,14 +72,23 @@ MACHINE_FIELDS = (
 )
 
 
+def _force_channel(model: PPANN, theta: torch.Tensor):
+    """(lever_sigma, x'(θ)² per sample) of a model with the slider force's channel
+    (ppann/lever.py), as `EpisodeTerms` takes them; (None, None) without it."""
+    if not model.config.sigma_lever:
+        return None, None
+    return model.lever_sigma, lever_squared(model.geometry, theta)
+
+
 def _white_variance(model: PPANN, theta, omega, tau, alpha) -> np.ndarray:
     """Per-sample white torque variance of eq. 9 and, for a model with the slider force's
     channel (ppann/lever.py), its lever_sigma² x'(θ)², (n,)."""
     with torch.no_grad():
         _, derivative = propagated_terms(model, theta, omega, tau, alpha)
         variance = ((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1)
-        if model.config.sigma_lever:
-            variance = variance + model.lever_sigma**2 * lever_squared(model.geometry, theta)
+        force, lever = _force_channel(model, theta)
+        if force is not None:
+            variance = variance + force**2 * lever
         return variance.numpy()
 
 
@@ -149,23 +158,19 @@ def _figure(
 
 def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
     force_variance = config.variability.disturbance_amplitude**2 / 3
-    force_of = model.lever_sigma if model.config.sigma_lever else None
-
-    def lever_of(theta: torch.Tensor) -> torch.Tensor | None:
-        return None if force_of is None else lever_squared(model.geometry, theta)
-
     print(f"2. twin datasets of {config.seconds:g} s, seed {config.seed}, blocks of {block}:")
     white = config.variability.disturbance_amplitude
     for label, amplitude in (("white force alone", white), ("no randomness", 0.0)):
         variability = replace(Variability.none(), disturbance_amplitude=amplitude)
         data, _, _ = generate(replace(config, variability=variability), nthread=1)
         theta, omega, tau, alpha, episode = sigma_data(data, len(data))
+        force, lever = _force_channel(model, theta)
         with torch.no_grad():
             residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
             terms = EpisodeTerms.build(
-                residual, derivative, derivative, episode, block_length=block, lever=lever_of(theta)
+                residual, derivative, derivative, episode, block_length=block, lever=lever
             )
-            fitted = terms.white_variance(model.z_sigma(theta, omega), force_of).numpy()
+            fitted = terms.white_variance(model.z_sigma(theta, omega), force).numpy()
         lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
         force = torch.zeros_like(terms.residual).index_add(0, terms.block, lever).numpy()
         power = terms.residual.numpy() ** 2
@@ -185,8 +190,7 @@ def machine_part(model: PPANN, dataset: Dataset, episodes: list[dict], train: Tr
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = (1 + model.z_mean(theta, omega)) * derivative
-        force = model.lever_sigma if model.config.sigma_lever else None
-        lever = None if force is None else lever_squared(model.geometry, theta)
+        force, lever = _force_channel(model, theta)
         terms = EpisodeTerms.build(
             residual, derivative, design, episode, block_length=train.sigma_block, lever=lever
         )
@@ -223,6 +227,8 @@ def lever_oracle(model: PPANN, ocp_path: str, profile: str, force_variance: floa
     machines = machine_factors(heads.machine_sigma, n, np.random.default_rng(7))
     delta = draw(heads.transmission, (n,), np.random.default_rng(13))
     normals = np.random.default_rng(11).standard_normal((steps, n, 3))
+    # the model's slider force (ppann/lever.py) is part of its white noise: scaled alike
+    forces = np.random.default_rng(12).standard_normal((steps, n)) if heads.lever_sigma else None
     print(f"4. the Monte-Carlo along {profile}, mixed, {n} trajectories (slider in mm):")
     for label, scale in (
         ("as trained    ", np.ones(steps)),
@@ -235,6 +241,7 @@ def lever_oracle(model: PPANN, ocp_path: str, profile: str, force_variance: floa
             n_samples=n,
             eps=normals * scale[:, None, None],
             factors=machines,
+            lever_eps=None if forces is None else forces * scale[:, None],
         )
         angles = states[:, :, 0]
         cells = []
@@ -276,10 +283,16 @@ def twin_parts(model: PPANN, ocp_path: str, variability: Variability, runs: int)
     print(f"6. the twin's parts under robust, {runs} machines each (slider σ, mm):")
     for label, mode, parts in (
         ("machines alone", "machine", replace(variability, disturbance_amplitude=0.0)),
-        ("force alone   ", "step", replace(Variability.none(), disturbance_amplitude=30.0)),
+        (
+            "force alone   ",
+            "step",
+            replace(Variability.none(), disturbance_amplitude=variability.disturbance_amplitude),
+        ),
         ("both          ", "mixed", variability),
     ):
-        out = heldout_check(SliderCrank(), ocp_path, model, runs=runs, seed=1, variability=parts)
+        out = heldout_check(  # the model's own rate is not read here: its fewest draws
+            SliderCrank(), ocp_path, model, runs=runs, seed=1, variability=parts, tail_draws=2
+        )
         cells = out["profiles"]["robust"]["open"]["samples"]
         print(
             f"   {label}: "
