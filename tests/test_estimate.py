@@ -31,10 +31,11 @@ def test_stages_add_up_to_the_total() -> None:
 
 def test_default_run_is_the_measured_few_minutes() -> None:
     """The unit costs were measured on the default run of the time (90 s of data, 186 s, phase 1
-    stopping at 40 epochs); today's (180 s, the models side by side) took 220 s, phase 1 68."""
+    stopping at 40 epochs); 180 s with the models side by side took 220 s, phase 1 68; today's
+    (720 s, session 21) 396 s, phase 1 117."""
     times = run_time(RunConfig.for_seed(0, heldout_runs=1000))
     assert times["generate"].low == pytest.approx(GENERATE_PER_SECOND * DATASET_SECONDS)
-    assert 100 < times["total"].low < 220 < times["total"].high
+    assert 100 < times["total"].low < 396 < times["total"].high
 
 
 def test_each_stage_scales_with_its_request() -> None:

@@ -8,10 +8,10 @@ MODEL_PATH = Path(__file__).resolve().parent.parent / "models" / "slider_crank.x
 """The default twin's MJCF (twin.physics reads it; defined here so that the command line can show
 it without importing MuJoCo)."""
 
-DATASET_SECONDS = 180.0
-"""A dataset's default length: 18 machines of EPISODE_SECONDS, twice the paper's PAPER_SECONDS
-(twin/dataset.py GenerationConfig says why; here so that the command line shows it without
-importing MuJoCo)."""
+DATASET_SECONDS = 720.0
+"""A dataset's default length: 72 machines of EPISODE_SECONDS, eight times the paper's
+PAPER_SECONDS (twin/dataset.py GenerationConfig says why; here so that the command line shows it
+without importing MuJoCo)."""
 PAPER_SECONDS = 90.0
 """The paper's dataset length (section 3.3.1): 9 machines of 10 s."""
 EPISODE_SECONDS = 10.0
