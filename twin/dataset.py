@@ -55,9 +55,9 @@ class GenerationConfig:
     90 s (twin.PAPER_SECONDS). The machine-level spread is estimated from the training machines (9
     left the predicted slider σ at 1.47 times the held-out machines' on one seed of five), and the
     mean model's error where a torque crawls over top dead centre shrinks as 1/sqrt(data): at 180 s
-    its crank led the machines' by up to 0.19 rad after the crawl and the predicted slider σ was
-    up to 1.54 times the observed, at 720 s within 0.07 rad and 1.30 (README, *Four times the
-    data*)."""
+    its crank angle after the crawl was up to 0.19 rad off the machines' mean and the predicted
+    slider σ up to 1.54 times the observed, at 720 s within 0.07 rad and 1.30 (README, *Four
+    times the data*)."""
 
     seconds: float = DATASET_SECONDS
     seed: int = 0
