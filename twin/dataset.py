@@ -1,6 +1,6 @@
 """Datasets: episodes of the twin under semi-random torque, as measurement and ground truth.
 
-A dataset is a sequence of episodes (default 18 × 10 s; the paper's 9 × 10 s). Each episode is
+A dataset is a sequence of episodes (default 72 × 10 s; the paper's 9 × 10 s). Each episode is
 a fresh machine draw (friction, backlash, warm-up) that has been running U[0, max_start_time] s
 (twin.OPERATING_SECONDS, the replays' range: the machines learnt from and the machines checked
 come from one population), from a state drawn uniformly over the whole stroke, under the slider
