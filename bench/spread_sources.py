@@ -164,15 +164,15 @@ def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
         variability = replace(Variability.none(), disturbance_amplitude=amplitude)
         data, _, _ = generate(replace(config, variability=variability), nthread=1)
         theta, omega, tau, alpha, episode = sigma_data(data, len(data))
-        force, lever = _force_channel(model, theta)
+        model_force, model_lever = _force_channel(model, theta)
         with torch.no_grad():
             residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
             terms = EpisodeTerms.build(
-                residual, derivative, derivative, episode, block_length=block, lever=lever
+                residual, derivative, derivative, episode, block_length=block, lever=model_lever
             )
-            fitted = terms.white_variance(model.z_sigma(theta, omega), force).numpy()
-        lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
-        force = torch.zeros_like(terms.residual).index_add(0, terms.block, lever).numpy()
+            fitted = terms.white_variance(model.z_sigma(theta, omega), model_force).numpy()
+        twin_lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
+        force = torch.zeros_like(terms.residual).index_add(0, terms.block, twin_lever).numpy()
         power = terms.residual.numpy() ** 2
         edges = np.quantile(force, [0, 0.05, 0.15, 0.3, 0.5, 0.75, 1.0])
         print(f"   {label}: residual power | model white variance | force power, per block")
