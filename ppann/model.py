@@ -17,82 +17,26 @@ Forward Euler at dt (eq. 4) with theta' = omega exactly (eq. 12).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from common.checks import check_finite
-from common.errors import CrankError
 from ppann.lever import lever_arm
+from ppann.model_config import ModelConfigError, PPANNConfig
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 from twin.geometry import PAPER, Geometry
 
 Z_NAMES = ("J", "B", "K")
+"""The three augmented terms, in the order of the last axis of every z tensor (and of the
+machine-level log-factors, ppann/machine.py)."""
 PROFILE_GRID = np.geomspace(1e-4, 1.0, 97)
 """machine_sigma values (log-factor standard deviations) at which the likelihood profile of
 ppann/machine.py is kept in the model (`machine_profile`): 1e-4 to 1 in steps of a factor 1.1."""
-"""The three augmented terms, in the order of the last axis of every z tensor (and of the
-machine-level log-factors, ppann/machine.py)."""
 ANGLE_TABLE = 16384
 """Cells of FusedHeads' table of the angle-only networks over one turn."""
 INERTIA_FACTOR_FLOOR = 0.1
 """Smallest 1 + z_J a Monte-Carlo draw may give (see FusedHeads.acceleration)."""
-
-
-class ModelConfigError(CrankError, ValueError):
-    """A PPANN configuration value is out of range."""
-
-
-@dataclass(frozen=True)
-class PPANNConfig:
-    """Architecture and physical prior of a PPANN (paper section 3.3.1)."""
-
-    j_m: float = 3e-3
-    """Prior motor inertia J_m, kg·m²."""
-    b_m: float = 0.1
-    """Prior viscous damping B_m, N·m·s/rad."""
-    k_m: float = 1.0
-    """Prior stiffness K_m, N·m/rad."""
-    mean_hidden: int = 100
-    sigma_hidden: int = 10
-    sigma_floor: float = 1e-4
-    """Smallest standard deviation a sigma network can output."""
-    omega_scale: float = 50.0
-    """omega is divided by this before it enters a network, rad/s."""
-    dt: float = 1 / 500
-    trainable_physics: bool = False
-    """Train J_m, B_m, K_m along with the mean networks."""
-    use_networks: bool = True
-    """False gives the physics-only baseline: z = 0, J_m, B_m, K_m fitted."""
-    sigma_speed: bool = False
-    """The sigma networks of z_J and z_K see omega too (beyond the paper, whose z_J and z_K
-    networks see the angle alone): the residual's spread at one angle can depend on the speed.
-    A checkpoint without this key is of the paper's architecture (False)."""
-    sigma_wrap: bool = False
-    """The sigma network of z_K also sees theta_mod / 2 pi (beyond the paper): its white noise
-    enters eq. 14 as K z_K theta_mod, which jumps from ~2 pi K to 0 at the wrap (top dead
-    centre), and a network of (sin, cos) alone must give it one σ on both sides; with the
-    wrapped angle it can make the noise small just before the wrap. Not with `sigma_speed`.
-    A checkpoint without this key is of the paper's architecture (False)."""
-    sigma_lever: bool = False
-    """A white force on the slider beside the sigma networks (beyond the paper; ppann/lever.py):
-    eq. 14's torque balance gets x'(theta) F, F ~ N(0, lever_sigma^2), which vanishes at the
-    dead centres where the networks' channels cannot. A checkpoint without this key has none."""
-
-    def __post_init__(self) -> None:
-        for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
-            check_finite(name, getattr(self, name), positive=True, error=ModelConfigError)
-        check_finite("k_m", self.k_m, error=ModelConfigError)
-        for name in ("mean_hidden", "sigma_hidden"):
-            if getattr(self, name) < 1:
-                raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.sigma_wrap and self.sigma_speed:
-            raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 def _mlp(inputs: int, hidden: int) -> nn.Sequential:
