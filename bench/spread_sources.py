@@ -47,7 +47,7 @@ from control.ocp_file import read_ocp
 from ppann.checkpoint import load
 from ppann.lever import lever_squared
 from ppann.losses import propagated_terms
-from ppann.machine import EpisodeTerms, posterior_offsets
+from ppann.machine import EpisodeTerms, machine_design, posterior_offsets
 from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import machine_factors, monte_carlo, rollout
 from ppann.train import History, make_splits, sigma_data, train_sigma
@@ -189,7 +189,7 @@ def machine_part(model: PPANN, dataset: Dataset, episodes: list[dict], train: Tr
     theta, omega, tau, alpha, episode = sigma_data(dataset, split)
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
-        design = (1 + model.z_mean(theta, omega)) * derivative
+        design = machine_design(model, theta, omega, derivative)
         force, lever = _force_channel(model, theta)
         terms = EpisodeTerms.build(
             residual, derivative, design, episode, block_length=train.sigma_block, lever=lever

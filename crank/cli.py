@@ -197,6 +197,13 @@ def train_command(
             help="Fit a white slider force through the kinematics beside the sigma networks."
         ),
     ] = TrainConfig.sigma_lever,
+    machine_terms: Annotated[
+        str,
+        typer.Option(
+            help="What a machine's log-factors scale: augmented (eq. 14's whole terms) or "
+            "prior (the motor's physical terms alone)."
+        ),
+    ] = TrainConfig.machine_terms,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -210,6 +217,7 @@ def train_command(
         sigma_block=sigma_block,
         early_stopping=early_stopping,
         sigma_lever=sigma_lever,
+        machine_terms=machine_terms,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

@@ -81,6 +81,7 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         config = dict(payload["config"])
         if payload["kind"] != "blackbox":  # saved before the option: the paper's architecture
             config.setdefault("sigma_speed", False)
+            config.setdefault("machine_terms", "augmented")
         model = MODEL_KINDS[payload["kind"]].build(config)
     except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: config does not fit this architecture ({exc})") from None

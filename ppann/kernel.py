@@ -62,7 +62,8 @@ int crank_rollout(
     int n, int steps, int eps_per_step, int has_eps,
     const double *x0, const double *tau, const double *eps, const double *factors,
     const double *plan, const double *gains, double limit,
-    const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets */
+    const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets,
+                          machine_prior */
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
@@ -71,7 +72,7 @@ int crank_rollout(
 {
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
     const double sfloor = prm[5], ifloor = prm[6], cellscale = prm[7];
-    const int use_nets = prm[8] != 0.0;
+    const int use_nets = prm[8] != 0.0, machine_prior = prm[9] != 0.0;
     const double two_pi = 6.283185307179586;
     const int np = (n + LANES - 1) / LANES * LANES;
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
@@ -149,11 +150,15 @@ int crank_rollout(
                 u += (lever_table[cell] * (1 - frac) + lever_table[cell + 1] * frac)
                     * lever_eps[(size_t)(eps_per_step ? k : 0) * n + src];
             }
-            double f0 = 1 + z0;
+            double f0 = 1 + z0, f1 = 1 + z1, f2 = 1 + z2;
+            if (factors && machine_prior) {  /* the machine scales the prior's term alone */
+                f0 += factors[3 * src] - 1; f1 += factors[3 * src + 1] - 1;
+                f2 += factors[3 * src + 2] - 1;
+            }
             double inertia = jm * (f0 > ifloor ? f0 : ifloor);
-            double damping = bm * (1 + z1) * om[s];
-            double stiffness = km * (1 + z2) * ang[s];
-            if (factors) {
+            double damping = bm * f1 * om[s];
+            double stiffness = km * f2 * ang[s];
+            if (factors && !machine_prior) {
                 inertia *= factors[3 * src]; damping *= factors[3 * src + 1];
                 stiffness *= factors[3 * src + 2];
             }
@@ -289,6 +294,7 @@ def rollout(
                 INERTIA_FACTOR_FLOOR,
                 heads.cell,
                 float(heads.use_networks),
+                float(heads.machine_prior),
             ]
         )
     )

@@ -9,6 +9,9 @@ model is
 
     r_k = -D_k . eta_e + white_k,   D_k = ((1 + z_mu) * dr/dz)_k   (n_k, 3 per episode),
 
+(with `PPANNConfig.machine_terms` "prior" the factors scale the prior's physical terms alone,
+J_m (1 + z_J + e^eta_J - 1) and so on, and D_k = dr/dz_k: `machine_design`)
+
 so an episode's residual vector is Gaussian with covariance diag(s^2) + D diag(machine_sigma^2)
 D^T. Its negative log-likelihood, with eta integrated out (Woodbury and the determinant lemma,
 written with S = diag(machine_sigma) so that machine_sigma -> 0 is regular):
@@ -57,7 +60,19 @@ import numpy as np
 import torch
 
 from ppann.losses import VARIANCE_FLOOR
-from ppann.model import PROFILE_GRID
+from ppann.model import PPANN, PROFILE_GRID
+
+
+def machine_design(
+    model: PPANN, theta: torch.Tensor, omega: torch.Tensor, derivative: torch.Tensor
+) -> torch.Tensor:
+    """D_k of the module docstring, (n, 3), from dr/dz `derivative` (n, 3) at the samples:
+    the torque residual's derivative in a machine's log-factors at eta = 0. (1 + z_mu) dr/dz
+    when they scale eq. 14's whole terms (`PPANNConfig.machine_terms` "augmented"), dr/dz when
+    they scale the prior's physical terms alone ("prior")."""
+    if model.config.machine_terms == "prior":
+        return derivative
+    return (1 + model.z_mean(theta, omega)) * derivative
 
 
 def episode_sums(

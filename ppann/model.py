@@ -240,6 +240,7 @@ class FusedHeads:
         c = model.config
         self.omega_scale, self.sigma_floor = c.omega_scale, c.sigma_floor
         self.use_networks = c.use_networks
+        self.machine_prior = c.machine_terms == "prior"
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
         self.dt = c.dt
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
@@ -331,13 +332,17 @@ class FusedHeads:
         inertia (a 3-sigma draw of z_J can reach -1, and the simulation then diverges).
 
         factors: per-sample machine factors (n, 3) multiplying the inertia, damping and stiffness
-        terms (ppann/montecarlo.py, modes "machine" and "mixed"); None means 1.
+        terms (ppann/montecarlo.py, modes "machine" and "mixed"), or with `machine_terms`
+        "prior" the prior's part of them (f - 1 added to 1 + z); None means 1.
         """
         angle = np.remainder(theta, 2 * math.pi)
-        inertia = self.j * np.maximum(1 + z[:, 0], INERTIA_FACTOR_FLOOR)
-        damping = self.b * (1 + z[:, 1]) * omega
-        stiffness = self.k * (1 + z[:, 2]) * angle
-        if factors is not None:
+        scale = 1 + z
+        if factors is not None and self.machine_prior:
+            scale = scale + factors - 1
+        inertia = self.j * np.maximum(scale[:, 0], INERTIA_FACTOR_FLOOR)
+        damping = self.b * scale[:, 1] * omega
+        stiffness = self.k * scale[:, 2] * angle
+        if factors is not None and not self.machine_prior:
             inertia = inertia * factors[:, 0]
             damping = damping * factors[:, 1]
             stiffness = stiffness * factors[:, 2]

@@ -8,6 +8,9 @@ from dataclasses import asdict, dataclass
 from common.checks import check_finite
 from common.errors import CrankError
 
+MACHINE_TERMS = ("augmented", "prior")
+"""What the machine-level log-factors scale (`PPANNConfig.machine_terms`)."""
+
 
 class ModelConfigError(CrankError, ValueError):
     """A PPANN configuration value is out of range."""
@@ -48,6 +51,12 @@ class PPANNConfig:
     """A white force on the slider beside the sigma networks (beyond the paper; ppann/lever.py):
     eq. 14's torque balance gets x'(theta) F, F ~ N(0, lever_sigma^2), which vanishes at the
     dead centres where the networks' channels cannot. A checkpoint without this key has none."""
+    machine_terms: str = "augmented"
+    """What a machine's log-factors eta (ppann/machine.py) scale. "augmented": eq. 14's whole
+    term, J_m (1 + z_J) e^eta_J, and so for B and K. "prior" (beyond the paper): the prior's
+    physical term alone, J_m (1 + z_J + e^eta_J - 1): the motor's inertia, damping and stiffness
+    vary from machine to machine, the networks' corrections (the slider's inertia, the velocity
+    products the B network absorbs) do not. A checkpoint without this key is "augmented"."""
 
     def __post_init__(self) -> None:
         for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
@@ -56,6 +65,11 @@ class PPANNConfig:
         for name in ("mean_hidden", "sigma_hidden"):
             if getattr(self, name) < 1:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.machine_terms not in MACHINE_TERMS:
+            raise ModelConfigError(
+                f"machine_terms must be one of {', '.join(MACHINE_TERMS)}, "
+                f"got {self.machine_terms!r}"
+            )
         if self.sigma_wrap and self.sigma_speed:
             raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
 

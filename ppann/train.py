@@ -32,7 +32,14 @@ from ppann.data import (
 )
 from ppann.lever import LEVER_START, lever_squared
 from ppann.losses import n_step_mse, propagated_terms
-from ppann.machine import EpisodeTerms, marginal_nll, population, posterior_offsets, white_nll
+from ppann.machine import (
+    EpisodeTerms,
+    machine_design,
+    marginal_nll,
+    population,
+    posterior_offsets,
+    white_nll,
+)
 from ppann.model import PPANN, n_step_prediction
 from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
@@ -174,7 +181,7 @@ def train_sigma(
     theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
-        design = (1 + model.z_mean(theta, omega)) * derivative
+        design = machine_design(model, theta, omega, derivative)
     lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
     terms = EpisodeTerms.build(
         residual, derivative, design, episode, block_length=config.sigma_block, lever=lever

@@ -7,6 +7,7 @@ from dataclasses import asdict, dataclass
 
 from common.checks import check_count, check_finite, check_seed
 from common.errors import CrankError
+from ppann.model_config import MACHINE_TERMS
 
 EARLY_STOPPING = ("tail", "machines")
 """What phase 1's early stopping scores (TrainConfig.early_stopping)."""
@@ -68,6 +69,9 @@ class TrainConfig:
     """The PPANN gets the slider force's channel (`PPANNConfig.sigma_lever`, ppann/lever.py;
     beyond the paper): a white force on the slider through x'(theta), fitted in phase 2 beside
     the sigma networks."""
+    machine_terms: str = "augmented"
+    """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
+    eq. 14's whole terms; "prior", the prior's physical motor terms alone."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -90,6 +94,11 @@ class TrainConfig:
             raise TrainConfigError(
                 f"early_stopping must be one of {', '.join(EARLY_STOPPING)}, "
                 f"got {self.early_stopping!r}"
+            )
+        if self.machine_terms not in MACHINE_TERMS:
+            raise TrainConfigError(
+                f"machine_terms must be one of {', '.join(MACHINE_TERMS)}, "
+                f"got {self.machine_terms!r}"
             )
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(

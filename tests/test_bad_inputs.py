@@ -34,6 +34,7 @@ RANGES = {
     "cfg_unknown": "[ocp]\nheigth = 0.08\n",
     "cfg_old": '[ocp]\nfeedback = "lqr"\n',
     "cfg_stop": '[train]\nearly_stopping = "best"\n',
+    "cfg_terms": '[train]\nmachine_terms = "whole"\n',
     "cfg_type": "[ocp]\nhorizon = 'x'\n",
     "cfg_range": "[ocp]\nhorizon = 2\n",
     "cfg_pd": '[ocp]\nprofiles = ["robust-pd"]\npd_kp = 30.0\n',
@@ -204,6 +205,7 @@ CASES: list[tuple[str, str]] = [
     ("train --data {ds.mcap} --out o/m.pt --seed 100000000000000000000000", "seed must be"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block 0", "sigma_block must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --early-stopping best", "early_stopping must be one of"),
+    ("train --data {ds.mcap} --out o/m.pt --machine-terms motor", "machine_terms must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block -3", "sigma_block must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --epoch-windows 0", "epoch_windows must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --epochs 0", "epochs must be"),
@@ -385,6 +387,7 @@ CASES: list[tuple[str, str]] = [
     ("run --logs L --config {cfg_old.toml}", "'ocp.feedback' (replaced by ocp.profiles: feedback"),
     ("config --config {cfg_range.toml}", "horizon must be >= 3 samples"),
     ("run --logs L --config {cfg_stop.toml}", "early_stopping must be one of tail, machines"),
+    ("run --logs L --config {cfg_terms.toml}", "machine_terms must be one of augmented, prior"),
     ("config --config {text.txt}", "is not TOML"),
     # --- study ---
     ("study --out S --seeds ''", "--seeds takes a range like 0-9"),

@@ -33,6 +33,7 @@ CASES = {
     "sigma_wrap": PPANNConfig(sigma_wrap=True),
     "sigma_speed": PPANNConfig(sigma_speed=True),
     "physics": PPANNConfig(use_networks=False),
+    "machine_prior": PPANNConfig(machine_terms="prior"),
 }
 
 

@@ -157,10 +157,20 @@ def test_blocks_fit_the_low_frequency_power_of_a_blue_residual(
     assert fitted == pytest.approx(expected, rel=0.05)
 
 
-def _machines_dataset(*, episodes: int, seconds: float, inertia_sigma: float, seed: int):
-    """Episodes of a known PPANN (constant networks) whose inertia factor is exp(eta_J) per
-    episode, eta_J ~ N(0, inertia_sigma²), and a small white torque noise."""
-    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
+def _machines_dataset(
+    *,
+    episodes: int,
+    seconds: float,
+    inertia_sigma: float,
+    seed: int,
+    column: int = 0,
+    model: PPANN | None = None,
+):
+    """Episodes of a known PPANN (constant networks) whose machine factor of term `column`
+    (0: inertia) is exp(eta) per episode, eta ~ N(0, inertia_sigma²), and a small white torque
+    noise."""
+    if model is None:
+        model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
     heads = FusedHeads(model)
     rng = np.random.default_rng(seed)
     n = int(seconds / DT)
@@ -170,7 +180,8 @@ def _machines_dataset(*, episodes: int, seconds: float, inertia_sigma: float, se
     noise = rng.normal(0.0, 0.02, (episodes, n))
     theta, omega = np.empty((episodes, n)), np.zeros((episodes, n))
     theta[:, 0] = rng.uniform(0, 2 * np.pi, episodes)
-    factors = np.stack([np.exp(eta), np.ones(episodes), np.ones(episodes)], axis=-1)
+    factors = np.ones((episodes, 3))
+    factors[:, column] = np.exp(eta)
     for k in range(n - 1):  # all episodes at once
         mean, _ = heads(theta[:, k], omega[:, k])
         alpha = heads.acceleration(
@@ -252,3 +263,66 @@ def test_population_uncertainty_matches_directly_observed_machines(fitted_line) 
         model.machine_sigma.numpy(),
     )
     assert upper[1] < 0.3 * s and upper[2] < 0.3 * s
+
+
+def test_prior_machine_terms_shift_z_by_the_factor_minus_one() -> None:
+    """With `machine_terms` "prior" a machine's factor f scales the prior's physical term alone:
+    eq. 14 with z replaced by z + f - 1 (PPANN.acceleration, torch), to rounding; "augmented"
+    multiplies the whole term, (1 + z) f."""
+    z_mean = (0.3, 0.5, -0.9)
+    rng = np.random.default_rng(2)
+    theta, omega = rng.uniform(0, 2 * np.pi, 50), rng.uniform(-30, 30, 50)
+    tau, factors = rng.uniform(-4, 4, 50), np.exp(0.2 * rng.standard_normal((50, 3)))
+    z = np.tile(z_mean, (50, 1))
+    for terms, expected_z, scale in (
+        ("prior", z + factors - 1, np.ones((50, 3))),
+        ("augmented", z, factors),
+    ):
+        model = constant_ppann(
+            z_mean=z_mean, z_sigma=(0.01,) * 3, config=PPANNConfig(machine_terms=terms)
+        )
+        got = FusedHeads(model).acceleration(theta, omega, tau, z, factors=factors)
+        j, b, k = (float(v) for v in model.physical.detach())
+        angle = np.remainder(theta, 2 * np.pi)
+        reference = (
+            tau
+            - b * (1 + expected_z[:, 1]) * scale[:, 1] * omega
+            - k * (1 + expected_z[:, 2]) * scale[:, 2] * angle
+        ) / (j * (1 + expected_z[:, 0]) * scale[:, 0])
+        torch_prior = model.acceleration(
+            torch.tensor(theta), torch.tensor(omega), torch.tensor(tau), torch.tensor(expected_z)
+        ).numpy()
+        np.testing.assert_allclose(got, reference, rtol=1e-12)
+        if terms == "prior":
+            np.testing.assert_allclose(got, torch_prior, rtol=1e-12)
+
+
+@pytest.mark.parametrize("terms", ["prior", "augmented"])
+def test_a_damping_line_is_read_on_the_term_the_machines_scale(terms: str) -> None:
+    """Machines differ in the prior's damping alone (log-spread 0.15) while the B network's
+    correction makes the damping term 1.5 B_m: a model whose machine factors scale the prior's
+    term ("prior") recovers the drawn spread within 20 %; one whose factors scale the whole term
+    ("augmented") reads the same torques as 1/1.5 of it, the damping term's prior share."""
+    truth = constant_ppann(
+        z_mean=(0.0, 0.5, -0.9),
+        z_sigma=(0.01, 0.01, 0.01),
+        config=PPANNConfig(machine_terms="prior"),
+    )
+    dataset, truth, eta = _machines_dataset(
+        episodes=30, seconds=2.0, inertia_sigma=0.15, seed=5, column=1, model=truth
+    )
+    torch.manual_seed(0)
+    model = PPANN(PPANNConfig(sigma_hidden=4, machine_terms=terms))
+    model.load_state_dict(
+        {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
+        | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
+    )
+    config = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
+    splits = make_splits(dataset, config)
+    train_sigma(model, dataset, splits, config, history=History())
+    present = np.unique(dataset.episode[: splits.split])
+    drawn = float(np.std(eta[present], ddof=1))
+    expected = drawn if terms == "prior" else drawn / 1.5
+    print(f"{terms}: drawn {drawn:.4f}, fitted {model.machine_sigma.tolist()}")
+    assert model.machine_sigma[1].item() == pytest.approx(expected, rel=0.2)
+    assert model.machine_sigma[0].item() < 0.3 * expected

@@ -211,12 +211,13 @@ def test_checkpoint_round_trip_and_rejections(tmp_path) -> None:
     assert payload["history"] == {"train": [1.0]}
     assert torch.load(path, weights_only=True)["kind"] == "ppann"
 
-    # a checkpoint saved before `sigma_speed` and `sigma_wrap` existed is of the paper's
-    # architecture
+    # a checkpoint saved before `sigma_speed`, `sigma_wrap` and `machine_terms` existed is of
+    # the paper's architecture, its machine factors on eq. 14's whole terms
     old = torch.load(path, weights_only=True)
-    del old["config"]["sigma_speed"], old["config"]["sigma_wrap"]
+    del old["config"]["sigma_speed"], old["config"]["sigma_wrap"], old["config"]["machine_terms"]
     torch.save(old, tmp_path / "old.pt")
     assert load(tmp_path / "old.pt")[0].config.sigma_speed is False
+    assert load(tmp_path / "old.pt")[0].config.machine_terms == "augmented"
     wide = PPANN(PPANNConfig(mean_hidden=20, sigma_speed=True))
     save(tmp_path / "wide.pt", wide, kind="ppann", extra={"history": {}})
     assert load(tmp_path / "wide.pt")[0].sigma_nets["K"][0].in_features == 3
