@@ -161,20 +161,20 @@ def _machines_dataset(
     *,
     episodes: int,
     seconds: float,
-    inertia_sigma: float,
+    spread: float,
     seed: int,
     column: int = 0,
     model: PPANN | None = None,
 ):
-    """Episodes of a known PPANN (constant networks) whose machine factor of term `column`
-    (0: inertia) is exp(eta) per episode, eta ~ N(0, inertia_sigma²), and a small white torque
+    """Episodes of a known PPANN (constant networks, `model`) whose machine factor of term
+    `column` (0: inertia) is exp(eta) per episode, eta ~ N(0, spread²), and a small white torque
     noise."""
     if model is None:
         model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
     heads = FusedHeads(model)
     rng = np.random.default_rng(seed)
     n = int(seconds / DT)
-    eta = rng.normal(0.0, inertia_sigma, episodes)
+    eta = rng.normal(0.0, spread, episodes)
     levels = np.repeat(rng.uniform(-6, 6, (episodes, n // 50 + 1)), 50, axis=1)[:, :n]
     tau = np.stack([np.convolve(row, np.ones(10) / 10, mode="same") for row in levels])
     noise = rng.normal(0.0, 0.02, (episodes, n))
@@ -206,24 +206,29 @@ def _machines_dataset(
 def fitted_line():
     """Phase 2 on a synthetic line whose 40 machines differ in inertia only (log-spread 0.15)."""
     spread = 0.15
-    dataset, truth_model, eta = _machines_dataset(
-        episodes=40, seconds=2.0, inertia_sigma=spread, seed=3
-    )
+    dataset, truth_model, eta = _machines_dataset(episodes=40, seconds=2.0, spread=spread, seed=3)
     # the sigma networks' initial weights come from torch's global generator, which the tests
     # before this one advance; unseeded, phase 2 here depended on the test order: on 1 of 40
     # initialisations it left the damping's machine σ at 0.001 where its profile NLL is 360
     # lower at 0.005, and the likelihood-ratio bound read off that profile was the grid's end
     torch.manual_seed(0)
-    model = PPANN(PPANNConfig(sigma_hidden=4))
+    model, split = _phase_two(truth_model, dataset, PPANNConfig(sigma_hidden=4))
+    machines = int(np.unique(dataset.episode[:split]).size)
+    return model, eta, machines
+
+
+def _phase_two(truth: PPANN, dataset: Dataset, config: PPANNConfig) -> tuple[PPANN, int]:
+    """A PPANN of `config` with `truth`'s mean networks and fresh sigma networks, phase 2 fitted
+    on `dataset`; and the first sample of its validation split."""
+    model = PPANN(config)
     model.load_state_dict(
-        {k: v for k, v in truth_model.state_dict().items() if not k.startswith("sigma_nets")}
+        {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
         | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
     )
-    config = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
-    splits = make_splits(dataset, config)
-    train_sigma(model, dataset, splits, config, history=History())
-    machines = int(np.unique(dataset.episode[: splits.split]).size)
-    return model, eta, machines
+    train = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
+    splits = make_splits(dataset, train)
+    train_sigma(model, dataset, splits, train, history=History())
+    return model, splits.split
 
 
 def test_machine_sigma_recovered_within_20_percent(fitted_line) -> None:
@@ -309,18 +314,11 @@ def test_a_damping_line_is_read_on_the_term_the_machines_scale(terms: str) -> No
         config=PPANNConfig(machine_terms="prior"),
     )
     dataset, truth, eta = _machines_dataset(
-        episodes=30, seconds=2.0, inertia_sigma=0.15, seed=5, column=1, model=truth
+        episodes=30, seconds=2.0, spread=0.15, seed=5, column=1, model=truth
     )
     torch.manual_seed(0)
-    model = PPANN(PPANNConfig(sigma_hidden=4, machine_terms=terms))
-    model.load_state_dict(
-        {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
-        | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
-    )
-    config = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
-    splits = make_splits(dataset, config)
-    train_sigma(model, dataset, splits, config, history=History())
-    present = np.unique(dataset.episode[: splits.split])
+    model, split = _phase_two(truth, dataset, PPANNConfig(sigma_hidden=4, machine_terms=terms))
+    present = np.unique(dataset.episode[:split])
     drawn = float(np.std(eta[present], ddof=1))
     expected = drawn if terms == "prior" else drawn / 1.5
     print(f"{terms}: drawn {drawn:.4f}, fitted {model.machine_sigma.tolist()}")
