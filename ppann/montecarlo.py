@@ -8,12 +8,16 @@ Modes (`MONTE_CARLO_MODES`):
   damping negative, and such a draw diverges; kept for comparison with the paper's text.
 - "machine": one machine per trajectory and no white noise: the inertia, damping and stiffness
   terms of eq. 14 are multiplied by exp(eta), eta ~ N(0, diag(machine_sigma^2)) drawn once per
-  trajectory (the per-episode spread fitted in phase 2, ppann/machine.py).
+  trajectory (the per-episode spread fitted in phase 2, ppann/machine.py); with
+  `PPANNConfig.machine_terms` "prior", exp(eta) - 1 is added to 1 + z instead, so that only the
+  prior's physical part of each term varies.
 - "mixed": "machine" and "step" together: each trajectory is a machine, and white noise acts on it
   at every step. With machine_sigma = 0 it equals "step" exactly (exp(0) = 1).
 
 The machine factors are log-normal, so a drawn machine's inertia, damping and stiffness keep the
-sign of the mean model's at any number of σ: no machine draw diverges.
+sign of the mean model's at any number of σ: no machine draw diverges. With "prior" the drawn
+prior part exp(eta) stays positive and the inertia keeps its floor (FusedHeads.acceleration); a
+term whose network correction z is below -1 is negative on the mean model already.
 
 Random numbers: the seed's SeedSequence spawns two children, white (eps) and machine (eta), so
 "mixed" uses exactly the white draws of "step" and the machine draws of "machine" (common random

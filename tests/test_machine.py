@@ -20,8 +20,12 @@ DT = 0.002
 TAU = np.concatenate([np.full(60, 4.0), np.full(60, -3.0), np.full(29, 1.0)])
 
 
-def _model(machine_sigma: tuple[float, float, float]) -> PPANN:
-    model = constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.05, 0.3, 0.2))
+def _model(machine_sigma: tuple[float, float, float], terms: str = "augmented") -> PPANN:
+    model = constant_ppann(
+        z_mean=(0.1, -0.2, -0.9),
+        z_sigma=(0.05, 0.3, 0.2),
+        config=PPANNConfig(machine_terms=terms),
+    )
     with torch.no_grad():
         model.machine_sigma.copy_(torch.tensor(machine_sigma, dtype=torch.float64))
     return model
@@ -70,11 +74,13 @@ def test_mixed_with_zero_white_sigma_equals_per_trajectory_machines() -> None:
     assert mixed.std[-1, 0] > 0.01  # the machines do differ
 
 
-def test_no_machine_draw_diverges_at_five_sigma() -> None:
-    """Log-normal factors keep inertia, damping and stiffness positive: ±5σ machines of a wide
-    spread (0.2 in log, 7× the paper twin's) stay finite and bounded over 1000 steps. (Forward
-    Euler itself needs 2 J / B > dt; at 5σ of 0.2, J / B is 5.5 ms against dt = 2 ms.)"""
-    model = _model((0.2, 0.2, 0.2))
+@pytest.mark.parametrize("terms", ["augmented", "prior"])
+def test_no_machine_draw_diverges_at_five_sigma(terms: str) -> None:
+    """Log-normal factors keep inertia, damping and stiffness positive ("prior": their prior
+    parts): ±5σ machines of a wide spread (0.2 in log, 7× the paper twin's) stay finite and
+    bounded over 1000 steps. (Forward Euler itself needs 2 J / B > dt; at 5σ of 0.2, J / B is
+    5.5 ms against dt = 2 ms.)"""
+    model = _model((0.2, 0.2, 0.2), terms)
     heads = FusedHeads(model)
     corners = np.array([[s1, s2, s3] for s1 in (-5, 5) for s2 in (-5, 5) for s3 in (-5, 5)])
     factors = np.exp(corners * heads.machine_sigma)
