@@ -23,7 +23,7 @@ import numpy as np
 from control.ocp_file import read_ocp
 from twin.dataset import Dataset
 from twin.mcap_dataset import read_dataset, read_model_xml, read_run, write_dataset
-from twin.physics import SliderCrank
+from twin.physics import SAMPLE_RATE, SliderCrank
 from twin.stepping import simulate
 from twin.variability import Variability
 
@@ -65,7 +65,7 @@ def plan_episodes(dataset_path: str, ocp_path: str, episodes: int, dither: float
     }
     episode = np.concatenate([np.repeat(np.arange(episodes), n), base.episode + episodes])
     merged = Dataset(
-        t=np.arange(len(episode)) / 500.0,
+        t=np.arange(len(episode)) / SAMPLE_RATE,
         episode=episode,
         **{k: np.concatenate([v, getattr(base, k)]) for k, v in added.items()},
     )

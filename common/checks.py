@@ -1,4 +1,5 @@
-"""Value checks shared by every config: finite numbers and non-negative integer seeds."""
+"""Value checks shared by every config: finite numbers, non-negative integer seeds, counts and
+named choices."""
 
 from __future__ import annotations
 
@@ -50,3 +51,11 @@ def check_count(
     ):
         bound = f"{low}..{high}" if high is not None else f">= {low}"
         raise error(f"{name} must be an integer {bound}, got {value!r}")
+
+
+def check_choice(
+    name: str, value: object, choices: tuple[str, ...], *, error: type[Exception] = ConfigError
+) -> None:
+    """Raise `error` unless `value` is one of `choices`."""
+    if value not in choices:
+        raise error(f"{name} must be one of {', '.join(choices)}, got {value!r}")

@@ -7,7 +7,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from common.checks import check_count, check_finite, check_seed
+from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
 from ppann.confidence import DEFAULT_CONFIDENCE
 from ppann.modes import check_mode
@@ -162,15 +162,8 @@ class OCPConfig:
                 f"profiles must be distinct names among {', '.join(ROBUST_PROFILES)}, "
                 f"got {', '.join(self.profiles) or 'none'}"
             )
-        if self.margin_scheme not in MARGIN_SCHEMES:
-            raise OCPConfigError(
-                f"margin_scheme must be one of {', '.join(MARGIN_SCHEMES)}, "
-                f"got {self.margin_scheme!r}"
-            )
-        if self.tightening not in TIGHTENINGS:
-            raise OCPConfigError(
-                f"tightening must be one of {', '.join(TIGHTENINGS)}, got {self.tightening!r}"
-            )
+        check_choice("margin_scheme", self.margin_scheme, MARGIN_SCHEMES, error=OCPConfigError)
+        check_choice("tightening", self.tightening, TIGHTENINGS, error=OCPConfigError)
         check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
         tail = lower_tail(self.k_sigma)
         needed = GAUSSIAN_SAMPLES

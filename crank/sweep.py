@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from common.atomic import atomic_path
+from common.checks import check_choice
 from common.errors import ConfigError, CrankError, NoSolutionError
 from common.jsonio import write_json
 from crank import stages
@@ -42,8 +43,7 @@ COMMAND = "crank sweep"
 
 def check_executor(executor: str) -> None:
     """Refuse an executor that is not one of EXECUTORS (ConfigError)."""
-    if executor not in EXECUTORS:
-        raise ConfigError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    check_choice("executor", executor, EXECUTORS)
 
 
 def run_node(node: Node, out: str | Path, *ancestors: dict[str, Any]) -> dict[str, Any]:

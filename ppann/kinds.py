@@ -13,6 +13,7 @@ from typing import Any
 
 import torch
 
+from common.checks import check_choice
 from common.errors import CrankError
 from ppann.baselines import BlackBox, BlackBoxConfig
 from ppann.model import PPANN, PPANNConfig
@@ -52,6 +53,5 @@ KINDS: tuple[str, ...] = tuple(MODEL_KINDS)
 
 
 def model_kind(kind: str) -> ModelKind:
-    if kind not in MODEL_KINDS:
-        raise ModelKindError(f"model kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    check_choice("model kind", kind, KINDS, error=ModelKindError)
     return MODEL_KINDS[kind]

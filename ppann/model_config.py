@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from common.checks import check_finite
+from common.checks import check_choice, check_finite
 from common.errors import CrankError
 
 MACHINE_TERMS = ("augmented", "prior")
@@ -65,11 +65,7 @@ class PPANNConfig:
         for name in ("mean_hidden", "sigma_hidden"):
             if getattr(self, name) < 1:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.machine_terms not in MACHINE_TERMS:
-            raise ModelConfigError(
-                f"machine_terms must be one of {', '.join(MACHINE_TERMS)}, "
-                f"got {self.machine_terms!r}"
-            )
+        check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=ModelConfigError)
         if self.sigma_wrap and self.sigma_speed:
             raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from common.checks import check_choice
+
 
 @dataclass(frozen=True)
 class DrawMode:
@@ -27,5 +29,4 @@ MODES: tuple[str, ...] = tuple(MONTE_CARLO_MODES)
 
 
 def check_mode(mode: str, *, error: type[Exception] = ValueError) -> None:
-    if mode not in MONTE_CARLO_MODES:
-        raise error(f"Monte-Carlo mode must be one of {', '.join(MODES)}, got {mode!r}")
+    check_choice("Monte-Carlo mode", mode, MODES, error=error)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from common.checks import check_count, check_finite, check_seed
+from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
 from ppann.model_config import MACHINE_TERMS
 
@@ -90,16 +90,8 @@ class TrainConfig:
         check_seed("seed", self.seed, error=TrainConfigError)
         if not 0 < self.lr_decay <= 1:
             raise TrainConfigError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
-        if self.early_stopping not in EARLY_STOPPING:
-            raise TrainConfigError(
-                f"early_stopping must be one of {', '.join(EARLY_STOPPING)}, "
-                f"got {self.early_stopping!r}"
-            )
-        if self.machine_terms not in MACHINE_TERMS:
-            raise TrainConfigError(
-                f"machine_terms must be one of {', '.join(MACHINE_TERMS)}, "
-                f"got {self.machine_terms!r}"
-            )
+        check_choice("early_stopping", self.early_stopping, EARLY_STOPPING, error=TrainConfigError)
+        check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=TrainConfigError)
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"

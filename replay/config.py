@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from common.checks import check_count, check_finite, check_seed
+from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
 from common.resources import check_memory
 from control.config import PD_GAINS
@@ -81,10 +81,7 @@ class ReplayConfig:
         check_seed("seed", self.seed, error=ReplayConfigError)
         for name in ("kp", "kd", "max_start_time"):
             check_finite(name, getattr(self, name), nonneg=True, error=ReplayConfigError)
-        if self.feedback not in FEEDBACKS:
-            raise ReplayConfigError(
-                f"feedback must be one of {', '.join(FEEDBACKS)}, got {self.feedback!r}"
-            )
+        check_choice("feedback", self.feedback, FEEDBACKS, error=ReplayConfigError)
         if not self.modes or any(m not in MODES for m in self.modes):
             raise ReplayConfigError(
                 f"modes must be a non-empty subset of {MODES}, got {self.modes}"
