@@ -300,11 +300,10 @@ def test_prior_machine_terms_shift_z_by_the_factor_minus_one() -> None:
             - b * (1 + expected_z[:, 1]) * scale[:, 1] * omega
             - k * (1 + expected_z[:, 2]) * scale[:, 2] * angle
         ) / (j * (1 + expected_z[:, 0]) * scale[:, 0])
-        torch_prior = model.acceleration(
-            torch.tensor(theta), torch.tensor(omega), torch.tensor(tau), torch.tensor(expected_z)
-        ).numpy()
         np.testing.assert_allclose(got, reference, rtol=1e-12)
-        if terms == "prior":
+        if terms == "prior":  # eq. 14 itself, in torch, at the shifted z
+            inputs = (torch.tensor(v) for v in (theta, omega, tau, expected_z))
+            torch_prior = model.acceleration(*inputs).numpy()
             np.testing.assert_allclose(got, torch_prior, rtol=1e-12)
 
 
