@@ -37,6 +37,8 @@ STREAMS: dict[str, str] = {
     "replay_noise": "slider disturbance of the campaign replays",
     "heldout_machines": "held-out machines and their start times",
     "heldout_noise": "slider disturbance of the held-out replays",
+    "plan_machines": "machines of the plan round's added episodes and their start times",
+    "plan_noise": "torque scale, dither and slider disturbance of the plan round's episodes",
     "transmission": "the crank's angle to the motor in the Monte-Carlo's slider positions",
 }
 """Every stream the project draws from, with what it is for."""

@@ -38,6 +38,7 @@ from twin.excitation import Excitation
 from twin.generation import check_generation_memory
 from twin.mcap_dataset import read_run
 from twin.physics import SliderCrank, load_model, model_sha256
+from twin.plan_config import PlanConfig
 from twin.variability import Variability
 
 
@@ -54,6 +55,9 @@ class RunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     ocp: OCPConfig = field(default_factory=OCPConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
+    """The plan round: train, solve, play the torque on fresh machines, train and solve again
+    with those episodes (twin/plan_data.py); none by default."""
     heldout_runs: int = 0
     """Machines of the held-out check (every profile, in `heldout_modes`); 0 skips it."""
     heldout_seed: int = 0
@@ -94,6 +98,7 @@ class RunConfig:
         train: dict[str, Any] | None = None,
         ocp: dict[str, Any] | None = None,
         replay: dict[str, Any] | None = None,
+        plan: dict[str, Any] | None = None,
         **options: Any,
     ) -> RunConfig:
         """Stage configs from their defaults, `seed` as every stage's root seed, and the
@@ -113,6 +118,7 @@ class RunConfig:
                     "variability": gen.variability,
                 }
             ),
+            plan=PlanConfig(**(plan or {})),
             **options,
         )
 
@@ -158,6 +164,7 @@ class RunConfig:
                 train=TrainConfig(**train),
                 ocp=OCPConfig(**values["ocp"]),
                 replay=ReplayConfig(**rep),
+                plan=PlanConfig(**values.get("plan", {})),  # runs of before the plan round
                 **options,
             )
         except KeyError as exc:
@@ -261,16 +268,39 @@ def run_chain(
     dataset = stage_result(
         "generate", "generating the dataset", lambda: stages.generate(config, run_dir, hooks=hooks)
     )
+    rounds = bool(config.plan.episodes)
+    first = run_dir / stages.FIRST_ROUND if rounds else run_dir
     trained = stage_result(
         "train",
-        "training the PPANN" + (" and its baselines" if config.baselines else ""),
-        lambda: stages.train(config, run_dir / stages.DATASET, run_dir, hooks=hooks),
+        "training the PPANN" + (" and its baselines" if config.baselines and not rounds else ""),
+        lambda: stages.train(
+            config, run_dir / stages.DATASET, first, hooks=hooks, baselines=not rounds
+        ),
     )
     solved = stage_result(
         "solve",
         "solving the nominal and robust OCP",
-        lambda: stages.solve(config, run_dir / stages.MODEL, run_dir, hooks=hooks),
+        lambda: stages.solve(config, first / stages.MODEL, first, hooks=hooks),
     )
+    round_record = None
+    if rounds:
+        planned = stage_result(
+            "plan",
+            f"playing the plan on {config.plan.episodes} fresh machines",
+            lambda: stages.plan(config, run_dir / stages.DATASET, first / stages.OCP, run_dir),
+        )
+        round_record = {"first_solve": solved, "plan": planned}
+        trained = stage_result(
+            "train_plan",
+            "training again with the plan's episodes"
+            + (" and the baselines" if config.baselines else ""),
+            lambda: stages.train(config, run_dir / stages.PLAN_DATASET, run_dir, hooks=hooks),
+        )
+        solved = stage_result(
+            "solve_plan",
+            "solving the nominal and robust OCP again",
+            lambda: stages.solve(config, run_dir / stages.MODEL, run_dir, hooks=hooks),
+        )
     stats = stage_result(
         "replay",
         "replaying on the twin",
@@ -294,6 +324,7 @@ def run_chain(
         solved=solved,
         stats=stats,
         checked=checked,
+        plan_round=round_record,
         seconds=steps,
         estimated={name: span.as_list() for name, span in estimate.items()},
     )

@@ -83,6 +83,13 @@ def run_command(
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
+    plan_episodes: Annotated[
+        int,
+        typer.Option(
+            help="The plan round: play the first solve's robust torque on this many fresh "
+            "machines, add their episodes to the data, train and solve again; 0: none."
+        ),
+    ] = 0,
     model: ModelPath = MODEL_PATH,
     resume: Annotated[
         Path | None,
@@ -137,6 +144,7 @@ FLAG_KEYS = {
     "heldout_runs": ("heldout_runs",),
     "heldout_seed": ("heldout_seed",),
     "model": ("model",),
+    "plan_episodes": ("plan", "episodes"),
 }
 """Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
 

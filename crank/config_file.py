@@ -4,10 +4,11 @@ The file is TOML with the shape of `defaults()` (print it with `crank config --s
 `seed`, `heldout_runs`, `heldout_seed`, `model`, `baselines`, and one table per stage —
 `[generation]` (with `variability`, a scenario name or a range file, `drift`, and
 `[generation.excitation]`), `[train]`, `[ocp]` (any constraint samples, the robust loop's
-settings) and `[replay]`. Every key is optional; a key the defaults do not have, or a value of
-another type, is refused naming the key. The stages' seeds are the root `seed` (one seed for the
-chain, crank/chain.py). Values resolve as defaults ← file ← command-line flags given explicitly;
-the resolved configuration is what the run folder's config.json holds.
+settings), `[replay]` and `[plan]` (the plan round, twin/plan_data.py). Every key is optional;
+a key the defaults do not have, or a value of another type, is refused naming the key. The
+stages' seeds are the root `seed` (one seed for the chain, crank/chain.py). Values resolve as
+defaults ← file ← command-line flags given explicitly; the resolved configuration is what the
+run folder's config.json holds.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from replay.config import ReplayConfig
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.excitation import Excitation
+from twin.plan_config import PlanConfig
 from twin.variability import Variability
 
 if TYPE_CHECKING:
@@ -65,6 +67,7 @@ def defaults() -> dict[str, Any]:
             **_field_defaults(ReplayConfig, skip=(SEEDED["replay"], "variability")),
             "mpc": _field_defaults(MPCConfig),
         },
+        "plan": _field_defaults(PlanConfig),
     }
 
 
@@ -174,6 +177,7 @@ def build(values: dict[str, Any], *, source: str = "config") -> RunConfig:
             train=values["train"],
             ocp=values["ocp"],
             replay=replay,
+            plan=values["plan"],
             heldout_runs=values["heldout_runs"],
             heldout_seed=values["heldout_seed"],
             model_path=values["model"],

@@ -12,8 +12,10 @@ estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
+
+from twin.physics import SAMPLE_RATE
 
 if TYPE_CHECKING:
     from crank.chain import RunConfig
@@ -116,11 +118,24 @@ def run_time(config: RunConfig) -> dict[str, Span]:
     """Per stage of `crank run`, and "total"."""
     horizon = config.ocp.horizon
     profiles = 1 + len(config.ocp.profiles)
+    solve = solve_time(horizon=horizon, mc_samples=config.ocp.mc_samples) * len(config.ocp.profiles)
+    rounds = config.plan.episodes > 0
     stages = {
         "generate": generate_time(config.generation),
-        "train": train_time(config.train, config.generation, baselines=config.baselines),
-        "solve": solve_time(horizon=horizon, mc_samples=config.ocp.mc_samples)
-        * len(config.ocp.profiles),
+        "train": train_time(
+            config.train, config.generation, baselines=config.baselines and not rounds
+        ),
+        "solve": solve,
+    }
+    if rounds:
+        added = config.plan.episodes * horizon / SAMPLE_RATE  # seconds of data the round adds
+        merged = replace(config.generation, seconds=config.generation.seconds + added)
+        stages |= {
+            "plan": generate_time(replace(config.generation, seconds=added)),
+            "train_plan": train_time(config.train, merged, baselines=config.baselines),
+            "solve_plan": solve,
+        }
+    stages |= {
         "replay": replay_time(
             runs=config.replay.runs,
             modes=len(config.replay.modes),

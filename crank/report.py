@@ -169,6 +169,7 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         *_rows("Dataset", report["dataset"]),
         *_rows("PPANN", train_summary(report["ppann"])),
         *_rows("OCP", report["ocp"]),
+        *_plan_rows(report.get("plan_round")),
         *_rows("Wall time [s] (estimated beforehand)", _wall(report)),
         "## Figures",
         "",
@@ -187,6 +188,15 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "- `replay.rrd`: the same for the Rerun viewer (`crank view replay.rrd`)",
         "- `replay.stats.json`: the statistics above, per sample",
         "- `heldout.json`: the held-out check and calibration (if run)",
+        *(
+            [
+                "- `plan.mcap`: the dataset after the plan round's episodes (what model.pt "
+                "learnt from)",
+                "- `round-0/`: the first model and solve, whose torque the round played",
+            ]
+            if report.get("plan_round")
+            else []
+        ),
         "",
         f"Reproduce with `{_rerun_args(config.get('argv', []))}` (same seed, same "
         "numbers; `--name` for another folder name).",
@@ -309,6 +319,20 @@ def write_markdown(path: str | Path, report: dict[str, Any], *, stats: dict[str,
     text = markdown(report, stats=stats, run_dir=path.parent)
     with atomic_path(path) as tmp:
         Path(tmp).write_text(text)
+
+
+def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
+    """The plan round's section: what was played, on how many machines, and the first solve."""
+    if plan_round is None:
+        return []
+    plan = plan_round["plan"]
+    played = {
+        "played": f"the first solve's {plan['played']['profile']} torque (round-0/ocp.json), "
+        f"dither {plan['dither']:g} N·m, on {plan['episodes']} fresh machines",
+        "samples added": f"{plan['samples_added']} (dataset after the round: {plan['samples']})",
+    }
+    first = {f"first solve: {k}": v for k, v in plan_round["first_solve"].items()}
+    return _rows("Plan round (the model and OCP above are its second round)", played | first)
 
 
 def _wall(report: dict[str, Any]) -> dict[str, str]:

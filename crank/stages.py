@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from common.jsonio import write_json
+from control.ocp_file import read_ocp
 from control.solve import solve_file
 from crank.report import solve_summary, write_markdown
 from ppann.pipeline import train_and_report
@@ -19,6 +20,8 @@ from replay.files import output_paths, replay_file
 from replay.heldout import heldout_file
 from replay.statistics import summary_rows
 from twin.generation import generate_file
+from twin.physics import SliderCrank, load_model
+from twin.plan_data import plan_dataset_file
 
 if TYPE_CHECKING:
     from crank.chain import Hooks, RunConfig
@@ -28,6 +31,9 @@ MODEL = "model.pt"
 OCP = "ocp.json"
 REPLAY = "replay.mcap"
 HELDOUT = "heldout.json"
+PLAN_DATASET = "plan.mcap"
+FIRST_ROUND = "round-0"
+"""The folder of the first model and solve of a chain with a plan round."""
 
 
 def generate(config: RunConfig, out: Path, *, hooks: Hooks) -> dict[str, Any]:
@@ -41,13 +47,16 @@ def generate(config: RunConfig, out: Path, *, hooks: Hooks) -> dict[str, Any]:
     )
 
 
-def train(config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
-    """The PPANN (and baselines if asked) trained on `dataset`: `out`/model.pt and its report."""
+def train(
+    config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks, baselines: bool = True
+) -> dict[str, Any]:
+    """The PPANN (and baselines if asked, and not turned off by `baselines`) trained on
+    `dataset`: `out`/model.pt and its report."""
     return train_and_report(
         dataset,
         out / MODEL,
         config=config.train,
-        baselines=config.baselines,
+        baselines=config.baselines and baselines,
         on_epoch=hooks.on_epoch,
         on_trained=hooks.on_trained,
         on_stage=hooks.on_stage,
@@ -57,6 +66,27 @@ def train(config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks) -> dict[
 def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
     """The nominal and robust OCP of `config.ocp` on `model`: `out`/ocp.json and its figures."""
     return solve_file(model, out / OCP, config=config.ocp, on_iteration=hooks.on_iteration)
+
+
+def plan(config: RunConfig, dataset: Path, ocp: Path, out: Path) -> dict[str, Any]:
+    """`dataset` with `config.plan.episodes` episodes of `ocp`'s torque on fresh machines:
+    `out`/plan.mcap. The torque is the open-loop robust profile's, or the nominal one's when the
+    OCP asks for no open-loop robust profile or has none (refused)."""
+    solved = read_ocp(ocp)
+    name = "robust" if "robust" in solved.profiles else "nominal"
+    profile = solved.profiles[name]
+    physics = SliderCrank(load_model(config.model_path)[0])
+    return plan_dataset_file(
+        dataset,
+        out / PLAN_DATASET,
+        tau=profile.tau[:-1],
+        theta0=float(profile.theta[0]),
+        omega0=float(profile.omega[0]),
+        config=config.plan,
+        seed=config.seed,
+        physics=physics,
+        played={"ocp": str(ocp), "profile": name},
+    )
 
 
 def replay(
@@ -108,6 +138,7 @@ def write_report(
     stats: dict[str, Any],
     checked: dict[str, Any] | None,
     seconds: dict[str, float],
+    plan_round: dict[str, Any] | None = None,
     estimated: dict[str, list[float]],
 ) -> dict[str, Any]:
     """`out`/report.json and report.md from what the stages returned; returns report.json's
@@ -126,6 +157,13 @@ def write_report(
             "stats": output_paths(out / REPLAY)["stats"].name,
         },
         "heldout": checked,
+        "plan_round": None
+        if plan_round is None
+        else {
+            "plan": plan_round["plan"],
+            "first_solve": solve_summary(plan_round["first_solve"]),
+            "first_refused": plan_round["first_solve"]["refused"],
+        },
         "wall_seconds": seconds,
         "estimated_seconds": estimated,
     }

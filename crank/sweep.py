@@ -111,10 +111,16 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
     if node.kind == "model":
         return stages.train(config, made["data"] / stages.DATASET, here, hooks=hooks)
     if node.kind == "solve":
+        if config.plan.episodes:
+            return _solve_with_plan(config, made, here, hooks=hooks)
         return stages.solve(config, made["model"] / stages.MODEL, here, hooks=hooks)
-    ocp, model = made["solve"] / stages.OCP, made["model"] / stages.MODEL
-    resolved = config.resolved(command=COMMAND, argv=[])
     data, trained, solved = (a["summary"] for a in ancestors)
+    solved = dict(solved)  # a solve's result may be shared by several leaves: not changed
+    plan_round = solved.pop("plan_round", None)
+    ocp, model = made["solve"] / stages.OCP, made["model"] / stages.MODEL
+    if plan_round is not None:  # the solve step trained the model its torque is of
+        model, trained = made["solve"] / stages.MODEL, plan_round["trained"]
+    resolved = config.resolved(command=COMMAND, argv=[])
     seconds = {
         k: a["seconds"] for k, a in zip(("generate", "train", "solve"), ancestors, strict=True)
     }
@@ -135,10 +141,25 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
         solved=solved,
         stats=stats,
         checked=checked,
+        plan_round=plan_round,
         seconds=seconds,
         estimated={name: span.as_list() for name, span in run_time(config).items()},
     )
     return {"report": "report.json", "claim": report["replay"]["claim"]}
+
+
+def _solve_with_plan(
+    config: Any, made: dict[str, Path], here: Path, *, hooks: Hooks
+) -> dict[str, Any]:
+    """A solve step with the plan round (crank/chain.py): the model step's model solved into
+    `here`/round-0/, its torque played on fresh machines (plan.mcap), a model trained on those
+    episodes and the dataset, and solved; its summary carries the round's under "plan_round"."""
+    first = here / stages.FIRST_ROUND
+    solved = stages.solve(config, made["model"] / stages.MODEL, first, hooks=hooks)
+    planned = stages.plan(config, made["data"] / stages.DATASET, first / stages.OCP, here)
+    trained = stages.train(config, here / stages.PLAN_DATASET, here, hooks=hooks)
+    final = stages.solve(config, here / stages.MODEL, here, hooks=hooks)
+    return final | {"plan_round": {"first_solve": solved, "plan": planned, "trained": trained}}
 
 
 def _torch_threads() -> int | None:

@@ -32,7 +32,11 @@ def disk_estimate(nodes: list[Node]) -> float:
 def time_estimate(nodes: list[Node]) -> Span:
     """Seconds the steps of `nodes` take one after another on an idle machine (crank.estimate:
     a data step is a run's generate stage, a model step its train stage, and so on)."""
-    stage_of = {"data": ("generate",), "model": ("train",), "solve": ("solve",)}
+    stage_of = {
+        "data": ("generate",),
+        "model": ("train",),
+        "solve": ("solve", "plan", "train_plan", "solve_plan"),
+    }
     total = Span(0.0, 0.0)
     for node in nodes:
         times = run_time(node.config)

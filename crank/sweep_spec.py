@@ -181,6 +181,8 @@ def node_key(kind: str, config: RunConfig) -> str:
         parts |= {"train": values["train"], "baselines": values["baselines"]}
     if KINDS.index(kind) >= 2:
         parts["ocp"] = values["ocp"]
+        if config.plan.episodes:  # keys of sweeps without the round stay what they were
+            parts["plan"] = values["plan"]
     if KINDS.index(kind) >= 3:
         parts |= {k: values[k] for k in ("replay", "heldout_runs", "heldout_seed")}
     text = json.dumps(parts, sort_keys=True, default=str)

@@ -35,6 +35,8 @@ RANGES = {
     "cfg_old": '[ocp]\nfeedback = "lqr"\n',
     "cfg_stop": '[train]\nearly_stopping = "best"\n',
     "cfg_terms": '[train]\nmachine_terms = "whole"\n',
+    "cfg_plan": "[plan]\ndither = nan\n",
+    "cfg_plan_many": "[plan]\nepisodes = 20000\n",
     "cfg_type": "[ocp]\nhorizon = 'x'\n",
     "cfg_range": "[ocp]\nhorizon = 2\n",
     "cfg_pd": '[ocp]\nprofiles = ["robust-pd"]\npd_kp = 30.0\n',
@@ -388,6 +390,9 @@ CASES: list[tuple[str, str]] = [
     ("config --config {cfg_range.toml}", "horizon must be >= 3 samples"),
     ("run --logs L --config {cfg_stop.toml}", "early_stopping must be one of tail, machines"),
     ("run --logs L --config {cfg_terms.toml}", "machine_terms must be one of augmented, prior"),
+    ("run --logs L --config {cfg_plan.toml}", "plan.dither must be a finite number, got nan"),
+    ("run --logs L --config {cfg_plan_many.toml}", "plan.episodes must be an integer 0..10000"),
+    ("run --logs L --plan-episodes -3", "plan.episodes must be an integer 0..10000, got -3"),
     ("config --config {text.txt}", "is not TOML"),
     # --- study ---
     ("study --out S --seeds ''", "--seeds takes a range like 0-9"),

@@ -1,0 +1,213 @@
+"""The plan round (twin/plan_data.py, `[plan] episodes`): the planned torque's episodes on fresh
+machines come first in a dataset that otherwise is the old one bit for bit, drawn from streams of
+their own and reproducible under the seed; the chain trains and solves twice and records both."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.errors import ConfigError
+from common.jsonio import without_wall_clock
+from control.ocp_file import read_ocp
+from crank.chain import Hooks, RunConfig, run_chain
+from crank.estimate import run_time
+from crank.sweep import run_sweep
+from crank.sweep_spec import leaves_of, node_key
+from tests.test_chain import SHORT
+from tests.test_sweep import SPEC as SWEEP_SPEC
+from twin.mcap_dataset import read_dataset, read_run
+from twin.physics import SliderCrank
+from twin.plan_config import PlanConfig
+from twin.plan_data import plan_dataset_file, plan_torques
+
+EPISODES = 6
+PLANNED = replace(
+    SHORT,  # a 12 s model with a small, uncorrected margin: a robust torque to play
+    ocp=replace(SHORT.ocp, profiles=("robust",)),
+    replay=replace(SHORT.replay, modes=("open",)),
+    heldout_seed=5,
+    plan=PlanConfig(episodes=EPISODES),
+)
+SPEC = (
+    SWEEP_SPEC
+    + f"""
+[grid]
+seed = [0]
+heldout_seed = [5]
+"ocp.profiles" = [["robust"]]
+"replay.modes" = [["open"]]
+"plan.episodes" = [{EPISODES}]
+"""
+)
+
+
+@pytest.fixture(scope="module")
+def planned_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list[str]]:
+    run_dir = tmp_path_factory.mktemp("plan") / "run"
+    stages: list[str] = []
+    report = run_chain(PLANNED, run_dir, argv=[], hooks=Hooks(on_stage=stages.append))
+    return run_dir, report, stages
+
+
+def test_plan_torques_scale_dither_and_clip() -> None:
+    rng = np.random.default_rng(1)
+    tau = np.linspace(-1.0, 1.0, 50)
+    plain = plan_torques(tau, episodes=200, dither=0.0, limit=10.0, rng=rng)
+    scale = plain[:, -1] / tau[-1]
+    np.testing.assert_allclose(plain, scale[:, None] * tau[None, :], rtol=1e-12)
+    assert scale.min() >= 0.9 and scale.max() <= 1.1 and scale.std() > 0.05
+    noise = plan_torques(np.zeros(400), episodes=400, dither=0.3, limit=10.0, rng=rng)
+    assert noise.std() == pytest.approx(0.3, rel=0.02)  # 160 000 draws: se 0.2 %
+    lag1 = np.mean(noise[:, 1:] * noise[:, :-1]) / noise.var()
+    assert lag1 == pytest.approx(0.9, abs=0.02)  # a 10-sample box: 9/10 overlap
+    clipped = plan_torques(np.full(20, 5.0), episodes=10, dither=0.3, limit=3.5, rng=rng)
+    assert clipped.max() == 3.5
+
+
+def test_chain_trains_and_solves_twice_and_records_the_round(planned_run) -> None:
+    run_dir, report, stages = planned_run
+    chain = [
+        "generating the dataset",
+        "training the PPANN",
+        "solving the nominal and robust OCP",
+        f"playing the plan on {EPISODES} fresh machines",
+        "training again with the plan's episodes",
+        "solving the nominal and robust OCP again",
+        "replaying on the twin",
+    ]
+    assert [s for s in stages if s in chain] == chain  # in this order, each once
+    for name in ("model.pt", "ocp.json"):
+        assert (run_dir / "round-0" / name).is_file() and (run_dir / name).is_file()
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["plan"] == {"episodes": EPISODES, "dither": 0.3}
+    assert RunConfig.from_dict(config) == PLANNED
+    first = read_ocp(run_dir / "round-0" / "ocp.json")
+    played = report["plan_round"]["plan"]["played"]
+    assert played["profile"] == "robust" and "robust" in first.profiles
+    cost = report["plan_round"]["first_solve"]["robust cost"]
+    assert cost.startswith(f"{first.profiles['robust'].cost:.6g} ")
+    # the final model learnt from the merged data: its training saw more samples
+    base = read_dataset(run_dir / "dataset.mcap")
+    merged = read_dataset(run_dir / "plan.mcap")
+    n = PLANNED.ocp.horizon - 1  # the torques of samples 1..N-1 take the plan to sample N
+    assert len(merged.t) == len(base.t) + EPISODES * n
+    assert report["ppann"]["dataset"]["n_samples"] == len(merged.t)
+    text = (run_dir / "report.md").read_text()
+    assert "## Plan round (the model and OCP above are its second round)" in text
+    assert f"on {EPISODES} fresh machines" in text and "`round-0/`" in text
+
+
+def test_plan_data_is_the_dataset_after_the_plan_episodes(planned_run) -> None:
+    run_dir, _, _ = planned_run
+    base = read_dataset(run_dir / "dataset.mcap")
+    merged = read_dataset(run_dir / "plan.mcap")
+    profile = read_ocp(run_dir / "round-0" / "ocp.json").profiles["robust"]
+    n = len(profile.tau) - 1
+    added = EPISODES * n
+    for name in ("theta", "omega", "tau", "slider_position"):
+        np.testing.assert_array_equal(getattr(merged, name)[added:], getattr(base, name))
+    np.testing.assert_array_equal(merged.episode[added:], base.episode + EPISODES)
+    np.testing.assert_array_equal(merged.episode[:added], np.repeat(np.arange(EPISODES), n))
+    # each added episode starts where the plan starts and is driven by the plan's torque
+    first = merged.theta[:added].reshape(EPISODES, n)[:, 0]
+    np.testing.assert_allclose(first, profile.theta[0], atol=1e-6)
+    tau = merged.tau[:added].reshape(EPISODES, n)
+    assert np.all(np.abs(tau - profile.tau[None, :n]) <= 0.1 * np.abs(profile.tau[:n]) + 1.5)
+    run = read_run(run_dir / "plan.mcap")
+    machines = [e["machine"] for e in run["episodes"] if e.get("plan_episode")]
+    trained_on = [e["machine"] for e in read_run(run_dir / "dataset.mcap")["episodes"]]
+    assert len(machines) == EPISODES and not any(m in trained_on for m in machines)
+    assert run["plan_round"]["streams"]["streams"].keys() == {"plan_machines", "plan_noise"}
+
+
+def test_plan_data_is_reproducible_and_the_seed_changes_it(planned_run, tmp_path: Path) -> None:
+    run_dir, _, _ = planned_run
+    profile = read_ocp(run_dir / "round-0" / "ocp.json").profiles["robust"]
+    made = {}
+    for name, seed in (("a", 0), ("b", 0), ("c", 1)):
+        plan_dataset_file(
+            run_dir / "dataset.mcap",
+            tmp_path / f"{name}.mcap",
+            tau=profile.tau[:-1],
+            theta0=float(profile.theta[0]),
+            omega0=float(profile.omega[0]),
+            config=PlanConfig(episodes=EPISODES),
+            seed=seed,
+            physics=SliderCrank(),
+            played={},
+        )
+        made[name] = read_dataset(tmp_path / f"{name}.mcap")
+    np.testing.assert_array_equal(made["a"].slider_position, made["b"].slider_position)
+    np.testing.assert_array_equal(
+        made["a"].slider_position, read_dataset(run_dir / "plan.mcap").slider_position
+    )
+    assert not np.array_equal(made["a"].tau, made["c"].tau)
+
+
+def test_plan_round_refuses_no_episodes_and_bad_torque(tmp_path: Path, planned_run) -> None:
+    run_dir, _, _ = planned_run
+    options = dict(theta0=0.0, omega0=0.0, seed=0, physics=SliderCrank(), played={})
+    with pytest.raises(ConfigError, match=r"plan\.episodes >= 1"):
+        plan_dataset_file(
+            run_dir / "dataset.mcap",
+            tmp_path / "x.mcap",
+            tau=np.zeros(5),
+            config=PlanConfig(),
+            **options,
+        )
+    with pytest.raises(ConfigError, match="finite sequence"):
+        plan_dataset_file(
+            run_dir / "dataset.mcap",
+            tmp_path / "x.mcap",
+            tau=np.array([0.0, np.nan]),
+            config=PlanConfig(episodes=2),
+            **options,
+        )
+    assert not (tmp_path / "x.mcap").exists()
+    with pytest.raises(ConfigError, match=r"plan\.dither must be in"):
+        PlanConfig(episodes=2, dither=-0.1)
+
+
+def test_estimate_and_sweep_keys_know_the_round() -> None:
+    without = RunConfig.for_seed(0)
+    with_round = RunConfig.for_seed(0, plan={"episodes": 240})
+    assert "plan" not in run_time(without)
+    times = run_time(with_round)
+    assert {"plan", "train_plan", "solve_plan"} <= set(times)
+    assert times["train_plan"].low > times["train"].low  # more data, and the baselines
+    assert times["total"].low > run_time(without)["total"].low
+    for kind in ("data", "model"):
+        assert node_key(kind, without) == node_key(kind, with_round)
+    assert node_key("solve", without) != node_key("solve", with_round)
+
+
+def test_a_sweep_leaf_with_the_round_is_the_chain(planned_run, tmp_path: Path) -> None:
+    """The sweep runs the round inside its solve step: the leaf checks the same torque of the
+    same retrained model on the same held-out machines as the chain."""
+    run_dir, _, _ = planned_run
+    (tmp_path / "spec.toml").write_text(SPEC)
+    (leaf,) = leaves_of(tomllib.loads(SPEC), source="spec")
+    assert leaf.config == PLANNED
+    sweep = run_sweep(tmp_path / "spec.toml", tmp_path / "out", executor="sequential")
+    (row,) = sweep["rows"]
+    assert not row.get("error")
+    solve = tmp_path / "out" / "solve" / row["solve_key"]
+    assert (solve / "round-0" / "ocp.json").is_file() and (solve / "plan.mcap").is_file()
+    plans = [without_wall_clock(json.loads((d / "ocp.json").read_text())) for d in (solve, run_dir)]
+    assert plans[0]["robust"] == plans[1]["robust"]
+    ours, theirs = (
+        json.loads((d / "report.json").read_text())
+        for d in (tmp_path / "out" / "leaf" / row["leaf_key"], run_dir)
+    )
+    checked = [without_wall_clock(r["heldout"]) for r in (ours, theirs)]
+    assert checked[0].pop("ocp") == str(solve / "ocp.json")
+    assert checked[1].pop("ocp") == "ocp.json"
+    assert checked[0] == checked[1]
+    assert ours["plan_round"]["plan"]["samples"] == theirs["plan_round"]["plan"]["samples"]
+    assert ours["ppann"]["dataset"]["n_samples"] == theirs["ppann"]["dataset"]["n_samples"]

@@ -1,0 +1,137 @@
+"""Data where the plans go: a dataset plus episodes of a planned torque played on fresh machines.
+
+The chain's plan round (crank/chain.py, `[plan] episodes`) trains a model, solves the OCP, plays
+the returned torque on `episodes` machines of the dataset's line that no other stage draws (the
+streams `plan_machines` and `plan_noise`), adds those episodes to the dataset, and trains and
+solves again. The excitation of the dataset rarely crawls over the dead centres the way a plan
+does; the machines' spread there is what the robust margin is made of (README, *The machine's
+factors on the motor's terms*, session 22).
+
+Each added episode is one machine drawn from the dataset's scenario, warm for U[0,
+max_start_time] s like the dataset's, started from the plan's first state, under the plan's
+torque scaled by U(0.9, 1.1) plus a smooth dither (white of `dither` N·m averaged over 10 samples,
+scaled back to that standard deviation), clipped to the torque limit, with the scenario's slider
+force. The added episodes come first so that none lands in the validation tail of training.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common import streams
+from common.atomic import check_writable
+from common.errors import ConfigError
+from twin.dataset import Dataset
+from twin.mcap_dataset import read_dataset, read_model_xml, read_run, write_dataset
+from twin.physics import SAMPLE_RATE, SliderCrank
+from twin.plan_config import DITHER_SAMPLES, PlanConfig
+from twin.stepping import simulate
+from twin.variability import Variability
+
+
+def plan_torques(
+    tau: np.ndarray, *, episodes: int, dither: float, limit: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(episodes, len(tau)) torques: `tau` scaled by U(0.9, 1.1) per episode plus the smooth
+    dither, clipped to ±`limit`."""
+    n = len(tau)
+    white = rng.standard_normal((episodes, n + DITHER_SAMPLES - 1))
+    box = np.ones(DITHER_SAMPLES) / np.sqrt(DITHER_SAMPLES)  # unit variance after averaging
+    smooth = np.stack([np.convolve(w, box, mode="valid") for w in white])
+    scale = rng.uniform(0.9, 1.1, (episodes, 1))
+    return np.clip(tau[None, :] * scale + dither * smooth, -limit, limit)
+
+
+def plan_dataset_file(
+    dataset_path: str | Path,
+    out: str | Path,
+    *,
+    tau: np.ndarray,
+    theta0: float,
+    omega0: float,
+    config: PlanConfig,
+    seed: int,
+    physics: SliderCrank,
+    played: dict[str, Any],
+) -> dict[str, Any]:
+    """Write `out`: the dataset of `dataset_path` after `config.episodes` episodes of the torque
+    `tau` (one per sample) from (`theta0`, `omega0`) on machines of its scenario drawn with the
+    root `seed`. `played` (which solve and profile the torque is) is recorded in the file's run
+    record under "plan_round". Returns the round's summary.
+
+    Raises:
+      ConfigError: no episodes asked for, or a torque that is not finite or beyond the limit.
+    """
+    out = Path(out)
+    if config.episodes < 1:
+        raise ConfigError("a plan round needs plan.episodes >= 1")
+    tau = np.asarray(tau, dtype=float)
+    if tau.ndim != 1 or len(tau) < 2 or not np.all(np.isfinite(tau)):
+        raise ConfigError("the planned torque must be a finite sequence of 2 or more samples")
+    check_writable(out)
+    base, run = read_dataset(dataset_path), dict(read_run(dataset_path))
+    generation = dict(run["config"])
+    variability = Variability.from_dict(generation["variability"])
+    machines_rng = streams.rng(seed, "plan_machines")
+    machines = [variability.sample(machines_rng) for _ in range(config.episodes)]
+    starts = machines_rng.uniform(0, generation.get("max_start_time", 0.0), config.episodes)
+    noise = streams.rng(seed, "plan_noise")
+    limit = physics.torque_limit
+    torques = plan_torques(
+        tau, episodes=config.episodes, dither=config.dither, limit=limit, rng=noise
+    )
+    n = len(tau)
+    force = np.stack([variability.disturbance(noise, n) for _ in range(config.episodes)])
+    state = physics.initial_state(theta0, omega0)
+    runs = simulate(
+        physics,
+        variability,
+        draws=machines,
+        initial_states=np.repeat(state[None], config.episodes, 0),
+        tau=torques,
+        disturbance=force,
+        start_times=starts,
+    )
+    sd = runs.sensordata.reshape(-1, runs.sensordata.shape[-1])
+    added = {
+        "theta": physics.sensor(sd, "theta"),
+        "omega": physics.sensor(sd, "omega"),
+        "tau": runs.tau.reshape(-1),
+        "slider_position": physics.sensor(sd, "slider_position"),
+    }
+    episode = np.concatenate(
+        [np.repeat(np.arange(config.episodes), n), base.episode + config.episodes]
+    )
+    merged = Dataset(
+        t=np.arange(len(episode)) / SAMPLE_RATE,
+        episode=episode,
+        **{k: np.concatenate([v, getattr(base, k)]) for k, v in added.items()},
+    )
+    first = [
+        {
+            "index": i,
+            "n_samples": n,
+            "theta0": float(theta0),
+            "omega0": float(omega0),
+            "start_time": float(start),
+            "machine": machine.as_dict(),
+            "plan_episode": True,
+        }
+        for i, (machine, start) in enumerate(zip(machines, starts, strict=True))
+    ]
+    later = [e | {"index": e["index"] + config.episodes} for e in run.get("episodes", [])]
+    summary = {
+        "episodes": config.episodes,
+        "dither": config.dither,
+        "samples_added": int(config.episodes * n),
+        "samples": len(episode),
+        "played": played,
+        "streams": streams.describe(seed, ("plan_machines", "plan_noise")),
+        "torque_clipped_fraction": float(np.mean(np.abs(torques) >= limit)),
+    }
+    run |= {"episodes": first + later, "n_samples": len(episode), "plan_round": summary}
+    write_dataset(out, merged, None, run=run, model_xml=read_model_xml(dataset_path))
+    return summary
