@@ -29,7 +29,7 @@ from common.checks import check_choice
 from common.errors import ConfigError, CrankError, NoSolutionError
 from common.jsonio import write_json
 from crank import stages
-from crank.chain import Hooks
+from crank.chain import Hooks, RunConfig
 from crank.estimate import run_time
 from crank.sweep_estimate import disk_estimate, time_estimate
 from crank.sweep_spec import KINDS, Leaf, Node, folder, graph
@@ -149,7 +149,7 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
 
 
 def _solve_with_plan(
-    config: Any, made: dict[str, Path], here: Path, *, hooks: Hooks
+    config: RunConfig, made: dict[str, Path], here: Path, *, hooks: Hooks
 ) -> dict[str, Any]:
     """A solve step with the plan round (crank/chain.py): the model step's model solved into
     `here`/round-0/, its torque played on fresh machines (plan.mcap), a model trained on those
