@@ -85,7 +85,11 @@ def plan(config: RunConfig, dataset: Path, ocp: Path, out: Path) -> dict[str, An
         config=config.plan,
         seed=config.seed,
         physics=physics,
-        played={"ocp": str(ocp), "profile": name},
+        # by its path inside `out` where it is there (a sweep's step folder is renamed once done)
+        played={
+            "ocp": str(ocp.relative_to(out) if ocp.is_relative_to(out) else ocp),
+            "profile": name,
+        },
     )
 
 

@@ -89,7 +89,8 @@ def test_chain_trains_and_solves_twice_and_records_the_round(planned_run) -> Non
     assert RunConfig.from_dict(config) == PLANNED
     first = read_ocp(run_dir / "round-0" / "ocp.json")
     played = report["plan_round"]["plan"]["played"]
-    assert played["profile"] == "robust" and "robust" in first.profiles
+    assert played == {"ocp": "round-0/ocp.json", "profile": "robust"}
+    assert "robust" in first.profiles
     cost = report["plan_round"]["first_solve"]["robust cost"]
     assert cost.startswith(f"{first.profiles['robust'].cost:.6g} ")
     # the final model learnt from the merged data: its training saw more samples
@@ -209,5 +210,5 @@ def test_a_sweep_leaf_with_the_round_is_the_chain(planned_run, tmp_path: Path) -
     assert checked[0].pop("ocp") == str(solve / "ocp.json")
     assert checked[1].pop("ocp") == "ocp.json"
     assert checked[0] == checked[1]
-    assert ours["plan_round"]["plan"]["samples"] == theirs["plan_round"]["plan"]["samples"]
+    assert ours["plan_round"]["plan"] == theirs["plan_round"]["plan"]  # paths inside the folder
     assert ours["ppann"]["dataset"]["n_samples"] == theirs["ppann"]["dataset"]["n_samples"]
