@@ -53,10 +53,13 @@ def fit_all(
     on_epoch: Callable[[str, str, int, float], None] | None = None,
     on_done: Callable[[str], None] | None = None,
 ) -> dict[str, Fitted]:
-    """Every kind's `fit`, the same to the last bit whether one after another or, with
-    `workers` > 1, side by side in threads with torch on one thread each: the networks are small,
-    so two of them on a core each train faster than one on both (torch's second thread gains
-    ~1.4x). The models are built (seeded) here, before any training starts; training draws from
+    """Every kind's `fit` with torch on one thread, the same to the last bit whether one after
+    another or, with `workers` > 1, side by side in threads: the networks are small, so two of
+    them on a core each train faster than one on both (torch's second thread gains ~1.4x). One
+    thread also when one after another: torch splits its sums and products by its thread count,
+    and on an AVX-512 machine (session 23) a model trained alone on two threads differed in its
+    last bits from the same model trained on one, so a model depended on the cores that trained
+    it. The models are built (seeded) here, before any training starts; training draws from
     its own generators only. `on_epoch(kind, phase, epoch, loss)` and `on_done(kind)` (its
     training has ended) may then come from any thread, one call at a time."""
     models = {kind: new_model(dataset, kind=kind, config=config) for kind in kinds}
@@ -82,8 +85,6 @@ def fit_all(
                 on_done(kind)
         return fitted
 
-    if workers <= 1 or len(kinds) <= 1:
-        return {kind: train(kind) for kind in kinds}
     threads = torch.get_num_threads()
 
     def pinned(kind: str) -> Fitted:
@@ -92,6 +93,8 @@ def fit_all(
 
     torch.set_num_threads(1)
     try:
+        if workers <= 1 or len(kinds) <= 1:
+            return {kind: train(kind) for kind in kinds}
         with ThreadPoolExecutor(max_workers=workers) as pool:
             futures = {kind: pool.submit(pinned, kind) for kind in kinds}
             try:
