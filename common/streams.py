@@ -37,11 +37,14 @@ STREAMS: dict[str, str] = {
     "replay_noise": "slider disturbance of the campaign replays",
     "heldout_machines": "held-out machines and their start times",
     "heldout_noise": "slider disturbance of the held-out replays",
+    "heldout_bootstrap": "resamples of the held-out machines for the observed spread's interval",
     "plan_machines": "machines of the plan round's added episodes and their start times",
     "plan_noise": "torque scale, dither and slider disturbance of the plan round's episodes",
     "transmission": "the crank's angle to the motor in the Monte-Carlo's slider positions",
 }
 """Every stream the project draws from, with what it is for."""
+HELDOUT_STREAMS = ("heldout_machines", "heldout_noise", "heldout_bootstrap")
+"""The streams of a held-out check, under its own root seed."""
 
 
 def spawn_key(name: str) -> int:

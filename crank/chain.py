@@ -180,9 +180,7 @@ class RunConfig:
         out = asdict(self)
         out["ocp"] = self.ocp.as_dict()
         out["streams"] = streams.describe(self.seed)
-        out["heldout_streams"] = streams.describe(
-            self.heldout_seed, ("heldout_machines", "heldout_noise")
-        )
+        out["heldout_streams"] = streams.describe(self.heldout_seed, streams.HELDOUT_STREAMS)
         return out
 
 

@@ -228,7 +228,7 @@ def compare_run(
         "seed": config.seed,
         "replay_seed": base.seed,
         "pd": {"kp": base.kp, "kd": base.kd},
-        "heldout_streams": streams.describe(heldout_seed, ("heldout_machines", "heldout_noise")),
+        "heldout_streams": streams.describe(heldout_seed, streams.HELDOUT_STREAMS),
         "refused": ocp.refused,
         "rows": rows,
     }

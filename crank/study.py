@@ -120,6 +120,8 @@ def _profile_row(
             row[f"pred_{k:g}sigma_{sample}_mm"] = 1e3 * k * predicted["sigma"]
             row[f"obs_{k:g}sigma_{sample}_mm"] = 1e3 * k * entry["observed_sigma"]
             row[f"ratio_{sample}"] = predicted["ratio"]
+            if predicted.get("ratio_ci95"):  # heldout.json version 5
+                row[f"ratio_{sample}_low"], row[f"ratio_{sample}_high"] = predicted["ratio_ci95"]
             if "theta" in entry:  # heldout.json version 3
                 row[f"theta_ratio_{sample}"] = entry["theta"]["predicted"][mode]["ratio"]
     return row
@@ -274,7 +276,11 @@ def markdown(study: dict[str, Any]) -> str:
         ("phase1_epochs", "phase-1 epochs", ""),
     ]
     ratio_keys = sorted({k for r in ok for k in r if k.startswith("ratio_")})
-    columns += [(k, f"pred/obs σ @{k.split('_')[1]}", ".2f") for k in ratio_keys]
+    bound = {"low": " 95 % from", "high": " 95 % to"}  # the held-out set's interval
+    columns += [
+        (k, f"pred/obs σ @{k.split('_')[1]}{bound.get(k.split('_')[-1], '')}", ".2f")
+        for k in sorted(ratio_keys, key=lambda k: k.replace("_low", "_a").replace("_high", "_b"))
+    ]
     theta_keys = sorted({k for r in ok for k in r if k.startswith("theta_ratio_")})
     columns += [(k, f"θ pred/obs @{k.split('_')[2]}", ".2f") for k in theta_keys]
     lines.append("| " + " | ".join(c[1] for c in columns) + " |")

@@ -16,7 +16,8 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 4 (3: samples.<k>.theta; 4: model_rate)
+  format, version        "crank-heldout", 5 (3: samples.<k>.theta; 4: model_rate; 5: the
+                         intervals)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
@@ -29,8 +30,10 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
     mpc                  (mpc mode) the MPC steps' compute times, as in replay.stats.json
     violating_runs, rate, rate_upper_95
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
-                          observed_quantile (at Φ(-k_sigma)), skew,
-                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ)},
+                          observed_sigma_ci95 (its 95 % bootstrap interval over the machines,
+                          replay/spread_interval.py), observed_quantile (at Φ(-k_sigma)), skew,
+                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ),
+                                            ratio_ci95 (over observed_sigma_ci95)},
                           theta {observed_sigma, observed_mean,
                                  predicted.<mode> {sigma, mean, ratio}}}
     theta_final          as samples.<k>.theta, at the last sample
@@ -75,13 +78,14 @@ from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
 from replay.rates import TARGET_RATE, rate_upper, verdict
+from replay.spread_interval import ratio_interval, sigma_interval
 from replay.statistics import mpc_timing
 from twin import OPERATING_SECONDS
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 4
+VERSION = 5
 TAIL_DRAWS = 20_000
 """Trajectories of the model's own violation rate (`model_rate`): 27 expected below at 0.135 %,
 a relative standard error of 19 %; ~1 s for 150 steps."""
@@ -193,6 +197,7 @@ def heldout_check(
     heads = FusedHeads(model)
     c = ocp.config
     level = lower_tail(c.k_sigma)
+    bootstrap = streams.rng(seed, "heldout_bootstrap")
     out: dict[str, Any] = {
         "format": FORMAT,
         "version": VERSION,
@@ -202,7 +207,7 @@ def heldout_check(
         "modes": list(modes),
         "feedback": feedback,
         "pd": {"kp": kp, "kd": kd},
-        "streams": streams.describe(seed, ("heldout_machines", "heldout_noise")),
+        "streams": streams.describe(seed, streams.HELDOUT_STREAMS),
         "variability": variability.as_dict(),
         "max_start_time": max_start_time,
         "mc_samples": mc_samples,
@@ -248,6 +253,7 @@ def heldout_check(
             violated = x < c.height
             below |= violated
             observed = float(x.std(ddof=1))
+            interval = sigma_interval(x, rng=bootstrap)
             entry: dict[str, Any] = {
                 "height": c.height,
                 "violations": int(violated.sum()),
@@ -255,6 +261,7 @@ def heldout_check(
                 "mean": float(x.mean()),
                 "plan": float(planned.slider[k - 1]),
                 "observed_sigma": observed,
+                "observed_sigma_ci95": list(interval),
                 "observed_quantile": float(np.quantile(x, level)),
                 "skew": float(scistats.skew(x)),
                 "predicted": {},
@@ -267,6 +274,7 @@ def heldout_check(
                     "sigma": sigma,
                     "mean": float(np.mean(slider)),
                     "ratio": _ratio(sigma, observed),
+                    "ratio_ci95": ratio_interval(sigma, interval) if math.isfinite(sigma) else None,
                 }
             entry["theta"] = _theta_calibration(replay.theta[:, k - 1], predicted, k - 1)
             samples[str(k)] = entry

@@ -266,8 +266,12 @@ def _check_heldout_entry(
     for k, entry in result["samples"].items():
         x = replay.slider_position[:, int(k) - 1]
         assert entry["observed_sigma"] == float(x.std(ddof=1))
+        low, high = entry["observed_sigma_ci95"]
+        assert low < entry["observed_sigma"] < high
         predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
         assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-9)
+        ratio = entry["predicted"]["mixed"]
+        assert ratio["ratio_ci95"] == pytest.approx([ratio["sigma"] / high, ratio["sigma"] / low])
         theta = replay.theta[:, int(k) - 1].std(ddof=1)
         assert entry["theta"]["observed_sigma"] == float(theta)
         theta_predicted = bands.samples[:, int(k) - 1, 0].std(ddof=1)
