@@ -261,7 +261,8 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
     lines += [
         "",
         "Predicted / observed σ of the slider under the OCP's own torque, per Monte-Carlo mode "
-        f"({heldout['mc_samples']} trajectories):",
+        f"({heldout['mc_samples']} trajectories); in brackets the 95 % interval these machines "
+        "allow (a bootstrap over them; heldout.json version 5):",
         "",
     ]
     first = next(iter(next(iter(profiles.values())).values()))
@@ -273,9 +274,13 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
     for profile, played in profiles.items():
         for loop, entry in played.items():
             for sample, e in entry["samples"].items():
-                ratios = [_ratio(e["predicted"][m]["ratio"]) for m in modes]
+                ratios = [_with_interval(e["predicted"][m]) for m in modes]
+                observed = f"{1e3 * e['observed_sigma']:.2f}"
+                if "observed_sigma_ci95" in e:
+                    low, high = (1e3 * v for v in e["observed_sigma_ci95"])
+                    observed += f" ({low:.2f}–{high:.2f})"
                 lines.append(
-                    f"| {profile} | {loop} | {sample} | {1e3 * e['observed_sigma']:.2f} | "
+                    f"| {profile} | {loop} | {sample} | {observed} | "
                     f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
                 )
     if "theta" not in next(iter(first["samples"].values())):
@@ -333,6 +338,15 @@ def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
     }
     first = {f"first solve: {k}": v for k, v in plan_round["first_solve"].items()}
     return _rows("Plan round (the model and OCP above are its second round)", played | first)
+
+
+def _with_interval(predicted: dict[str, Any]) -> str:
+    """A calibration ratio, with its interval where heldout.json has one."""
+    text = _ratio(predicted["ratio"])
+    if predicted.get("ratio_ci95") and not text.startswith("diverged"):
+        low, high = predicted["ratio_ci95"]
+        text += f" ({low:.2f}–{high:.2f})"
+    return text
 
 
 def _wall(report: dict[str, Any]) -> dict[str, str]:

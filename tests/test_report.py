@@ -141,3 +141,23 @@ def test_the_models_own_rate_stands_beside_the_observed_one() -> None:
     heldout["profiles"]["robust"]["open"]["model_rate"] = own
     text = "\n".join(heldout_lines(heldout))
     assert "upper bound 0.30 %) (the model's own Monte-Carlo of 20000 trajectories: 0.64 %)" in text
+
+
+def test_the_calibration_table_gives_each_ratio_its_interval() -> None:
+    """heldout.json version 5: the observed σ and each ratio with the interval the machines
+    allow; a diverged ratio gets none, and a version-4 file reads as before."""
+    heldout = _heldout("open", 2e40)
+    sample = heldout["profiles"]["robust"]["open"]["samples"]["50"]
+    sample = sample | {
+        "observed_sigma_ci95": [4.8e-4, 5.3e-4],
+        "predicted": {
+            "mixed": {"ratio": 0.95, "ratio_ci95": [0.9, 0.99]},
+            "trajectory": {"ratio": 2e40, "ratio_ci95": [1.9e40, 2.1e40]},
+        },
+    }
+    entry = heldout["profiles"]["robust"]["open"] | {"samples": {"50": sample}}
+    heldout["profiles"] = {"robust": {"open": entry}}
+    text = "\n".join(heldout_lines(heldout))
+    assert "| robust | open | 50 | 0.50 (0.48–0.53) | 81.0 | +0.10 | 0.95 (0.90–0.99) |" in text
+    assert "| diverged (2.0e+40) |" in text
+    assert "(0.48–0.53)" not in "\n".join(heldout_lines(_heldout("open", 1.1)))
