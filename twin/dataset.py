@@ -209,16 +209,10 @@ def generate(
     sd = flat(runs.sensordata)
     t = np.arange(config.n_samples) / SAMPLE_RATE
     episode = np.repeat(np.arange(len(lengths)), lengths)
-    theta = physics.sensor(sd, "theta")
+    channels = measured_channels(physics, sd, flat(runs.tau))
+    theta = channels["theta"]
     backlash = physics.sensor(sd, "backlash_angle")
-    dataset = Dataset(
-        t=t,
-        episode=episode,
-        theta=theta,
-        omega=physics.sensor(sd, "omega"),
-        tau=flat(runs.tau),
-        slider_position=physics.sensor(sd, "slider_position"),
-    )
+    dataset = Dataset(t=t, episode=episode, **channels)
     truth = GroundTruth(
         t=t,
         episode=episode,
@@ -230,6 +224,19 @@ def generate(
         **{name: flat(values) for name, values in runs.friction.items()},
     )
     return dataset, truth, episodes
+
+
+def measured_channels(
+    physics: SliderCrank, sensordata: np.ndarray, tau: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The measured channels of a dataset but time and episode, from the twin's sensor rows
+    (n_samples, nsensordata) and the torque applied at each."""
+    return {
+        "theta": physics.sensor(sensordata, "theta"),
+        "omega": physics.sensor(sensordata, "omega"),
+        "tau": tau,
+        "slider_position": physics.sensor(sensordata, "slider_position"),
+    }
 
 
 def measurement_arrays(dataset: Dataset) -> dict[str, np.ndarray]:

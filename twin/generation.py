@@ -39,18 +39,20 @@ def run_metadata(
             f"uniform on [-{amplitude:g}, {amplitude:g}] N, one draw per sample, "
             "held over the substeps"
         ),
-        "episodes": [
-            {
-                "index": e.index,
-                "n_samples": e.n_samples,
-                "theta0": e.theta0,
-                "omega0": e.omega0,
-                "start_time": e.start_time,
-                "machine": e.machine.as_dict(),
-            }
-            for e in episodes
-        ],
+        "episodes": [episode_record(e) for e in episodes],
         **provenance(model_path),
+    }
+
+
+def episode_record(episode: Episode) -> dict[str, Any]:
+    """One episode as the run record lists it."""
+    return {
+        "index": episode.index,
+        "n_samples": episode.n_samples,
+        "theta0": episode.theta0,
+        "omega0": episode.omega0,
+        "start_time": episode.start_time,
+        "machine": episode.machine.as_dict(),
     }
 
 

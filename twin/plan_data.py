@@ -24,7 +24,8 @@ import numpy as np
 from common import streams
 from common.atomic import check_writable
 from common.errors import ConfigError
-from twin.dataset import Dataset
+from twin.dataset import Dataset, Episode, measured_channels
+from twin.generation import episode_record
 from twin.mcap_dataset import read_dataset, read_model_xml, read_run, write_dataset
 from twin.physics import SAMPLE_RATE, SliderCrank
 from twin.plan_config import DITHER_SAMPLES, PlanConfig
@@ -63,7 +64,8 @@ def plan_dataset_file(
     record under "plan_round". Returns the round's summary.
 
     Raises:
-      ConfigError: no episodes asked for, or a torque that is not finite or beyond the limit.
+      ConfigError: no episodes asked for, or a torque that is not a finite sequence of two or
+        more samples (one beyond the limit is clipped to it, as the dither may take it there).
     """
     out = Path(out)
     if config.episodes < 1:
@@ -96,12 +98,7 @@ def plan_dataset_file(
         start_times=starts,
     )
     sd = runs.sensordata.reshape(-1, runs.sensordata.shape[-1])
-    added = {
-        "theta": physics.sensor(sd, "theta"),
-        "omega": physics.sensor(sd, "omega"),
-        "tau": runs.tau.reshape(-1),
-        "slider_position": physics.sensor(sd, "slider_position"),
-    }
+    added = measured_channels(physics, sd, runs.tau.reshape(-1))
     episode = np.concatenate(
         [np.repeat(np.arange(config.episodes), n), base.episode + config.episodes]
     )
@@ -111,15 +108,8 @@ def plan_dataset_file(
         **{k: np.concatenate([v, getattr(base, k)]) for k, v in added.items()},
     )
     first = [
-        {
-            "index": i,
-            "n_samples": n,
-            "theta0": float(theta0),
-            "omega0": float(omega0),
-            "start_time": float(start),
-            "machine": machine.as_dict(),
-            "plan_episode": True,
-        }
+        episode_record(Episode(i, n, machine, float(theta0), float(omega0), float(start)))
+        | {"plan_episode": True}
         for i, (machine, start) in enumerate(zip(machines, starts, strict=True))
     ]
     later = [e | {"index": e["index"] + config.episodes} for e in run.get("episodes", [])]
