@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from control.mpc_config import MPCConfig
 from control.ocp_file import OCPFile, read_ocp
 from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
@@ -17,6 +19,27 @@ from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
 from twin.mcap_dataset import read_dataset, read_truth, write_dataset
 from twin.physics import SliderCrank, load_model
+
+LATE = 60.0
+"""A deadline no MPC step misses, however busy the machine: where a test checks the MPC's own
+answer, or compares two runs of it, not the deadline rule (a step over 2 ms applies the previous
+solution instead, so under load, e.g. beside another test worker, a run's numbers would depend on
+the wall clock)."""
+LATE_MPC = MPCConfig(deadline=LATE)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (one worker per core, pyproject.toml) each worker and every process it
+    starts computes on one thread: two workers of torch's two threads each on two cores ran
+    oversubscribed. A model trained in a test and one trained by a `crank` subprocess the test
+    starts then use the same thread count (a PPANN's last bits depend on it, ppann/fit.py)."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        return
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[name] = "1"
+    import torch
+
+    torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="session")

@@ -15,6 +15,7 @@ from common.atomic import OutputError
 from common.errors import ConfigError
 from common.jsonio import without_wall_clock
 from crank.chain import STAGES_FILE, Hooks, RunConfig, resumed_config, run_chain
+from tests.conftest import LATE_MPC
 from twin.mcap_dataset import read_dataset
 
 SHORT = RunConfig.for_seed(
@@ -305,7 +306,7 @@ def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> 
     from crank.compare import compare_runs, merge_compares
 
     a, b, _ = two_runs
-    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3}
+    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3, "mpc": LATE_MPC}
     parts = [compare_runs([run], tmp_path / run.name, **kwargs)["scenarios"] for run in (a, b)]
     merged = merge_compares([tmp_path / "a", tmp_path / "b"], tmp_path / "ab")
     assert merged["scenarios"] == parts[0] + parts[1]

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from control.config import PD_GAINS, OCPConfig
-from control.mpc_config import MPCConfig
 from control.ocp_file import OCPFile, read_ocp
 from control.solve import solve_file
 from control.tightening import slider_uncertainty
@@ -26,11 +25,8 @@ from replay.config import ReplayConfig
 from replay.foxglove import plan_rows
 from replay.laws import own_gains, played_gains, predicted_sigma, profile_solution
 from replay.statistics import campaign_statistics, summary_rows
-from tests.conftest import crank
+from tests.conftest import LATE_MPC, crank
 from twin.physics import SliderCrank
-
-LATE_MPC = MPCConfig(deadline=60.0)
-"""No step misses this deadline: the MPC's gains do not depend on the machine's load."""
 
 
 @pytest.fixture(scope="module")

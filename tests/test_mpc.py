@@ -24,12 +24,10 @@ from ppann.model import constant_ppann
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig
 from replay.files import replay_file
+from tests.conftest import LATE
 from twin.physics import SliderCrank
 
 DT = 2e-3
-LATE = 60.0
-"""A deadline no step misses, however busy the machine: where a test checks the MPC's own
-answer, not the deadline rule (a step over 2 ms applies the previous solution instead)."""
 
 
 def _linear_step(a: np.ndarray, b: np.ndarray) -> ca.Function:

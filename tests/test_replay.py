@@ -15,7 +15,6 @@ from common.streams import stream
 from control.config import PD_GAINS
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
-from control.mpc_config import MPCConfig
 from control.ocp_file import OCPFile
 from ppann.model import PPANN, FusedHeads, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
@@ -23,6 +22,7 @@ from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, model_rate
 from replay.statistics import campaign_statistics, replay_statistics
+from tests.conftest import LATE_MPC
 from tests.replay_ocp import N, nominal_twin_trajectory, twin_state
 from twin.geometry import PAPER
 from twin.physics import STATE_SPEC, SliderCrank
@@ -207,11 +207,6 @@ def test_heldout_check_plays_and_predicts_every_profile_in_its_mode(
     for mode, name in ((m, n) for m in modes for n in ocp.names):
         entry = result["profiles"][name][mode]
         _check_heldout_entry(physics, ocp, model, entry, name, mode, feedback=feedback, pd=pd)
-
-
-LATE_MPC = MPCConfig(deadline=60.0)
-"""The default MPC with a deadline no step misses however busy the machine, so that a replay
-of the same machines is the same (a step over 2 ms applies the previous solution instead)."""
 
 
 def _check_heldout_entry(

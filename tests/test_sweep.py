@@ -32,6 +32,7 @@ from crank.sweep_report import failure, markdown, rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
+from tests.conftest import LATE_MPC
 from tests.test_chain import SHORT
 
 SPEC = """
@@ -391,7 +392,7 @@ def test_compare_takes_a_sweep_folder_as_its_leaves(swept, tmp_path: Path) -> No
     )
     chain = chains / "seed-0-50-100"
     said: list[str] = []
-    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3}
+    kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3, "mpc": LATE_MPC}
     ours = compare_runs(
         [out / "leaf" / row["leaf_key"]], tmp_path / "leaf", on_stage=said.append, **kwargs
     )
