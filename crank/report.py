@@ -258,11 +258,16 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
                 f"on {100 * nominal['rate']:.1f} %. Against the target of <= "
                 f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}"
             )
+    allow = (
+        "these machines and that Monte-Carlo allow (a bootstrap over the machines, widened by "
+        "the Monte-Carlo's standard error)"
+        if heldout.get("version", 0) >= 6
+        else "these machines allow (a bootstrap over them)"
+    )
     lines += [
         "",
         "Predicted / observed σ of the slider under the OCP's own torque, per Monte-Carlo mode "
-        f"({heldout['mc_samples']} trajectories); in brackets the 95 % interval these machines "
-        "allow (a bootstrap over them; heldout.json version 5):",
+        f"({heldout['mc_samples']} trajectories); in brackets the 95 % interval {allow}:",
         "",
     ]
     first = next(iter(next(iter(profiles.values())).values()))

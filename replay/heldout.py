@@ -16,14 +16,15 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 5 (3: samples.<k>.theta; 4: model_rate; 5: the
-                         intervals)
+  format, version        "crank-heldout", 6 (3: samples.<k>.theta; 4: model_rate; 5: the
+                         intervals; 6: 10 000 trajectories, sigma_se, ratio_ci95 with both)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
   pd                     {kp, kd}: the fixed PD of feedback pd
   variability, max_start_time
-  mc_samples             trajectories of each predicted σ
+  mc_samples             trajectories of each predicted σ (CALIBRATION_TRAJECTORIES, 10 000;
+                         1000 before version 6)
   tail_draws             trajectories of each model_rate
   target_rate            0.005: a robust profile's allowed violation rate
   profiles.<nominal|robust|robust-fb|robust-pd>.<mode>:
@@ -32,8 +33,11 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_sigma_ci95 (its 95 % bootstrap interval over the machines,
                           replay/spread_interval.py), observed_quantile (at Φ(-k_sigma)), skew,
-                          predicted.<mode> {sigma, mean, ratio (predicted / observed σ),
-                                            ratio_ci95 (over observed_sigma_ci95)},
+                          predicted.<mode> {sigma, sigma_se (the Monte-Carlo's standard
+                                            error of sigma), mean,
+                                            ratio (predicted / observed σ),
+                                            ratio_ci95 (the machines' interval widened by
+                                            sigma_se, replay/spread_interval.py)},
                           theta {observed_sigma, observed_mean,
                                  predicted.<mode> {sigma, mean, ratio}}}
     theta_final          as samples.<k>.theta, at the last sample
@@ -78,14 +82,19 @@ from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
 from replay.rates import TARGET_RATE, rate_upper, verdict
-from replay.spread_interval import ratio_interval, sigma_interval
+from replay.spread_interval import (
+    CALIBRATION_TRAJECTORIES,
+    ratio_interval,
+    relative_se,
+    sigma_interval,
+)
 from replay.statistics import mpc_timing
 from twin import OPERATING_SECONDS
 from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 5
+VERSION = 6
 TAIL_DRAWS = 20_000
 """Trajectories of the model's own violation rate (`model_rate`): 27 expected below at 0.135 %,
 a relative standard error of 19 %; ~1 s for 150 steps."""
@@ -157,7 +166,7 @@ def heldout_check(
     seed: int,
     variability: Variability,
     max_start_time: float = OPERATING_SECONDS,
-    mc_samples: int = 1000,
+    mc_samples: int = CALIBRATION_TRAJECTORIES,
     tail_draws: int = TAIL_DRAWS,
     modes: tuple[str, ...] = ("open",),
     mpc: MPCConfig | None = None,
@@ -270,11 +279,15 @@ def heldout_check(
                 with np.errstate(over="ignore", invalid="ignore"):
                     slider = ocp.geometry.slider_position(bands.samples[:, k - 1, 0] + delta)
                     sigma = float(np.std(slider, ddof=1))
+                    own = relative_se(slider)
                 entry["predicted"][mc_mode] = {
                     "sigma": sigma,
+                    "sigma_se": sigma * own if math.isfinite(sigma * own) else None,
                     "mean": float(np.mean(slider)),
                     "ratio": _ratio(sigma, observed),
-                    "ratio_ci95": ratio_interval(sigma, interval) if math.isfinite(sigma) else None,
+                    "ratio_ci95": ratio_interval(
+                        sigma, observed, interval, predicted_relative_se=own
+                    ),
                 }
             entry["theta"] = _theta_calibration(replay.theta[:, k - 1], predicted, k - 1)
             samples[str(k)] = entry

@@ -21,6 +21,7 @@ from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, model_rate
+from replay.spread_interval import ratio_interval, relative_se
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import LATE_MPC
 from tests.replay_ocp import N, nominal_twin_trajectory, twin_state
@@ -266,7 +267,19 @@ def _check_heldout_entry(
         predicted = PAPER.slider_position(bands.samples[:, int(k) - 1, 0]).std(ddof=1)
         assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-9)
         ratio = entry["predicted"]["mixed"]
-        assert ratio["ratio_ci95"] == pytest.approx([ratio["sigma"] / high, ratio["sigma"] / low])
+        slider = PAPER.slider_position(bands.samples[:, int(k) - 1, 0])
+        assert ratio["sigma_se"] == pytest.approx(predicted * relative_se(slider), rel=1e-9)
+        assert ratio["ratio_ci95"] == pytest.approx(
+            ratio_interval(
+                predicted,
+                entry["observed_sigma"],
+                (low, high),
+                predicted_relative_se=relative_se(slider),
+            ),
+            rel=1e-9,
+        )
+        outer = (ratio["sigma"] / high, ratio["sigma"] / low)  # the machines' interval alone
+        assert ratio["ratio_ci95"][0] < outer[0] and ratio["ratio_ci95"][1] > outer[1]
         theta = replay.theta[:, int(k) - 1].std(ddof=1)
         assert entry["theta"]["observed_sigma"] == float(theta)
         theta_predicted = bands.samples[:, int(k) - 1, 0].std(ddof=1)

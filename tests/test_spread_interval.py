@@ -1,13 +1,15 @@
 """The observed spread's bootstrap interval (replay/spread_interval.py): it covers a known σ as
 often as it says, its width is the standard error's of a Gaussian sample, wider by the known
-factor on a heavy-tailed one, and the same generator gives the same interval."""
+factor on a heavy-tailed one, and the same generator gives the same interval; the Monte-Carlo's
+own standard error of σ is the spread of σ over repeated draws, and widens the ratio's interval
+as two independent errors do."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from replay.spread_interval import ratio_interval, sigma_interval
+from replay.spread_interval import Z_LEVEL, ratio_interval, relative_se, sigma_interval
 
 N = 1000
 
@@ -42,7 +44,46 @@ def test_the_same_generator_gives_the_same_interval_and_ratios_invert_it() -> No
     first = sigma_interval(x, rng=np.random.default_rng(9))
     assert first == sigma_interval(x, rng=np.random.default_rng(9))
     assert first != sigma_interval(x, rng=np.random.default_rng(10))
-    assert ratio_interval(2.0, (0.5, 1.0)) == [2.0, 4.0]
-    assert ratio_interval(2.0, (0.0, 1.0)) is None
+    assert ratio_interval(2.0, 0.7, (0.5, 1.0)) == pytest.approx([2.0, 4.0], rel=1e-15)
+    assert ratio_interval(2.0, 0.7, (0.0, 1.0)) is None
+    assert ratio_interval(float("nan"), 0.7, (0.5, 1.0), predicted_relative_se=0.01) is None
     with pytest.raises(ValueError, match="two or more"):
         sigma_interval(np.array([1.0]), rng=np.random.default_rng(0))
+
+
+@pytest.mark.parametrize(("name", "kurtosis"), [("normal", 3.0), ("t9", 3 + 6 / 5)])
+def test_the_monte_carlos_standard_error_is_the_spread_of_sigma_over_draws(
+    name: str, kurtosis: float
+) -> None:
+    """relative_se of one draw of n values against the standard deviation of σ over 400 draws
+    (the truth it estimates), and against the closed form sqrt((kurtosis - 1) / (4 n))."""
+    rng = np.random.default_rng(11)
+    n = 4000
+
+    def sample() -> np.ndarray:
+        return rng.normal(size=n) if name == "normal" else rng.standard_t(9, size=n)
+
+    sigmas = np.array([sample().std(ddof=1) for _ in range(400)])
+    spread = sigmas.std(ddof=1) / sigmas.mean()  # itself known to ~3.5 % from 400 draws
+    estimates = [relative_se(sample()) for _ in range(20)]
+    assert np.mean(estimates) == pytest.approx(spread, rel=0.12)
+    assert np.mean(estimates) == pytest.approx(np.sqrt((kurtosis - 1) / (4 * n)), rel=0.1)
+    assert relative_se(np.array([1.0, np.inf])) == np.inf
+    assert relative_se(np.full(5, 2.0)) == 0.0
+
+
+def test_the_ratios_interval_adds_the_monte_carlos_error_in_log_space() -> None:
+    """Without a Monte-Carlo error the ratio's interval is the prediction over the machines'
+    interval; with one, each side's log half-width is the two in quadrature, so an interval as
+    wide as the machines' own grows by sqrt(2) in log terms, and the ratio stays inside."""
+    observed, interval = 2.0, (1.8, 2.25)
+    low, high = ratio_interval(2.4, observed, interval, predicted_relative_se=0.0)
+    assert (low, high) == pytest.approx((2.4 / 2.25, 2.4 / 1.8), rel=1e-12)
+    se = np.log(2.25 / 2.0) / Z_LEVEL  # the Monte-Carlo as uncertain as the machines' high side
+    low2, high2 = ratio_interval(2.4, observed, interval, predicted_relative_se=se)
+    ratio = 2.4 / observed
+    assert np.log(ratio / low2) == pytest.approx(np.sqrt(2) * np.log(ratio / low), rel=1e-12)
+    assert np.log(high2 / ratio) == pytest.approx(
+        np.hypot(np.log(high / ratio), np.log(2.25 / 2.0)), rel=1e-12
+    )
+    assert low2 < low < ratio < high < high2
