@@ -1,9 +1,12 @@
 """A sweep's results, assembled from its step folders: sweep.csv (one row per leaf: its options and
 every figure of its report), sweep.md (the verdict, then a pivot table over every option but the
-seed) and sweep.png (held-out violation rate and premium per option group, one dot per seed)."""
+seed) and sweep.png (held-out violation rate, premium and the calibration ratios with their
+intervals per option group, one dot per seed)."""
 
 from __future__ import annotations
 
+import math
+import re
 import textwrap
 from collections import defaultdict
 from pathlib import Path
@@ -16,6 +19,7 @@ from common.figures import save_figure
 from crank import stages
 from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
 from crank.sweep_spec import KINDS, Leaf
+from ppann.figures import CALIBRATION_BAND
 
 Records = list[tuple[Leaf, list[dict[str, Any]]]]
 
@@ -161,17 +165,20 @@ TICK_WIDTH = 15
 
 
 def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
-    """Per option group (x), each seed's held-out violation rate with its 95 % bound (top) and
-    cost premium (bottom); a red cross where a leaf failed or a profile was refused."""
+    """Per option group (x), each seed's held-out violation rate with its 95 % bound (top), cost
+    premium (middle) and predicted / observed slider σ at each constraint sample with its 95 %
+    interval against the 0.8-1.25 band the calibration aims at (bottom); a red cross where a
+    leaf failed or a profile was refused."""
     grouped = groups(rows, axes)
     names = [a for a in axes if a != "seed"]
     if len({row.get("profile") for row in rows}) > 1:
         names.append("profile")
     lines = max(1, len(names))
     fig = Figure(
-        figsize=(max(6.0, 1.0 * len(grouped) + 2), 5.5 + 0.2 * lines), layout="constrained"
+        figsize=(max(6.0, 1.0 * len(grouped) + 2), 7.5 + 0.2 * lines), layout="constrained"
     )
-    top, bottom = fig.subplots(2, 1, sharex=True)
+    top, bottom, calibration = fig.subplots(3, 1, sharex=True)
+    samples: dict[str, str] = {}  # constraint sample -> colour, in the order met
     for x, members in enumerate(grouped.values()):
         good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
         spread = [x + 0.3 * (i / max(1, len(good) - 1) - 0.5) for i in range(len(good))]
@@ -186,6 +193,8 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
             s=120,
         )
         bottom.scatter(spread, [100 * r["premium"] for r in good], color="C1", s=18)
+        for at, row in zip(spread, good, strict=True):
+            _calibration_marks(calibration, at, row, samples)
         if len(good) < len(members):
             top.scatter([x], [0], color="C3", marker="x", s=80)
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1)
@@ -211,11 +220,38 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
         counts = ((bad - refused, "failed"), (refused, "refused"))
         notes = [f"{n} {word}" for n, word in counts if n]
         ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
-    bottom.set_xticks(range(len(grouped)), ticks, fontsize=8)
-    bottom.set_xlim(-0.5, len(grouped) - 0.5)
-    bottom.set_xlabel(" / ".join(names) or "every leaf")
+    calibration.axhspan(*CALIBRATION_BAND, color="0.9", zorder=0)
+    calibration.axhline(1.0, color="k", lw=0.8)
+    calibration.set_ylabel("predicted / observed σ,\nslider (OCP's mode)")
+    calibration.legend(
+        handles=[
+            calibration.errorbar([], [], yerr=[], color=c, fmt="o", ms=4, label=f"sample {k}")
+            for k, c in samples.items()
+        ]
+        + [calibration.fill_between([], [], color="0.9", label="0.8-1.25")],
+        fontsize=8,
+    )
+    calibration.set_xticks(range(len(grouped)), ticks, fontsize=8)
+    calibration.set_xlim(-0.5, len(grouped) - 0.5)
+    calibration.set_xlabel(" / ".join(names) or "every leaf")
     fig.suptitle("Sweep: robust torque per option group (one dot per seed)")
     return fig
+
+
+def _calibration_marks(ax: Any, at: float, row: dict[str, Any], samples: dict[str, str]) -> None:
+    """A leaf's slider ratio at each of its constraint samples with its 95 % interval (sweep.csv
+    ratio_<k>, ratio_<k>_low, ratio_<k>_high; a ratio without an interval alone, none where it
+    diverged), side by side at `at`."""
+    ks = [key[len("ratio_") :] for key in row if re.fullmatch(r"ratio_\d+", key)]
+    for i, k in enumerate(ks):
+        value = row.get(f"ratio_{k}")
+        if value is None or not math.isfinite(value) or value > 10:
+            continue
+        colour = samples.setdefault(k, f"C{2 + len(samples) % 8}")
+        low, high = row.get(f"ratio_{k}_low"), row.get(f"ratio_{k}_high")
+        error = None if low is None or high is None else [[value - low], [high - value]]
+        x = at + 0.04 * (i - (len(ks) - 1) / 2)
+        ax.errorbar([x], [value], yerr=error, color=colour, fmt="o", ms=4, capsize=2)
 
 
 def write_results(out: Path, sweep: dict[str, Any], records: Records) -> list[dict[str, Any]]:

@@ -11,6 +11,9 @@ from ppann.model import PPANN, Z_NAMES
 from ppann.montecarlo import Bands
 from ppann.report import TwinReplay
 
+CALIBRATION_BAND = (0.8, 1.25)
+"""The predicted / observed σ the calibration aims at (issue 11), drawn as a band."""
+
 
 def network_maps(model: PPANN) -> Figure:
     """z_mu and z_sigma of J and K against theta; of B over (theta, omega)."""
@@ -117,7 +120,7 @@ def sigma_ratio(t: np.ndarray, bands: dict[str, Bands], replay: TwinReplay) -> F
     start = min(10, n - 1)
     observed = replay.theta.std(0, ddof=1)
     top.semilogy(t[start:n], observed[start:], "k", label="observed on the twin")
-    bottom.axhspan(0.8, 1.25, color="0.9", label="0.8-1.25")
+    bottom.axhspan(*CALIBRATION_BAND, color="0.9", label="0.8-1.25")
     bottom.axhline(1.0, color="k", lw=0.8)
     for mode in RATIO_MODES:
         if mode in bands and _finite(bands[mode]):

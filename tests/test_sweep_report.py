@@ -3,6 +3,8 @@ text (no sweep runs here; tests/test_sweep.py runs them)."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from crank.sweep_report import figure, markdown
 
 
@@ -60,10 +62,44 @@ def test_sweep_figure_names_each_column_by_its_values() -> None:
         for profile in ("robust-fb", "robust-pd")
     ]
     fig = figure(rows, ["seed", "generation.variability", "case"])
-    bottom = fig.axes[1]
-    ticks = [t.get_text() for t in bottom.get_xticklabels()]
+    premium, lowest = fig.axes[1], fig.axes[-1]
+    ticks = [t.get_text() for t in lowest.get_xticklabels()]
     assert len(ticks) == 8
     assert ticks[0] == "paper\nsamples 60, 90\nrobust-fb"
     assert ticks[3] == "paper\nhorizon 200,\nsamples 70, 130\nrobust-pd"
-    assert bottom.get_xlabel() == "generation.variability / case / profile"
-    assert bottom.get_ylim()[0] < -0.2
+    assert lowest.get_xlabel() == "generation.variability / case / profile"
+    assert premium.get_ylim()[0] < -0.2
+
+
+def test_sweep_figure_draws_each_calibration_ratio_with_its_interval() -> None:
+    """The lowest panel: every finite ratio of a leaf at its constraint samples (whatever they
+    are) at its value with its 95 % interval as the error bar, one colour per sample; a ratio
+    without an interval is a bare point, a diverged one (null or beyond 10) is left out, so the
+    0.8-1.25 band stays readable."""
+    base = {"robust_heldout_rate": 0.001, "robust_heldout_upper_95": 0.004, "premium": 0.3}
+    rows = [
+        base
+        | {"seed": 0, "case": "paper", "ratio_50": 1.2, "ratio_50_low": 1.1}
+        | {"ratio_50_high": 1.3, "ratio_100": 1.05, "ratio_100_low": 1.0, "ratio_100_high": 1.1},
+        base | {"seed": 1, "case": "paper", "ratio_50": 2e40, "ratio_100": 0.9},
+        base
+        | {"seed": 0, "case": "late", "ratio_70": None, "ratio_130": 1.4}
+        | {"ratio_130_low": 1.3, "ratio_130_high": 1.5},
+    ]
+    ax = figure(rows, ["seed", "case"]).axes[-1]
+    points = sorted(
+        (round(float(line.get_ydata()[0]), 6), line.get_color())
+        for line in ax.lines
+        if len(line.get_ydata()) == 1 and line.get_marker() == "o"
+    )
+    assert [p for p, _ in points] == [0.9, 1.05, 1.2, 1.4]
+    colours = dict((p, c) for p, c in points)
+    assert colours[1.05] == colours[0.9] != colours[1.2] != colours[1.4]
+    bars = sorted(
+        tuple(round(float(v), 6) for v in np.ravel(segments.get_segments())[1::2])
+        for segments in ax.collections
+        if hasattr(segments, "get_segments") and len(segments.get_segments()) == 1
+    )
+    assert (1.0, 1.1) in bars and (1.1, 1.3) in bars and (1.3, 1.5) in bars
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["sample 50", "sample 100", "sample 130", "0.8-1.25"]
