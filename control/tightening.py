@@ -137,7 +137,7 @@ def tightening(
     n = samples.shape[0]
     if method == "gaussian":
         sigma = float(np.std(samples, ddof=1))
-        return k_sigma * sigma, k_sigma * sigma * math.sqrt((_kurtosis(samples) - 1) / (4 * n))
+        return k_sigma * sigma, k_sigma * sigma * sigma_relative_se(samples)
     if method == "centred":
         sigma = float(np.std(samples, ddof=1))
         offset = plan - float(np.mean(samples))
@@ -180,7 +180,7 @@ def sampling_allowance(
         allowance = k_sigma * sigma * (math.sqrt(dof / lower) - 1)
         if method == "gaussian":
             return allowance
-        plain = k_sigma * sigma * math.sqrt((kurtosis - 1) / (4 * n))  # `tightening`'s gaussian se
+        plain = k_sigma * sigma * sigma_relative_se(samples)  # `tightening`'s gaussian se
         return allowance * _centred_se(samples, k_sigma) / plain if plain > 0 else 0.0
     p = lower_tail(k_sigma)
     ordered = np.sort(samples)
@@ -202,6 +202,17 @@ def _centred_se(samples: np.ndarray, k_sigma: float) -> float:
     sigma = math.sqrt(m2)
     variance = m2 + k_sigma**2 * (m4 - m2**2) / (4 * m2) - k_sigma * m3 / sigma
     return math.sqrt(max(variance, 0.0) / samples.shape[0])
+
+
+def sigma_relative_se(samples: np.ndarray) -> float:
+    """The standard error of the samples' standard deviation relative to it, sqrt((κ − 1) / (4 n))
+    with κ their kurtosis (the delta method on Var(s²) = (μ₄ − σ⁴) / n; 1 / sqrt(2 n) for a
+    normal law): the gaussian tightening's, and the held-out check's for each predicted σ
+    (replay/heldout.py). 0 for constant samples, inf where one is not finite (a diverged draw)."""
+    if not np.all(np.isfinite(samples)):
+        return math.inf
+    m2, _, m4 = _moments(samples)
+    return math.sqrt(max(m4 / m2**2 - 1, 0.0) / (4 * samples.shape[0])) if m2 > 0 else 0.0
 
 
 def _kurtosis(samples: np.ndarray) -> float:

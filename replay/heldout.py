@@ -73,6 +73,7 @@ from common.jsonio import recorded_path, write_json
 from control.config import PD_GAINS, OCPConfig, lower_tail
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import Profile, read_ocp
+from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MODES
@@ -82,12 +83,7 @@ from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
 from replay.rates import TARGET_RATE, rate_upper, verdict
-from replay.spread_interval import (
-    CALIBRATION_TRAJECTORIES,
-    ratio_interval,
-    relative_se,
-    sigma_interval,
-)
+from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
 from replay.statistics import mpc_timing
 from twin import OPERATING_SECONDS
 from twin.physics import MODEL_PATH, SliderCrank, load_model
@@ -279,7 +275,7 @@ def heldout_check(
                 with np.errstate(over="ignore", invalid="ignore"):
                     slider = ocp.geometry.slider_position(bands.samples[:, k - 1, 0] + delta)
                     sigma = float(np.std(slider, ddof=1))
-                    own = relative_se(slider)
+                    own = sigma_relative_se(slider)
                 entry["predicted"][mc_mode] = {
                     "sigma": sigma,
                     "sigma_se": sigma * own if math.isfinite(sigma * own) else None,

@@ -15,8 +15,8 @@ trajectories it moved single ratios by up to 0.06 (seed 1 of session 23's plan-r
 50: 1.30 from the shared stream's 1000 trajectories, 1.24 and 1.25 from two sets of 10 000), and
 a sweep's models share that stream, so the error is common to its seeds as well. The held-out
 check therefore predicts from CALIBRATION_TRAJECTORIES, and `ratio_interval` widens the
-machines' interval by the Monte-Carlo's standard error (`relative_se`), the two independent, in
-log space.
+machines' interval by the Monte-Carlo's standard error (control/tightening.py
+`sigma_relative_se`, the tightening's own), the two independent, in log space.
 """
 
 from __future__ import annotations
@@ -52,24 +52,6 @@ def sigma_interval(
     tail = (1 - level) / 2
     low, high = np.quantile(sigmas, [tail, 1 - tail])
     return float(low), float(high)
-
-
-def relative_se(values: np.ndarray) -> float:
-    """The standard error of the standard deviation of `values` (independent draws), relative to
-    it: sqrt((kurtosis - 1) / (4 n)) to first order (the delta method on the variance, whose
-    variance is σ⁴ (kurtosis - 1) / n), 1 / sqrt(2 n) for a Gaussian. Non-finite values (a
-    diverged draw) give inf."""
-    x = np.asarray(values, dtype=float)
-    if x.ndim != 1 or len(x) < 2:
-        raise ValueError("a spread's standard error needs a 1-d sample of two or more values")
-    if not np.all(np.isfinite(x)):
-        return math.inf
-    centred = x - x.mean()
-    m2 = float(np.mean(centred**2))
-    if m2 == 0:
-        return 0.0
-    kurtosis = float(np.mean(centred**4)) / m2**2
-    return math.sqrt(max(kurtosis - 1, 0.0) / (4 * len(x)))
 
 
 def ratio_interval(

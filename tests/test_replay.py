@@ -16,12 +16,13 @@ from control.config import PD_GAINS
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp_file import OCPFile
+from control.tightening import sigma_relative_se
 from ppann.model import PPANN, FusedHeads, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, model_rate
-from replay.spread_interval import ratio_interval, relative_se
+from replay.spread_interval import ratio_interval
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import LATE_MPC
 from tests.replay_ocp import N, nominal_twin_trajectory, twin_state
@@ -268,13 +269,13 @@ def _check_heldout_entry(
         assert entry["predicted"]["mixed"]["sigma"] == pytest.approx(predicted, rel=1e-9)
         ratio = entry["predicted"]["mixed"]
         slider = PAPER.slider_position(bands.samples[:, int(k) - 1, 0])
-        assert ratio["sigma_se"] == pytest.approx(predicted * relative_se(slider), rel=1e-9)
+        assert ratio["sigma_se"] == pytest.approx(predicted * sigma_relative_se(slider), rel=1e-9)
         assert ratio["ratio_ci95"] == pytest.approx(
             ratio_interval(
                 predicted,
                 entry["observed_sigma"],
                 (low, high),
-                predicted_relative_se=relative_se(slider),
+                predicted_relative_se=sigma_relative_se(slider),
             ),
             rel=1e-9,
         )

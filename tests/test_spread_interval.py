@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from replay.spread_interval import Z_LEVEL, ratio_interval, relative_se, sigma_interval
+from control.tightening import sigma_relative_se
+from replay.spread_interval import Z_LEVEL, ratio_interval, sigma_interval
 
 N = 1000
 
@@ -55,8 +56,9 @@ def test_the_same_generator_gives_the_same_interval_and_ratios_invert_it() -> No
 def test_the_monte_carlos_standard_error_is_the_spread_of_sigma_over_draws(
     name: str, kurtosis: float
 ) -> None:
-    """relative_se of one draw of n values against the standard deviation of σ over 400 draws
-    (the truth it estimates), and against the closed form sqrt((kurtosis - 1) / (4 n))."""
+    """sigma_relative_se (control/tightening.py) of one draw of n values against the standard
+    deviation of σ over 400 draws (the truth it estimates), and against the closed form
+    sqrt((kurtosis - 1) / (4 n))."""
     rng = np.random.default_rng(11)
     n = 4000
 
@@ -65,11 +67,11 @@ def test_the_monte_carlos_standard_error_is_the_spread_of_sigma_over_draws(
 
     sigmas = np.array([sample().std(ddof=1) for _ in range(400)])
     spread = sigmas.std(ddof=1) / sigmas.mean()  # itself known to ~3.5 % from 400 draws
-    estimates = [relative_se(sample()) for _ in range(20)]
+    estimates = [sigma_relative_se(sample()) for _ in range(20)]
     assert np.mean(estimates) == pytest.approx(spread, rel=0.12)
     assert np.mean(estimates) == pytest.approx(np.sqrt((kurtosis - 1) / (4 * n)), rel=0.1)
-    assert relative_se(np.array([1.0, np.inf])) == np.inf
-    assert relative_se(np.full(5, 2.0)) == 0.0
+    assert sigma_relative_se(np.array([1.0, np.inf])) == np.inf
+    assert sigma_relative_se(np.full(5, 2.0)) == 0.0
 
 
 def test_the_ratios_interval_adds_the_monte_carlos_error_in_log_space() -> None:
