@@ -45,10 +45,21 @@ def _number(value: Any, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
 
+DIVERGED_RATIO = 1e3
+"""A predicted / observed ratio beyond this is a Monte-Carlo whose draws ran away (the
+`trajectory` mode's white σ held for a whole run), not a calibration."""
+
+
+def diverged(ratio: float | None) -> bool:
+    """No ratio to read: a run-away Monte-Carlo's (beyond DIVERGED_RATIO, or not finite), or
+    none was left."""
+    return ratio is None or not abs(ratio) <= DIVERGED_RATIO
+
+
 def _ratio(value: Any) -> str:
-    """A predicted/observed ratio; one beyond 1000 is a Monte-Carlo whose draws ran away (the
-    `trajectory` mode's white σ held for a whole run), shown as such, not as 70 digits."""
-    if value is not None and abs(value) > 1e3:
+    """A predicted/observed ratio; one beyond DIVERGED_RATIO is shown as such, not as 70
+    digits (n/a where none was left)."""
+    if value is not None and abs(value) > DIVERGED_RATIO:
         return f"diverged ({value:.1e})"
     return _number(value, ".2f")
 
@@ -348,7 +359,7 @@ def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
 def _with_interval(predicted: dict[str, Any]) -> str:
     """A calibration ratio, with its interval where heldout.json has one."""
     text = _ratio(predicted["ratio"])
-    if predicted.get("ratio_ci95") and not text.startswith("diverged"):
+    if predicted.get("ratio_ci95") and not diverged(predicted["ratio"]):
         low, high = predicted["ratio_ci95"]
         text += f" ({low:.2f}–{high:.2f})"
     return text

@@ -74,8 +74,8 @@ def test_sweep_figure_names_each_column_by_its_values() -> None:
 def test_sweep_figure_draws_each_calibration_ratio_with_its_interval() -> None:
     """The lowest panel: every finite ratio of a leaf at its constraint samples (whatever they
     are) at its value with its 95 % interval as the error bar, one colour per sample; a ratio
-    without an interval is a bare point, a diverged one (null or beyond 10) is left out, so the
-    0.8-1.25 band stays readable."""
+    without an interval is a bare point, a diverged one (null, or beyond 1000 as report.md says)
+    is left out, so the 0.8-1.25 band stays readable."""
     base = {"robust_heldout_rate": 0.001, "robust_heldout_upper_95": 0.004, "premium": 0.3}
     rows = [
         base
