@@ -170,11 +170,14 @@ def _torch_threads() -> int | None:
 
 
 def _pinned_node(node: Node, out: str, *ancestors: dict[str, Any]) -> dict[str, Any]:
-    """run_node in a Ray worker: 1 CPU, so torch gets 1 thread (several workers share the
-    machine's cores; oversubscribed, training ran ~3x slower)."""
+    """run_node in a Ray worker: 1 CPU, so torch and MuJoCo's rollouts get 1 thread each (several
+    workers share the machine's cores; oversubscribed, training ran ~3x slower, a data step 8x)."""
     import torch
 
+    from twin.stepping import set_rollout_threads
+
     torch.set_num_threads(1)
+    set_rollout_threads(1)
     return run_node(node, out, *ancestors)
 
 

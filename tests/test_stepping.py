@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import copy
+import os
 
 import mujoco
 import numpy as np
+import pytest
 
 from twin.physics import STATE_SPEC, SliderCrank
-from twin.stepping import chunk_bounds, chunk_time, simulate
+from twin.stepping import (
+    Stepper,
+    chunk_bounds,
+    chunk_time,
+    rollout_threads,
+    set_rollout_threads,
+    simulate,
+)
 from twin.variability import Variability, apply
 
 
@@ -119,3 +128,46 @@ def test_drift_lowers_friction_over_time(physics: SliderCrank) -> None:
     assert np.all(np.diff(motor) <= 0) and motor[-1] < motor[0]
     expected = 1 - draws[0].warmup_drop * (1 - np.exp(-chunk_time(2250, 2500) / 20.0))
     assert motor[-1] == draws[0].motor_frictionloss * expected
+
+
+def test_the_process_default_sets_a_rollout_s_threads_and_not_its_result(
+    physics: SliderCrank,
+) -> None:
+    """`set_rollout_threads` is what a rollout steps on when its caller does not say (a sweep's
+    Ray worker sets 1); an explicit count still wins, None gives every core back, and the
+    trajectories are the same bit for bit on one thread as on two."""
+    variability, draws, states, tau, disturbance = _inputs(physics, n_runs=3, n=120, seed=11)
+    try:
+        set_rollout_threads(1)
+        assert rollout_threads() == 1 and Stepper(physics).nthread == 1
+        assert Stepper(physics, nthread=2).nthread == 2
+        one = simulate(
+            physics,
+            variability,
+            draws=draws,
+            initial_states=states,
+            tau=tau,
+            disturbance=disturbance,
+        )
+        set_rollout_threads(None)
+        assert rollout_threads() == (os.cpu_count() or 1)
+        two = simulate(
+            physics,
+            variability,
+            draws=draws,
+            initial_states=states,
+            tau=tau,
+            disturbance=disturbance,
+            nthread=2,
+        )
+    finally:
+        set_rollout_threads(None)
+    assert np.array_equal(one.sensordata, two.sensordata)
+    assert np.array_equal(one.final_state, two.final_state)
+
+
+@pytest.mark.parametrize("count", [0, -1, 1.5, True, "2"])
+def test_a_rollout_thread_count_must_be_a_positive_integer(count: object) -> None:
+    with pytest.raises(ValueError, match="rollout threads must be a positive integer"):
+        set_rollout_threads(count)  # type: ignore[arg-type]
+    assert rollout_threads() == (os.cpu_count() or 1)

@@ -157,7 +157,7 @@ def generate(
       config: duration, seed, variability and excitation.
       physics: the twin (default: models/slider_crank.xml).
       on_progress: called with the number of samples (over all episodes) just completed.
-      nthread: rollout threads (default: all cores).
+      nthread: rollout threads (default: `twin.stepping.rollout_threads()`, all cores unless set).
     """
     physics = physics if physics is not None else SliderCrank()
     lengths = config.episode_lengths()
