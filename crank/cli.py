@@ -197,6 +197,13 @@ def train_command(
             help="Fit a white slider force through the kinematics beside the sigma networks."
         ),
     ] = TrainConfig.sigma_lever,
+    residual_mean: Annotated[
+        bool,
+        typer.Option(
+            help="Take the residual's mean given each sample's state and torque (the mean "
+            "model's own error) out before phase 2 fits the spread."
+        ),
+    ] = TrainConfig.residual_mean,
     machine_terms: Annotated[
         str,
         typer.Option(
@@ -217,6 +224,7 @@ def train_command(
         sigma_block=sigma_block,
         early_stopping=early_stopping,
         sigma_lever=sigma_lever,
+        residual_mean=residual_mean,
         machine_terms=machine_terms,
         seed=seed,
     )

@@ -160,6 +160,8 @@ def train_and_report(
             entry["machine_offsets"] = f.history.machine_offsets
             if f.history.lever_sigma is not None:  # the slider force (ppann/lever.py), N
                 entry["lever_sigma"] = f.history.lever_sigma
+            if f.history.residual_mean_share is not None:  # ppann/residual_mean.py
+                entry["residual_mean_share"] = f.history.residual_mean_share
             # What the training machines leave open about the line (ppann/machine.py).
             upper = sigma_upper(
                 f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), LINE_Z

@@ -41,6 +41,7 @@ from ppann.machine import (
     white_nll,
 )
 from ppann.model import PPANN, n_step_prediction
+from ppann.residual_mean import fit_residual_mean
 from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
 
@@ -64,6 +65,9 @@ class History:
     model, estimated so that it is not read as machine spread (never propagated)."""
     lever_sigma: float | None = None
     """The slider force's standard deviation, N (ppann/lever.py); None: no such channel."""
+    residual_mean_share: float | None = None
+    """The share of phase 2's block residual power its mean took (ppann/residual_mean.py);
+    None: not fitted (`TrainConfig.residual_mean` off)."""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -173,10 +177,12 @@ def train_sigma(
 ) -> None:
     """Phase 2, in place; everything but the sigma networks (and machine_sigma) is frozen.
 
-    With `config.machine_model` the sigma networks and the machine-level spread are fitted
-    jointly by the marginal likelihood of ppann/machine.py (every episode one machine); without
-    it, by eq. 9 alone and machine_sigma stays zero. A model with the slider force's channel
-    (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the machine spread's rate.
+    With `config.residual_mean` the residual's mean given the sample's state and torque is taken
+    out first (ppann/residual_mean.py). With `config.machine_model` the sigma networks and the
+    machine-level spread are fitted jointly by the marginal likelihood of ppann/machine.py (every
+    episode one machine); without it, by eq. 9 alone and machine_sigma stays zero. A model with
+    the slider force's channel (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the
+    machine spread's rate.
     """
     theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
     with torch.no_grad():
@@ -186,6 +192,17 @@ def train_sigma(
     terms = EpisodeTerms.build(
         residual, derivative, design, episode, block_length=config.sigma_block, lever=lever
     )
+    if config.residual_mean:  # the mean model's own one-step error is not noise
+        fitted = fit_residual_mean(residual, theta=theta, omega=omega, tau=tau, block=terms.block)
+        history.residual_mean_share = fitted.share
+        terms = EpisodeTerms.build(
+            residual - fitted.mean,
+            derivative,
+            design,
+            episode,
+            block_length=config.sigma_block,
+            lever=lever,
+        )
     groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
     log_force = None
     if lever is not None:

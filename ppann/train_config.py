@@ -69,6 +69,10 @@ class TrainConfig:
     """The PPANN gets the slider force's channel (`PPANNConfig.sigma_lever`, ppann/lever.py;
     beyond the paper): a white force on the slider through x'(theta), fitted in phase 2 beside
     the sigma networks."""
+    residual_mean: bool = False
+    """Phase 2 takes the residual's mean given each sample's state and torque (the mean model's
+    own one-step error, the same on every machine) out before it fits the spread
+    (ppann/residual_mean.py; beyond the paper): eq. 9 alone reads that error as noise."""
     machine_terms: str = "augmented"
     """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
     eq. 14's whole terms; "prior", the prior's physical motor terms alone."""

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -171,10 +172,12 @@ def _machines_dataset(
     seed: int,
     column: int = 0,
     model: PPANN | None = None,
+    extra: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ):
     """Episodes of a known PPANN (constant networks, `model`) whose machine factor of term
     `column` (0: inertia) is exp(eta) per episode, eta ~ N(0, spread²), and a small white torque
-    noise."""
+    noise (σ 0.02 N·m); `extra(theta, omega)`: a torque the machines get and the model has not
+    (its own error, the same on every machine)."""
     if model is None:
         model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
     heads = FusedHeads(model)
@@ -190,8 +193,9 @@ def _machines_dataset(
     factors[:, column] = np.exp(eta)
     for k in range(n - 1):  # all episodes at once
         mean, _ = heads(theta[:, k], omega[:, k])
+        error = 0.0 if extra is None else extra(theta[:, k], omega[:, k])
         alpha = heads.acceleration(
-            theta[:, k], omega[:, k], tau[:, k] + noise[:, k], mean, factors=factors
+            theta[:, k], omega[:, k], tau[:, k] + noise[:, k] + error, mean, factors=factors
         )
         theta[:, k + 1] = theta[:, k] + DT * omega[:, k]
         omega[:, k + 1] = omega[:, k] + DT * alpha
@@ -223,17 +227,19 @@ def fitted_line():
     return model, eta, machines
 
 
-def _phase_two(truth: PPANN, dataset: Dataset, config: PPANNConfig) -> tuple[PPANN, int]:
+def _phase_two(
+    truth: PPANN, dataset: Dataset, config: PPANNConfig, *, history: History | None = None, **train
+) -> tuple[PPANN, int]:
     """A PPANN of `config` with `truth`'s mean networks and fresh sigma networks, phase 2 fitted
-    on `dataset`; and the first sample of its validation split."""
+    on `dataset` (`train`: TrainConfig options); and the first sample of its validation split."""
     model = PPANN(config)
     model.load_state_dict(
         {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
         | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
     )
-    train = TrainConfig(sigma_epochs=400, validation_fraction=0.05)
-    splits = make_splits(dataset, train)
-    train_sigma(model, dataset, splits, train, history=History())
+    options = TrainConfig(sigma_epochs=400, validation_fraction=0.05, **train)
+    splits = make_splits(dataset, options)
+    train_sigma(model, dataset, splits, options, history=history or History())
     return model, splits.split
 
 

@@ -1,0 +1,91 @@
+"""The residual's mean, taken out before phase 2 fits its spread (beyond the paper).
+
+Eq. 9 reads the whole one-step residual r of the frozen mean model as noise: its sigma networks
+fit E[r^2 | x], the white variance *plus the square of the mean model's own error at x*. Phase 1
+fits the mean over N steps, so a one-step error is left, and it is deterministic: the same on
+every machine under one torque. The Monte-Carlo then propagates it as independent noise and
+over-predicts the spread. On the seed-3 default model (session 25, development machines) the
+twin's nominal machines without any randomness kept 13-20 % of the residual's power, and the
+predicted slider σ at sample 50 was 1.30x the machines'.
+
+Here the residual's conditional mean given the sample's own state and torque is fitted first, by
+least squares on a basis of (theta_k, omega_k, tau_k): Fourier harmonics 0..HARMONICS of theta
+times (1, omega, omega^2, tau, tau omega). Those regressors are set before sample k's white force
+acts (theta_k and omega_k by earlier forces, tau_k by the excitation), so the fit cannot take the
+noise of its own sample; regressors of the recent past would (a block sums neighbouring samples,
+and a past speed holds a past force), and on the seed-3 data they explained less of the blocks'
+power, not more. Phase 2 then fits the sigma networks and the machine spread to r - mean.
+
+The mean is a nuisance of phase 2 only, as ppann/machine.py's common log-factor offset is: it is
+not propagated, the Monte-Carlo's mean stays phase 1's N-step model. The two overlap (the
+damping's design column, omega (1 + z_B) B_m, lies nearly in the basis), and need not be told
+apart: phase 2's common offset fits what the mean left, and its covariance, which depends on the
+design and the white variance alone, is the same either way. Machine offsets differ from episode
+to episode and average out of the mean. Columns are scaled to unit RMS before the solve (the
+fitted values do not depend on the scaling; the conditioning does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+HARMONICS = 8
+"""Fourier harmonics of theta in the basis (0 is the constant); 5 x (2 HARMONICS + 1) columns."""
+
+
+def basis(theta: torch.Tensor, omega: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """The mean's regressors at each sample, (n, 5 (2 HARMONICS + 1)): harmonics of theta times
+    (1, omega, omega^2, tau, tau omega)."""
+    factors = torch.stack([torch.ones_like(omega), omega, omega**2, tau, tau * omega], dim=-1)
+    trig = [torch.ones_like(theta)]
+    for h in range(1, HARMONICS + 1):
+        trig += [torch.sin(h * theta), torch.cos(h * theta)]
+    harmonics = torch.stack(trig, dim=-1)
+    return (harmonics[:, :, None] * factors[:, None, :]).reshape(len(theta), -1)
+
+
+@dataclass(frozen=True)
+class ResidualMean:
+    """The fitted mean at the samples, and how much of the residual it was."""
+
+    mean: torch.Tensor
+    """The residual's fitted mean at each sample (n,)."""
+    share: float
+    """The fraction of the residual's power the mean accounts for, in
+    sums over the blocks phase 2 fits (per sample without blocks)."""
+
+
+def fit_residual_mean(
+    residual: torch.Tensor,
+    *,
+    theta: torch.Tensor,
+    omega: torch.Tensor,
+    tau: torch.Tensor,
+    block: torch.Tensor | None = None,
+) -> ResidualMean:
+    """Least squares of the residual (n,) on `basis` (module docstring). `block` (n,): each
+    sample's block in phase 2 (`EpisodeTerms.block`), for the share.
+
+    Raises:
+      ValueError: fewer samples than regressors, or a residual that is not finite.
+    """
+    regressors = basis(theta, omega, tau)
+    n, p = regressors.shape
+    if n <= p:
+        raise ValueError(f"the residual's mean needs more than {p} samples, got {n}")
+    if not bool(torch.isfinite(residual).all()):
+        raise ValueError("the residual holds NaN or inf")
+    scale = regressors.pow(2).mean(dim=0).sqrt().clamp_min(1e-300)
+    solved = torch.linalg.lstsq(regressors / scale, residual[:, None]).solution[:, 0]
+    mean = regressors @ (solved / scale)
+    whole, left = residual, residual - mean
+    if block is not None:
+        count = int(block.max()) + 1
+        whole, left = (
+            torch.zeros(count, dtype=v.dtype).index_add(0, block, v) for v in (whole, left)
+        )
+    power = float(whole.pow(2).sum())
+    share = 1.0 - float(left.pow(2).sum()) / power if power > 0 else 0.0
+    return ResidualMean(mean=mean, share=share)
