@@ -208,7 +208,7 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
     from crank.report import train_summary
 
     with transcript(run_dir / "run.log", append=resume):
-        bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.sigma_epochs})
+        bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.phase2_epochs})
         with (
             Progress(config.generation.n_samples, "simulating") as sim,
             Progress(config.generation.n_samples, "writing MCAP") as io,

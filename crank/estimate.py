@@ -83,7 +83,7 @@ def train_time(config: TrainConfig, generation: GenerationConfig, *, baselines: 
         lanes.append(WINDOW_STEP_EPOCH["physics"] + WINDOW_STEP_EPOCH["blackbox"])
     per_epoch = max(lanes) * epoch * config.horizon
     phase1 = Span(per_epoch * min(EARLY_EPOCHS, config.max_epochs), per_epoch * config.max_epochs)
-    phase2 = SIGMA_SAMPLE_EPOCH * windows * config.sigma_epochs
+    phase2 = SIGMA_SAMPLE_EPOCH * windows * config.phase2_epochs
     return phase1 + Span(phase2 + VALIDATION, phase2 + VALIDATION)
 
 

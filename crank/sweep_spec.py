@@ -178,7 +178,10 @@ def node_key(kind: str, config: RunConfig) -> str:
     parts: dict[str, Any] = {"mjcf": _mjcf_sha(config.model_path)}
     parts["generation"] = values["generation"]
     if KINDS.index(kind) >= 1:
-        parts |= {"train": values["train"], "baselines": values["baselines"]}
+        train = dict(values["train"])
+        if not train["residual_mean"]:  # keys of sweeps without it stay what they were
+            del train["residual_mean"]
+        parts |= {"train": train, "baselines": values["baselines"]}
     if KINDS.index(kind) >= 2:
         parts["ocp"] = values["ocp"]
         if config.plan.episodes:  # keys of sweeps without the round stay what they were

@@ -177,32 +177,68 @@ def train_sigma(
 ) -> None:
     """Phase 2, in place; everything but the sigma networks (and machine_sigma) is frozen.
 
-    With `config.residual_mean` the residual's mean given the sample's state and torque is taken
-    out first (ppann/residual_mean.py). With `config.machine_model` the sigma networks and the
-    machine-level spread are fitted jointly by the marginal likelihood of ppann/machine.py (every
-    episode one machine); without it, by eq. 9 alone and machine_sigma stays zero. A model with
-    the slider force's channel (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the
-    machine spread's rate.
+    With `config.machine_model` the sigma networks and the machine-level spread are fitted jointly
+    by the marginal likelihood of ppann/machine.py (every episode one machine); without it, by
+    eq. 9 alone and machine_sigma stays zero. A model with the slider force's channel
+    (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the machine spread's rate.
+    With `config.residual_mean` a second pass follows from the same initial weights, with the
+    residual's mean given the sample's state and torque (fitted with the first pass's machine
+    offsets out) taken out of the residual (ppann/residual_mean.py).
     """
     theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = machine_design(model, theta, omega, derivative)
     lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
-    terms = EpisodeTerms.build(
-        residual, derivative, design, episode, block_length=config.sigma_block, lever=lever
-    )
-    if config.residual_mean:  # the mean model's own one-step error is not noise
-        fitted = fit_residual_mean(residual, theta=theta, omega=omega, tau=tau, block=terms.block)
-        history.residual_mean_share = fitted.share
-        terms = EpisodeTerms.build(
-            residual - fitted.mean,
-            derivative,
-            design,
-            episode,
-            block_length=config.sigma_block,
-            lever=lever,
+
+    def blocks(values: torch.Tensor) -> EpisodeTerms:
+        return EpisodeTerms.build(
+            values, derivative, design, episode, block_length=config.sigma_block, lever=lever
         )
+
+    terms = blocks(residual)
+    initial = copy.deepcopy(model.sigma_nets.state_dict())
+    _fit_spread(model, terms, theta, omega, config, history=history, on_epoch=on_epoch)
+    if not config.residual_mean:
+        return
+    # The mean model's own one-step error is not noise: its mean is fitted on the residual with
+    # the machines' offsets of the first pass taken out, and the spread fitted again around it.
+    shift = torch.zeros_like(design)  # each sample's machine offset (none without the model)
+    if history.machine_offsets:
+        shift = (
+            torch.tensor(history.machine_common, dtype=design.dtype)
+            + torch.tensor(history.machine_offsets, dtype=design.dtype)[episode]
+        )
+    own = residual + (design * shift).sum(-1)
+    fitted = fit_residual_mean(own, theta=theta, omega=omega, tau=tau, block=terms.block)
+    model.sigma_nets.load_state_dict(initial)
+    history.sigma.clear()
+    history.residual_mean_share = fitted.share
+    second = None if on_epoch is None else (lambda e, loss: on_epoch(config.sigma_epochs + e, loss))
+    _fit_spread(
+        model,
+        blocks(residual - fitted.mean),
+        theta,
+        omega,
+        config,
+        history=history,
+        on_epoch=second,
+    )
+
+
+def _fit_spread(
+    model: PPANN,
+    terms: EpisodeTerms,
+    theta: torch.Tensor,
+    omega: torch.Tensor,
+    config: TrainConfig,
+    *,
+    history: History,
+    on_epoch: Callable[[int, float], None] | None,
+) -> None:
+    """One fit of phase 2 on `terms` from the sigma networks' present weights, the machine
+    spread's and the slider force's start: the model's spread, offsets and population."""
+    lever = terms.lever
     groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
     log_force = None
     if lever is not None:

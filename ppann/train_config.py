@@ -72,7 +72,9 @@ class TrainConfig:
     residual_mean: bool = False
     """Phase 2 takes the residual's mean given each sample's state and torque (the mean model's
     own one-step error, the same on every machine) out before it fits the spread
-    (ppann/residual_mean.py; beyond the paper): eq. 9 alone reads that error as noise."""
+    (ppann/residual_mean.py; beyond the paper): eq. 9 alone reads that error as noise. Phase 2
+    then runs twice (`phase2_epochs`): the first pass gives the machines' offsets the mean is
+    fitted without."""
     machine_terms: str = "augmented"
     """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
     eq. 14's whole terms; "prior", the prior's physical motor terms alone."""
@@ -100,6 +102,11 @@ class TrainConfig:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"
             )
+
+    @property
+    def phase2_epochs(self) -> int:
+        """Phase 2's epochs in all: two passes of sigma_epochs with `residual_mean`."""
+        return self.sigma_epochs * (2 if self.residual_mean else 1)
 
     def as_dict(self) -> dict:
         return asdict(self)
