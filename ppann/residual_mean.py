@@ -4,9 +4,10 @@ Eq. 9 reads the whole one-step residual r of the frozen mean model as noise: its
 fit E[r^2 | x], the white variance *plus the square of the mean model's own error at x*. Phase 1
 fits the mean over N steps, so a one-step error is left, and it is deterministic: the same on
 every machine under one torque. The Monte-Carlo then propagates it as independent noise and
-over-predicts the spread. On the seed-3 default model (session 25, development machines) the
-twin's nominal machines without any randomness kept 13-20 % of the residual's power, and the
-predicted slider σ at sample 50 was 1.30x the machines'.
+over-predicts the spread. On the twin's nominal machines without any randomness a default
+model's residual kept 13-20 % of the power it has with the white force (session 24, seed 1), and
+the seed-3 default model predicted the slider's σ at sample 50 at 1.30x the machines' (session
+25, 1000 development machines).
 
 Here the residual's conditional mean given the sample's own state and torque is fitted first, by
 least squares on a basis of (theta_k, omega_k, tau_k): Fourier harmonics 0..HARMONICS of theta
@@ -59,8 +60,8 @@ class ResidualMean:
     mean: torch.Tensor
     """The residual's fitted mean at each sample (n,)."""
     share: float
-    """The fraction of the residual's power the mean accounts for, in
-    sums over the blocks phase 2 fits (per sample without blocks)."""
+    """The fraction of the residual's power the mean accounts for, in sums over the blocks phase
+    2 fits (per sample without blocks)."""
 
 
 def fit_residual_mean(

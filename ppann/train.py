@@ -66,8 +66,8 @@ class History:
     lever_sigma: float | None = None
     """The slider force's standard deviation, N (ppann/lever.py); None: no such channel."""
     residual_mean_share: float | None = None
-    """The share of phase 2's block residual power its mean took (ppann/residual_mean.py);
-    None: not fitted (`TrainConfig.residual_mean` off)."""
+    """The share of phase 2's block residual power (the machines' offsets out) that the
+    residual's mean took (ppann/residual_mean.py); None: not fitted (option off)."""
 
     def as_dict(self) -> dict:
         return asdict(self)
