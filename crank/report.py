@@ -83,6 +83,9 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
     force = report["models"]["ppann"].get("lever_sigma")
     if force is not None:  # the slider force's channel (ppann/lever.py)
         rows["slider force σ (fitted)"] = f"{force:.1f} N"
+    share = report["models"]["ppann"].get("residual_mean_share")
+    if share is not None:  # the residual's mean (ppann/residual_mean.py)
+        rows["residual's mean, of phase 2's power"] = f"{100 * share:.1f} %"
     rows["PPANN training"] = f"{report['models']['ppann']['train_seconds']:.1f} s"
     return rows
 

@@ -87,6 +87,9 @@ def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
     assert "slider force σ (fitted)" not in rows
     ppann["lever_sigma"] = 17.26
     assert train_summary(report)["slider force σ (fitted)"] == "17.3 N"
+    assert "residual's mean, of phase 2's power" not in rows
+    ppann["residual_mean_share"] = 0.0635
+    assert train_summary(report)["residual's mean, of phase 2's power"] == "6.3 %"
 
 
 def test_theta_is_calibrated_at_each_constraint_sample_and_the_last() -> None:
