@@ -230,6 +230,8 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
         ]
         + [calibration.fill_between([], [], color="0.9", label="0.8-1.25")],
         fontsize=8,
+        loc="upper left",  # beside the panel: with many tasks' samples it covered their points
+        bbox_to_anchor=(1.005, 1.0),
     )
     calibration.set_xticks(range(len(grouped)), ticks, fontsize=8)
     calibration.set_xlim(-0.5, len(grouped) - 0.5)

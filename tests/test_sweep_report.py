@@ -86,7 +86,10 @@ def test_sweep_figure_draws_each_calibration_ratio_with_its_interval() -> None:
         | {"seed": 0, "case": "late", "ratio_70": None, "ratio_130": 1.4}
         | {"ratio_130_low": 1.3, "ratio_130_high": 1.5},
     ]
-    ax = figure(rows, ["seed", "case"]).axes[-1]
+    fig = figure(rows, ["seed", "case"])
+    ax = fig.axes[-1]
+    fig.draw_without_rendering()  # the legend sits beside the panel, over none of its points
+    assert ax.get_legend().get_window_extent().x0 >= ax.get_window_extent().x1
     points = sorted(
         (round(float(line.get_ydata()[0]), 6), line.get_color())
         for line in ax.lines
