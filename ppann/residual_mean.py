@@ -29,7 +29,8 @@ damping's design column, omega (1 + z_B) B_m, lies nearly in the basis), and nee
 apart: phase 2's common offset fits what the mean left, and its covariance, which depends on the
 design and the white variance alone, is the same either way. Machine offsets differ from episode
 to episode and average out of the mean. Columns are scaled to unit RMS before the solve (the
-fitted values do not depend on the scaling; the conditioning does).
+fitted values do not depend on the scaling; the conditioning does), and the fit solves the
+normal equations (`_normal_equations`: the same bits in any thread).
 """
 
 from __future__ import annotations
@@ -51,6 +52,27 @@ def basis(theta: torch.Tensor, omega: torch.Tensor, tau: torch.Tensor) -> torch.
         trig += [torch.sin(h * theta), torch.cos(h * theta)]
     harmonics = torch.stack(trig, dim=-1)
     return (harmonics[:, :, None] * factors[:, None, :]).reshape(len(theta), -1)
+
+
+CHUNK = 2048
+"""Samples per partial sum of the normal equations."""
+
+
+def _normal_equations(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """X^T X and X^T y, summed chunk after chunk in a fixed order, solved later by
+    `torch.linalg.solve` on the small system: MKL's least squares (torch.linalg.lstsq) gave other
+    last bits in a Python thread than in the main one, both on one torch thread, and
+    `ppann.fit.fit_all` trains kinds side by side in threads, bit for bit as one after another
+    (tests/test_fit_all.py). These products and the solve gave the same bits in both (session
+    25: four trials, and with a misaligned copy of X)."""
+    p = x.shape[1]
+    gram = torch.zeros((p, p), dtype=x.dtype)
+    moment = torch.zeros(p, dtype=x.dtype)
+    for start in range(0, len(x), CHUNK):
+        rows = x[start : start + CHUNK]
+        gram += rows.T @ rows
+        moment += rows.T @ y[start : start + CHUNK]
+    return gram, moment
 
 
 @dataclass(frozen=True)
@@ -85,8 +107,9 @@ def fit_residual_mean(
     if not bool(torch.isfinite(residual).all()):
         raise ValueError("the residual holds NaN or inf")
     scale = regressors.pow(2).mean(dim=0).sqrt().clamp_min(1e-300)
-    solved = torch.linalg.lstsq(regressors / scale, residual[:, None]).solution[:, 0]
-    mean = regressors @ (solved / scale)
+    gram, moment = _normal_equations(regressors / scale, residual)
+    solved = torch.linalg.solve(gram, moment)
+    mean = (regressors * (solved / scale)).sum(dim=-1)
     whole, left = residual, residual - mean
     if block is not None:
         count = int(block.max()) + 1
