@@ -179,7 +179,7 @@ def node_key(kind: str, config: RunConfig) -> str:
     parts["generation"] = values["generation"]
     if KINDS.index(kind) >= 1:
         train = dict(values["train"])
-        if not train["residual_mean"]:  # keys of sweeps without it stay what they were
+        if not train["residual_mean"]:  # keys of runs without it stay what they were before it
             del train["residual_mean"]
         parts |= {"train": train, "baselines": values["baselines"]}
     if KINDS.index(kind) >= 2:

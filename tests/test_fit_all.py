@@ -54,7 +54,7 @@ def test_side_by_side_equals_one_after_another_to_the_last_bit() -> None:
         assert mine == [c for c in alone_calls if c[0] == kind]
     assert sorted(together_done) == sorted(alone_done) == sorted(KINDS)
     ppann_phases = [phase for kind, phase, _ in together_calls if kind == "ppann"]
-    assert ppann_phases == ["mean"] * 3 + ["sigma"] * 5
+    assert ppann_phases == ["mean"] * 3 + ["sigma"] * CONFIG.phase2_epochs  # two passes
     assert all(math.isfinite(v) for v in together["ppann"].history.sigma)
 
 
