@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import torch
 
+from common.errors import CrankError
+
 HARMONICS = 8
 """Fourier harmonics of theta in the basis (0 is the constant); 5 x (2 HARMONICS + 1) columns."""
 
@@ -75,6 +77,10 @@ def _normal_equations(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, t
     return gram, moment
 
 
+class ResidualMeanError(CrankError, ValueError):
+    """The residual's mean cannot be fitted on these samples (a one-line error on the CLI)."""
+
+
 @dataclass(frozen=True)
 class ResidualMean:
     """The fitted mean at the samples, and how much of the residual it was."""
@@ -98,14 +104,17 @@ def fit_residual_mean(
     sample's block in phase 2 (`EpisodeTerms.block`), for the share.
 
     Raises:
-      ValueError: fewer samples than regressors, or a residual that is not finite.
+      ResidualMeanError: fewer samples than regressors, or a residual that is not finite.
     """
     regressors = basis(theta, omega, tau)
     n, p = regressors.shape
     if n <= p:
-        raise ValueError(f"the residual's mean needs more than {p} samples, got {n}")
+        raise ResidualMeanError(
+            f"the residual's mean needs more than {p} training samples, got {n} "
+            "(a longer dataset, or --no-residual-mean)"
+        )
     if not bool(torch.isfinite(residual).all()):
-        raise ValueError("the residual holds NaN or inf")
+        raise ResidualMeanError("the residual holds NaN or inf")
     scale = regressors.pow(2).mean(dim=0).sqrt().clamp_min(1e-300)
     gram, moment = _normal_equations(regressors / scale, residual)
     solved = torch.linalg.solve(gram, moment)

@@ -10,7 +10,7 @@ import torch
 
 from ppann.losses import propagated_terms
 from ppann.model import PPANNConfig
-from ppann.residual_mean import basis, fit_residual_mean
+from ppann.residual_mean import ResidualMeanError, basis, fit_residual_mean
 from ppann.train import History, sigma_data
 from tests.test_machine import _machines_dataset, _phase_two
 
@@ -53,7 +53,9 @@ def test_the_fit_refuses_too_few_samples_and_a_non_finite_residual(bad: str) -> 
     residual = torch.zeros(n, dtype=torch.float64)
     if bad == "nan":
         residual[7] = float("nan")
-    with pytest.raises(ValueError, match="more than 85 samples" if bad == "short" else "NaN"):
+    with pytest.raises(
+        ResidualMeanError, match="more than 85 training" if bad == "short" else "NaN"
+    ):
         fit_residual_mean(residual, theta=theta, omega=omega, tau=tau)
 
 
