@@ -137,29 +137,26 @@ def test_the_process_default_sets_a_rollout_s_threads_and_not_its_result(
     Ray worker sets 1); an explicit count still wins, None gives every core back, and the
     trajectories are the same bit for bit on one thread as on two."""
     variability, draws, states, tau, disturbance = _inputs(physics, n_runs=3, n=120, seed=11)
+
+    def run(**threads):
+        return simulate(
+            physics,
+            variability,
+            draws=draws,
+            initial_states=states,
+            tau=tau,
+            disturbance=disturbance,
+            **threads,
+        )
+
     try:
         set_rollout_threads(1)
         assert rollout_threads() == 1 and Stepper(physics).nthread == 1
         assert Stepper(physics, nthread=2).nthread == 2
-        one = simulate(
-            physics,
-            variability,
-            draws=draws,
-            initial_states=states,
-            tau=tau,
-            disturbance=disturbance,
-        )
+        one = run()
         set_rollout_threads(None)
         assert rollout_threads() == (os.cpu_count() or 1)
-        two = simulate(
-            physics,
-            variability,
-            draws=draws,
-            initial_states=states,
-            tau=tau,
-            disturbance=disturbance,
-            nthread=2,
-        )
+        two = run(nthread=2)
     finally:
         set_rollout_threads(None)
     assert np.array_equal(one.sensordata, two.sensordata)
@@ -168,6 +165,6 @@ def test_the_process_default_sets_a_rollout_s_threads_and_not_its_result(
 
 @pytest.mark.parametrize("count", [0, -1, 1.5, True, "2"])
 def test_a_rollout_thread_count_must_be_a_positive_integer(count: object) -> None:
-    with pytest.raises(ValueError, match="rollout threads must be a positive integer"):
+    with pytest.raises(ValueError, match="rollout threads must be an integer >= 1, got"):
         set_rollout_threads(count)  # type: ignore[arg-type]
     assert rollout_threads() == (os.cpu_count() or 1)

@@ -29,6 +29,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from common.checks import check_count
 from twin.physics import SAMPLE_RATE, STATE_SPEC, SliderCrank
 from twin.variability import FrictionState, MachineDraw, Variability, apply
 
@@ -41,8 +42,8 @@ def set_rollout_threads(count: int | None) -> None:
     with each step on every core, two workers and a held-out check made six threads on two cores,
     and a data step took 648 s against 80 s alone (session 24)."""
     global _rollout_threads
-    if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 1):
-        raise ValueError(f"rollout threads must be a positive integer or None, got {count!r}")
+    if count is not None:
+        check_count("rollout threads", count, error=ValueError)
     _rollout_threads = count
 
 
