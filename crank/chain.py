@@ -32,6 +32,8 @@ from crank import stages
 from crank.estimate import Span, run_time
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig, check_campaign_memory
+from replay.heldout import check_trajectories
+from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.excitation import Excitation
@@ -62,6 +64,9 @@ class RunConfig:
     """Machines of the held-out check (every profile, in `heldout_modes`); 0 skips it."""
     heldout_seed: int = 0
     """Root seed of the held-out machines (streams heldout_machines / heldout_noise)."""
+    heldout_trajectories: int = CALIBRATION_TRAJECTORIES
+    """Monte-Carlo trajectories of each predicted σ of the held-out check (its model's own
+    rate takes twice as many); fewer give wider ratio intervals in heldout.json."""
     model_path: str = str(MODEL_PATH)
     baselines: bool = True
     """Train and report the physics-only and black-box baselines too."""
@@ -70,6 +75,7 @@ class RunConfig:
         check_seed("seed", self.seed)
         check_seed("heldout_seed", self.heldout_seed)
         check_count("heldout_runs", self.heldout_runs, low=0, high=100_000)
+        check_trajectories("heldout_trajectories", self.heldout_trajectories)
         seeds = {
             "generation": self.generation.seed,
             "train": self.train.seed,
@@ -156,6 +162,10 @@ class RunConfig:
             rep["modes"] = tuple(rep["modes"])
             rep["mpc"] = MPCConfig(**rep.get("mpc", {}))  # runs of before the MPC: defaults
             options = {k: values[k] for k in ("seed", "heldout_runs", "heldout_seed")}
+            # runs of before the setting: the check's default
+            options["heldout_trajectories"] = values.get(
+                "heldout_trajectories", CALIBRATION_TRAJECTORIES
+            )
             options |= {k: values[k] for k in ("model_path", "baselines")}
             train = dict(values["train"])
             train.setdefault("early_stopping", "tail")  # runs of before the stop on every machine

@@ -25,6 +25,7 @@ from crank.console import (
 )
 from replay.config import ReplayConfig, played_line
 from replay.rates import TARGET_RATE, machines_to_confirm
+from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
 
@@ -218,6 +219,13 @@ def heldout_command(
         ),
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (HELDOUT_SEED),
+    trajectories: Annotated[
+        int,
+        typer.Option(
+            help="Monte-Carlo trajectories of each predicted spread (the model's own rate takes "
+            "twice as many; fewer: wider ratio intervals)."
+        ),
+    ] = CALIBRATION_TRAJECTORIES,
     out: Annotated[Path, typer.Option(help="heldout.json to write.")] = Path("logs/heldout.json"),
     variability: Annotated[
         str | None,
@@ -274,6 +282,8 @@ def heldout_command(
         kd=kd,
         model_path=mjcf,
         mpc=mpc,
+        mc_samples=trajectories,
+        tail_draws=2 * trajectories,
         on_played=lambda name, mode, entry: typer.echo(
             played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs),
             err=True,

@@ -37,6 +37,7 @@ from crank.console import (
 )
 from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE, machines_to_confirm
+from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.variability import Variability
 
@@ -83,6 +84,13 @@ def run_command(
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
+    heldout_trajectories: Annotated[
+        int,
+        typer.Option(
+            help="Monte-Carlo trajectories of each spread the held-out check predicts (fewer: "
+            "wider ratio intervals in heldout.json)."
+        ),
+    ] = CALIBRATION_TRAJECTORIES,
     plan_episodes: Annotated[
         int,
         typer.Option(
@@ -143,6 +151,7 @@ FLAG_KEYS = {
     "runs": ("replay", "runs"),
     "heldout_runs": ("heldout_runs",),
     "heldout_seed": ("heldout_seed",),
+    "heldout_trajectories": ("heldout_trajectories",),
     "model": ("model",),
     "plan_episodes": ("plan", "episodes"),
 }

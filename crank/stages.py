@@ -129,6 +129,8 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         kp=config.replay.kp,  # recorded beside the own-law loops (a robust-pd's gains are this PD)
         kd=config.replay.kd,
         model_path=config.model_path,
+        mc_samples=config.heldout_trajectories,
+        tail_draws=2 * config.heldout_trajectories,
     )
 
 

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 from common.errors import ConfigError
 from crank.config_file import build, defaults, follow_dataset, merge
+from replay.spread_interval import CALIBRATION_TRAJECTORIES
 
 if TYPE_CHECKING:
     from crank.chain import RunConfig
@@ -188,6 +189,8 @@ def node_key(kind: str, config: RunConfig) -> str:
             parts["plan"] = values["plan"]
     if KINDS.index(kind) >= 3:
         parts |= {k: values[k] for k in ("replay", "heldout_runs", "heldout_seed")}
+        if config.heldout_trajectories != CALIBRATION_TRAJECTORIES:  # keys stay as before it
+            parts["heldout_trajectories"] = config.heldout_trajectories
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 

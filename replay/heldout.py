@@ -69,6 +69,7 @@ from scipy import stats as scistats
 
 from common import streams
 from common.atomic import check_writable, writes
+from common.checks import check_count
 from common.jsonio import recorded_path, write_json
 from control.config import PD_GAINS, OCPConfig, lower_tail
 from control.mpc_config import MPCConfig, check_fits
@@ -94,6 +95,12 @@ VERSION = 6
 TAIL_DRAWS = 20_000
 """Trajectories of the model's own violation rate (`model_rate`): 27 expected below at 0.135 %,
 a relative standard error of 19 %; ~1 s for 150 steps."""
+
+
+def check_trajectories(name: str, value: object) -> None:
+    """Refuse a Monte-Carlo size for the check's predictions outside [100, 1 000 000] (fewer
+    cannot estimate a σ to a useful interval; more do not fit in memory beside the replays)."""
+    check_count(name, value, low=100, high=1_000_000)
 
 
 def _ratio(predicted: float, observed: float) -> float | None:
@@ -330,9 +337,13 @@ def heldout_file(
     feedback: str = "lqr",
     kp: float = PD_GAINS[0],
     kd: float = PD_GAINS[1],
+    mc_samples: int = CALIBRATION_TRAJECTORIES,
+    tail_draws: int = TAIL_DRAWS,
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
+    check_trajectories("trajectories", mc_samples)
+    check_trajectories("tail draws", tail_draws)
     check_writable(out)
     horizon = read_ocp(ocp_path).horizon
     check_campaign_memory(runs, modes=len(modes), horizon=horizon, held_out=True)
@@ -357,6 +368,8 @@ def heldout_file(
         feedback=feedback,
         kp=kp,
         kd=kd,
+        mc_samples=mc_samples,
+        tail_draws=tail_draws,
         on_played=on_played,
     )
     result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder

@@ -315,6 +315,8 @@ CASES: list[tuple[str, str]] = [
     ("heldout --ocp {ocp.json} --model {m.pt} --out {ocp.json}", "would overwrite"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out {file}/h.json", "cannot write"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes sideways", "modes must be"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --trajectories 99", "trajectories"),
+    ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --trajectories 1e4", "Invalid value"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes open,open", "modes repeat"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --modes ,", "modes must be"),
     ("heldout --ocp {ocp.json} --model {m.pt} --out o/h.json --seed -1", "seed must be"),
@@ -361,6 +363,8 @@ CASES: list[tuple[str, str]] = [
     ("run --logs L --heldout-runs 100000", "a held-out check on 100000 machines needs about"),
     ("run --logs L --runs 100000", "a campaign of 100000 runs needs about 105 GB"),
     ("run --logs L --heldout-runs -1", "heldout_runs must be an integer"),
+    ("run --logs L --heldout-trajectories 50", "heldout_trajectories must be an integer 100.."),
+    ("run --logs L --heldout-trajectories 2000000", "heldout_trajectories must be an integer"),
     ("run --logs L --runs 0", "runs must be an integer"),
     ("run --logs L --seed -1", "seed must be"),
     (

@@ -38,6 +38,8 @@ SHORT = RunConfig.for_seed(
     },
     replay={"runs": 4},
     heldout_runs=20,
+    # 20 machines measure a spread to ~±30 %: the check's predictions need not be 10 000 draws
+    heldout_trajectories=1000,
     baselines=False,
 )
 
@@ -128,6 +130,7 @@ def test_in_process_run_writes_every_artifact(two_runs) -> None:
     assert config["heldout_streams"]["root_seed"] == SHORT.heldout_seed
     heldout = json.loads((a / "heldout.json").read_text())
     assert heldout["runs"] == 20 and heldout["modes"] == ["open", "closed"]
+    assert (heldout["mc_samples"], heldout["tail_draws"]) == (1000, 2000)  # the run's setting
     assert heldout["pd"] == {"kp": SHORT.replay.kp, "kd": SHORT.replay.kd}
     assert list(heldout["profiles"]) == ["nominal", "robust", "robust-fb", "robust-pd"]
     assert set(heldout["holds"]) == {"robust", "robust-fb", "robust-pd"}

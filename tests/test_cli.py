@@ -48,7 +48,10 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     chain runs to the robust OCP and stops there with one line naming why, leaving no ocp.json or
     report; config.json holds the file's values under the flags given."""
     settings = tmp_path / "crank.toml"  # a config file, and a flag that overrides it
-    settings.write_text("heldout_runs = 50\n[generation]\nseconds = 2.0\n[ocp]\nheight = 0.081\n")
+    settings.write_text(
+        "heldout_runs = 50\nheldout_trajectories = 500\n[generation]\nseconds = 2.0\n"
+        "[ocp]\nheight = 0.081\n"
+    )
     args = ["--config", str(settings), "--heldout-runs", "7", "--logs", str(tmp_path)]
     result = crank("run", *args, "--name", "r1")
     assert result.returncode == 2
@@ -57,6 +60,7 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     config = json.loads((run_dir / "config.json").read_text())
     assert config["seed"] == 0 and config["generation"]["seconds"] == 2.0
     assert config["ocp"]["height"] == 0.081 and config["heldout_runs"] == 7
+    assert config["heldout_trajectories"] == 500
     assert config["ocp"]["horizon"] == 150 and config["ocp"]["mc_seed"] == 0
     assert config["ocp"]["mc_samples"] == 1000 and config["ocp"]["mc_mode"] == "mixed"
     assert config["streams"]["root_seed"] == 0 and "replay_machines" in config["streams"]["streams"]

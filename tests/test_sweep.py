@@ -38,6 +38,7 @@ from tests.test_chain import SHORT
 SPEC = """
 [base]
 heldout_runs = 20
+heldout_trajectories = 1000
 baselines = false
 [base.generation]
 seconds = 12.0
@@ -373,6 +374,16 @@ replay = { runs = 8 }
     assert order == sorted(order, key=("data", "model", "solve", "leaf").index)
     assert by_name["seed=1 case=task"].config.ocp.height == 0.079
     assert by_name["seed=1 case=task"].config.ocp.mc_seed == 1  # the root seed reaches every stage
+
+
+def test_the_checks_monte_carlo_size_keys_the_leaf_alone() -> None:
+    """`heldout_trajectories` changes what the held-out step computes, nothing upstream; at its
+    default it is left out of the key (sweep folders of before it resume as they were)."""
+    base = RunConfig.for_seed(0, heldout_runs=1000)
+    small = replace(base, heldout_trajectories=1000)
+    for kind in ("data", "model", "solve"):
+        assert node_key(kind, small) == node_key(kind, base)
+    assert node_key("leaf", small) != node_key("leaf", base)
 
 
 @pytest.fixture
