@@ -105,6 +105,12 @@ def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
     return config, files["ocp.json"], files["model.pt"]
 
 
+UNREAD_TRAJECTORIES = 100
+"""The held-out check's Monte-Carlo size in a compare: its rows are observations (rates, the
+lowest runs), so the check's predictions are not read and run at the smallest size it takes
+(replay.heldout.check_trajectories) instead of 10 000 per mode and 20 000 for the model's rate."""
+
+
 def _label(run_dir: Path) -> str:
     """A run folder's name in progress lines: a sweep leaf's options, else the folder's name."""
     leaf = _sweep_leaf(run_dir)
@@ -183,6 +189,8 @@ def compare_run(
             feedback=feedback,
             kp=base.kp,
             kd=base.kd,
+            mc_samples=UNREAD_TRAJECTORIES,
+            tail_draws=UNREAD_TRAJECTORIES,
             on_played=lambda name, mode, entry, law=feedback: stage(
                 played_line(
                     name, mode, feedback=law, below=entry["violating_runs"], runs=heldout_runs
