@@ -210,7 +210,10 @@ def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None
     """SIGKILL mid-chain: the run folder keeps its config and the stages that finished, and says
     it did not finish by lacking report.json; the same command is refused, --resume goes on."""
     run_dir = tmp_path / "r"
-    args = ["run", "--seconds", "12", "--logs", str(tmp_path), "--name", "r"]
+    short = tmp_path / "crank.toml"  # tests/test_chain.py SHORT's training: the chain, sooner
+    short.write_text("[train]\nmax_epochs = 3\nsigma_epochs = 20\n")
+    args = ["run", "--seconds", "12", "--config", str(short), "--logs", str(tmp_path)]
+    args += ["--name", "r"]
     _kill_mid_step(args, run_dir, after=8.0)
     assert (run_dir / "config.json").is_file()
     assert not (run_dir / "report.json").exists() and not (run_dir / "report.md").exists()
