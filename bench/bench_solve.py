@@ -7,7 +7,8 @@ fixed PD (robust-pd, a tube), for
 reference in the same run the paper's (100 step trajectories, confidence 0), and the default with
 the NLP compiled to C (`--compiled`: every solve ~3x faster, the Monte-Carlo not, so the ratio
 rises); last, one draft's Monte-Carlo with the rollout compiled (ppann/kernel.py, the default
-where a C compiler is found) beside the NumPy rollout, in the same run.
+where a C compiler is found) on every core (the kernel's threads) and on one, beside the NumPy
+rollout, in the same run.
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
 
@@ -26,6 +27,7 @@ import os
 import statistics
 import time
 
+from common.threads import rollout_threads, set_rollout_threads
 from control.config import OCPConfig
 from control.ocp import NominalOCP, Solution
 from control.robust import solve_robust
@@ -116,19 +118,24 @@ def main() -> None:
 
 def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, repeat: int) -> None:
     """One draft's Monte-Carlo (the robust loop's unit: simulation, transmission draws,
-    tightening, line allowance) with the rollout compiled (ppann/kernel.py) and in NumPy."""
+    tightening, line allowance) with the rollout compiled (ppann/kernel.py) on the process's
+    rollout threads (every core), the same on one thread, and in NumPy."""
     heads = FusedHeads(model)
     times, before = {}, os.environ.get("CRANK_KERNEL")
-    for compiled in (True, False):
+    threads = rollout_threads()
+    paths = (("threads", True, threads), ("one", True, 1), ("numpy", False, 1))
+    for path, compiled, count in paths:
         os.environ["CRANK_KERNEL"] = "1" if compiled else "0"
         kernel.load.cache_clear()
+        set_rollout_threads(count)
         slider_uncertainty(heads, solution, config, constraints_only=True)
         runs = []
         for _ in range(max(repeat, 5)):
             started = time.perf_counter()
             slider_uncertainty(heads, solution, config, constraints_only=True)
             runs.append(time.perf_counter() - started)
-        times[compiled] = statistics.median(runs)
+        times[path] = statistics.median(runs)
+    set_rollout_threads(None)
     if before is None:
         os.environ.pop("CRANK_KERNEL")
     else:
@@ -136,9 +143,10 @@ def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, re
     kernel.load.cache_clear()
     print(
         f"-- one draft's Monte-Carlo ({config.mc_samples} {config.mc_mode}, "
-        f"{max(config.constraint_samples) - 1} steps, with the allowances): compiled rollout "
-        f"{times[True] * 1e3:.1f} ms, NumPy rollout {times[False] * 1e3:.1f} ms "
-        f"({times[False] / times[True]:.2f}x)"
+        f"{max(config.constraint_samples) - 1} steps, with the allowances): compiled rollout on "
+        f"{threads} threads {times['threads'] * 1e3:.1f} ms, on one "
+        f"{times['one'] * 1e3:.1f} ms ({times['one'] / times['threads']:.2f}x), NumPy rollout "
+        f"{times['numpy'] * 1e3:.1f} ms ({times['numpy'] / times['threads']:.2f}x)"
     )
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from common.threads import set_rollout_threads
 from ppann import kernel
 from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo, rollout
@@ -78,6 +79,48 @@ def test_compiled_rollout_under_feedback_and_saturation_equals_numpy() -> None:
     torque = tau[0] - 30.0 * (slow[:, :-1, 0] - plan[:-1, 0]) - (slow[:, :-1, 1] - plan[:-1, 1])
     assert np.mean(np.abs(torque) > 2.0) > 0.05  # the clip is exercised
     np.testing.assert_allclose(fast, slow, rtol=0, atol=5e-5)
+
+
+@pytest.mark.parametrize("per_step", [True, False])
+def test_a_rollout_is_the_same_bits_on_one_thread_and_on_three(
+    per_step: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Many trajectories run as blocks, one per thread (ppann/kernel.py): closed loop, machine
+    factors, the slider force's channel, a draw per step or per trajectory, on 1 and on 3
+    threads give the same bits, and 3 threads make 3 blocks of at least CHUNK_SAMPLES."""
+    model = _trained_like(PPANNConfig(sigma_lever=True))
+    with torch.no_grad():
+        model.lever_sigma.fill_(15.0)
+    heads = FusedHeads(model)
+    n = 3 * kernel.CHUNK_SAMPLES + 5
+    tau = np.full(120, 0.8)
+    plan = np.stack([np.linspace(1.0, 6.0, 121), np.full(121, 20.0)], axis=1)
+    law = Feedback(plan, np.tile([30.0, 1.0], (121, 1)), 2.0)
+    rng = np.random.default_rng(2)
+    rows = 120 if per_step else 1
+    draws = {
+        "eps": rng.standard_normal((rows, n, 3)),
+        "lever_eps": rng.standard_normal((rows, n)),
+        "factors": np.exp(0.05 * rng.standard_normal((n, 3))),
+    }
+    library, blocks = kernel.load(), []
+
+    class Counting:
+        def crank_rollout(self, count, *args):
+            blocks.append(count.value)
+            return library.crank_rollout(count, *args)
+
+    monkeypatch.setattr(kernel, "load", Counting)
+    runs = {}
+    for threads in (1, 3):
+        set_rollout_threads(threads)
+        try:
+            runs[threads] = rollout(heads, plan[0], tau, n_samples=n, feedback=law, **draws)
+        finally:
+            set_rollout_threads(None)
+    assert np.all(np.isfinite(runs[1])) and np.array_equal(runs[1], runs[3])
+    assert blocks[0] == n and len(blocks) == 4 and sum(blocks[1:]) == n
+    assert max(blocks[1:]) - min(blocks[1:]) <= 1 and min(blocks) >= kernel.CHUNK_SAMPLES
 
 
 def test_a_diverging_draw_is_nan_from_where_it_diverges_on_both_paths() -> None:

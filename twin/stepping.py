@@ -16,12 +16,14 @@ into chunks, and it equals a plain `mj_step` loop bit for bit (tests/test_steppi
 Closed loop: with a `feedback` law the rollout advances one sample at a time; before sample k the
 law sees every run's state at t_k and returns a torque added to `tau[:, k]` (then clipped). With
 a law that returns zeros the result equals the open-loop one bit for bit.
+
+The threads a rollout runs on by default are the process's (`common.threads`, re-exported here
+as `set_rollout_threads` and `rollout_threads`).
 """
 
 from __future__ import annotations
 
 import copy
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 
@@ -29,27 +31,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from common.checks import check_count
+from common.threads import rollout_threads, set_rollout_threads
 from twin.physics import SAMPLE_RATE, STATE_SPEC, SliderCrank
 from twin.variability import FrictionState, MachineDraw, Variability, apply
-
-_rollout_threads: int | None = None
-
-
-def set_rollout_threads(count: int | None) -> None:
-    """The threads a rollout of this process steps on when its caller does not say (None: every
-    core), as `torch.set_num_threads` is for torch. A sweep's Ray worker holds one CPU and sets 1:
-    with each step on every core, two workers and a held-out check made six threads on two cores,
-    and a data step took 648 s against 80 s alone (session 24)."""
-    global _rollout_threads
-    if count is not None:
-        check_count("rollout threads", count, error=ValueError)
-    _rollout_threads = count
-
-
-def rollout_threads() -> int:
-    """The threads a rollout steps on by default: `set_rollout_threads`' count, else every core."""
-    return _rollout_threads if _rollout_threads is not None else (os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)
@@ -199,4 +183,13 @@ def simulate(
     )
 
 
-__all__ = ["STATE_SPEC", "Runs", "Stepper", "chunk_bounds", "chunk_time", "simulate"]
+__all__ = [
+    "STATE_SPEC",
+    "Runs",
+    "Stepper",
+    "chunk_bounds",
+    "chunk_time",
+    "rollout_threads",
+    "set_rollout_threads",
+    "simulate",
+]
