@@ -283,7 +283,6 @@ def heldout_command(
         model_path=mjcf,
         mpc=mpc,
         mc_samples=trajectories,
-        tail_draws=2 * trajectories,
         on_played=lambda name, mode, entry: typer.echo(
             played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs),
             err=True,

@@ -130,7 +130,6 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         kd=config.replay.kd,
         model_path=config.model_path,
         mc_samples=config.heldout_trajectories,
-        tail_draws=2 * config.heldout_trajectories,
     )
 
 

@@ -338,12 +338,13 @@ def heldout_file(
     kp: float = PD_GAINS[0],
     kd: float = PD_GAINS[1],
     mc_samples: int = CALIBRATION_TRAJECTORIES,
-    tail_draws: int = TAIL_DRAWS,
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json)."""
+    """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json); the
+    model's own rate from TAIL_DRAWS per CALIBRATION_TRAJECTORIES of `mc_samples` (20 000 at
+    the default 10 000)."""
     check_trajectories("trajectories", mc_samples)
-    check_trajectories("tail draws", tail_draws)
+    tail_draws = TAIL_DRAWS * mc_samples // CALIBRATION_TRAJECTORIES
     check_writable(out)
     horizon = read_ocp(ocp_path).horizon
     check_campaign_memory(runs, modes=len(modes), horizon=horizon, held_out=True)
