@@ -1,12 +1,13 @@
 """The threads this process's compiled rollouts run on: MuJoCo's (twin/stepping.py) and the
 Monte-Carlo's C kernel (ppann/kernel.py), the one setting a caller with one CPU turns down, as
-`torch.set_num_threads` is torch's."""
+`torch.set_num_threads` is torch's; $CRANK_ROLLOUT_THREADS gives a process's default."""
 
 from __future__ import annotations
 
 import os
 
 from common.checks import check_count
+from common.errors import ConfigError
 
 _rollout_threads: int | None = None
 
@@ -22,6 +23,23 @@ def set_rollout_threads(count: int | None) -> None:
     _rollout_threads = count
 
 
+ENVIRONMENT = "CRANK_ROLLOUT_THREADS"
+"""The process default when `set_rollout_threads` has not set one: for a `crank` command started
+beside others (the test suite's workers set 1 for theirs and what they start)."""
+
+
 def rollout_threads() -> int:
-    """The threads a rollout runs on by default: `set_rollout_threads`' count, else every core."""
-    return _rollout_threads if _rollout_threads is not None else (os.cpu_count() or 1)
+    """The threads a rollout runs on by default: `set_rollout_threads`' count, else
+    $CRANK_ROLLOUT_THREADS, else every core.
+
+    Raises:
+      ConfigError: $CRANK_ROLLOUT_THREADS is not an integer >= 1 (one line on the CLI).
+    """
+    if _rollout_threads is not None:
+        return _rollout_threads
+    given = os.environ.get(ENVIRONMENT)
+    if given is None:
+        return os.cpu_count() or 1
+    if not given.isdigit() or int(given) < 1:
+        raise ConfigError(f"${ENVIRONMENT} must be an integer >= 1, got {given!r}")
+    return int(given)

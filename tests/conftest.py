@@ -30,12 +30,13 @@ LATE_MPC = MPCConfig(deadline=LATE)
 
 def pytest_configure(config: pytest.Config) -> None:
     """Under pytest-xdist (one worker per core, pyproject.toml) each worker and every process it
-    starts computes on one thread: two workers of torch's two threads each on two cores ran
+    starts computes on one thread (torch's, and MuJoCo's and the Monte-Carlo kernel's rollouts,
+    common/threads.py): two workers of torch's two threads each on two cores ran
     oversubscribed. A model trained in a test and one trained by a `crank` subprocess the test
     starts then use the same thread count (a PPANN's last bits depend on it, ppann/fit.py)."""
     if os.environ.get("PYTEST_XDIST_WORKER") is None:
         return
-    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CRANK_ROLLOUT_THREADS"):
         os.environ[name] = "1"
     import torch
 

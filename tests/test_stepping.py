@@ -9,6 +9,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from common.errors import ConfigError
+from common.threads import ENVIRONMENT
 from twin.physics import STATE_SPEC, SliderCrank
 from twin.stepping import (
     Stepper,
@@ -131,11 +133,12 @@ def test_drift_lowers_friction_over_time(physics: SliderCrank) -> None:
 
 
 def test_the_process_default_sets_a_rollout_s_threads_and_not_its_result(
-    physics: SliderCrank,
+    physics: SliderCrank, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """`set_rollout_threads` is what a rollout steps on when its caller does not say (a sweep's
     Ray worker sets 1); an explicit count still wins, None gives every core back, and the
     trajectories are the same bit for bit on one thread as on two."""
+    monkeypatch.delenv(ENVIRONMENT, raising=False)  # the test suite's workers set it
     variability, draws, states, tau, disturbance = _inputs(physics, n_runs=3, n=120, seed=11)
 
     def run(**threads):
@@ -164,7 +167,30 @@ def test_the_process_default_sets_a_rollout_s_threads_and_not_its_result(
 
 
 @pytest.mark.parametrize("count", [0, -1, 1.5, True, "2"])
-def test_a_rollout_thread_count_must_be_a_positive_integer(count: object) -> None:
+def test_a_rollout_thread_count_must_be_a_positive_integer(
+    count: object, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv(ENVIRONMENT, raising=False)
     with pytest.raises(ValueError, match="rollout threads must be an integer >= 1, got"):
         set_rollout_threads(count)  # type: ignore[arg-type]
     assert rollout_threads() == (os.cpu_count() or 1)
+
+
+def test_the_environment_gives_the_default_that_a_set_count_overrides(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """$CRANK_ROLLOUT_THREADS is a process's default (a command started beside others; the
+    suite's workers set 1); `set_rollout_threads` wins over it; a bad value is refused naming
+    the variable."""
+    monkeypatch.setenv(ENVIRONMENT, "3")
+    assert rollout_threads() == 3
+    try:
+        set_rollout_threads(2)
+        assert rollout_threads() == 2
+    finally:
+        set_rollout_threads(None)
+    assert rollout_threads() == 3
+    for bad in ("0", "two", "1.5", "", "-2"):
+        monkeypatch.setenv(ENVIRONMENT, bad)
+        with pytest.raises(ConfigError, match=r"\$CRANK_ROLLOUT_THREADS must be an integer >= 1"):
+            rollout_threads()
