@@ -16,6 +16,7 @@ import typer
 from tqdm import tqdm
 
 from common.errors import CrankError
+from common.threads import rollout_threads
 from control.config import PD_GAINS, OCPConfig
 
 if TYPE_CHECKING:
@@ -73,6 +74,7 @@ def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
+            rollout_threads()  # $CRANK_ROLLOUT_THREADS checked before anything is written
             return command(*args, **kwargs)
         except INPUT_ERRORS as exc:
             typer.echo(error_line(exc), err=True)

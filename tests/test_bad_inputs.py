@@ -545,6 +545,25 @@ def test_bad_input_is_one_line_and_writes_nothing(
     assert _snapshot(inputs["dir"]) == before, "a refused command touched its inputs' folder"
 
 
+@pytest.mark.parametrize("command", ["run --logs L --seconds 2", "generate --out d.mcap"])
+def test_a_bad_rollout_thread_count_in_the_environment_is_one_line(
+    command: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """$CRANK_ROLLOUT_THREADS (common/threads.py) is checked before a command writes anything."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CRANK_ROLLOUT_THREADS", "many")
+    monkeypatch.setattr(sys, "argv", ["crank", *command.split()])
+    with pytest.raises(SystemExit) as ended:
+        main()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert ended.value.code == 2
+    assert lines == ["error: $CRANK_ROLLOUT_THREADS must be an integer >= 1, got 'many'"]
+    assert os.listdir(tmp_path) == []
+
+
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
