@@ -40,6 +40,6 @@ def rollout_threads() -> int:
     given = os.environ.get(ENVIRONMENT)
     if given is None:
         return os.cpu_count() or 1
-    if not given.isdigit() or int(given) < 1:
+    if not (given.isascii() and given.isdigit()) or int(given) < 1:
         raise ConfigError(f"${ENVIRONMENT} must be an integer >= 1, got {given!r}")
     return int(given)

@@ -190,7 +190,7 @@ def test_the_environment_gives_the_default_that_a_set_count_overrides(
     finally:
         set_rollout_threads(None)
     assert rollout_threads() == 3
-    for bad in ("0", "two", "1.5", "", "-2"):
+    for bad in ("0", "two", "1.5", "", "-2", "²"):
         monkeypatch.setenv(ENVIRONMENT, bad)
         with pytest.raises(ConfigError, match=r"\$CRANK_ROLLOUT_THREADS must be an integer >= 1"):
             rollout_threads()
