@@ -354,12 +354,11 @@ def rollout(
         )
 
     threads = max(1, min(rollout_threads(), n_samples // CHUNK_SAMPLES))
-    blocks = list(itertools.pairwise(n_samples * i // threads for i in range(threads + 1)))
-    if threads == 1:
-        failed = run(0, n_samples)
-    else:  # ctypes lets go of the GIL during the call: the blocks run side by side
-        with ThreadPoolExecutor(threads - 1) as pool:
-            others = [pool.submit(run, a, b) for a, b in blocks[1:]]
-            failed = [run(*blocks[0]), *(f.result() for f in others)]
-        failed = any(failed)
-    return None if failed else samples
+    first, *rest = itertools.pairwise(n_samples * i // threads for i in range(threads + 1))
+    if not rest:
+        return None if run(*first) else samples
+    # ctypes lets go of the GIL during the call: the blocks run side by side
+    with ThreadPoolExecutor(len(rest)) as pool:
+        others = [pool.submit(run, a, b) for a, b in rest]
+        failed = [run(*first), *(f.result() for f in others)]
+    return None if any(failed) else samples
