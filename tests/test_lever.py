@@ -178,13 +178,15 @@ def test_checkpoint_keeps_the_channel(tmp_path) -> None:
 
 
 def test_the_training_config_asks_for_the_channel() -> None:
-    """`TrainConfig(sigma_lever=True)` builds the PPANN with it; the default builds none."""
+    """The default training config builds the PPANN with the channel (since session 27);
+    `TrainConfig(sigma_lever=False)` builds none."""
     from ppann.fit import new_model
 
     dataset = _force_dataset(episodes=1, seconds=0.1, seed=0)
-    with_it = new_model(dataset, kind="ppann", config=TrainConfig(sigma_lever=True))
+    with_it = new_model(dataset, kind="ppann", config=TrainConfig())
     assert with_it.config.sigma_lever and float(with_it.lever_sigma[0]) == 0.0
-    assert not hasattr(new_model(dataset, kind="ppann", config=TrainConfig()), "lever_sigma")
+    without = new_model(dataset, kind="ppann", config=TrainConfig(sigma_lever=False))
+    assert not hasattr(without, "lever_sigma")
 
 
 def test_the_force_draws_are_common_across_horizons() -> None:
