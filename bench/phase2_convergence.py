@@ -11,9 +11,9 @@ at each of them. Prints each copy's phase-2 loss and its predicted / observed sl
 (replay/heldout.py; use a development seed, not a held-out root). The second pass's loop is this
 script's own copy of `_fit_spread` for models of the machine-level model with the residual's
 mean, with or without the slider force's channel; other models are refused. At --epochs 400 it
-reproduces the chain's model (its loss to the last digit: session 26 without the channel,
-session 27 with it). One core; ~0.2 s an epoch on the default 72 machines, and
-~40 s a held-out check of 1000 machines.
+reproduces the chain's model (session 26, without the channel: its loss to the last digit;
+session 27, with it: σ_F to the last digit). One core; ~0.2 s an epoch on the default 72
+machines, and ~40 s a held-out check of 1000 machines.
 """
 
 from __future__ import annotations
