@@ -8,19 +8,19 @@ residual's mean with its machine offsets out, the second pass from the same init
 weights) but continues the second pass to the largest of `--epochs`, keeping a copy of the model
 at each of them. Prints each copy's phase-2 loss and its predicted / observed slider sigma
 (mixed and step) under the ocp.json's robust torque on `--runs` held-out machines of `--seed`
-(replay/heldout.py; use a development seed, not a held-out root). The second pass's loop is this
-script's own copy of `_fit_spread` for models of the machine-level model with the residual's
-mean, with or without the slider force's channel; other models are refused. At --epochs 400 it
-reproduces the chain's model (session 26, without the channel: its loss to the last digit;
-session 27, with it: σ_F to the last digit). One core; ~0.2 s an epoch on the default 72
-machines, and ~40 s a held-out check of 1000 machines.
+(replay/heldout.py; use a development seed, not a held-out root). The second pass runs the
+chain's own `SpreadFit` (ppann/train.py: its parameters, optimizer and epoch) for models of the
+machine-level model with the residual's mean, with or without the slider force's channel; other
+models are refused. At --epochs 400 it reproduces the chain's model (session 26, without the
+channel: its loss to the last digit; session 27, with it: σ_F to the last digit; session 28,
+through SpreadFit: the same). One core; ~0.2 s an epoch on the default 72 machines, and ~40 s a
+held-out check of 1000 machines.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import math
 
 import torch
 
@@ -28,9 +28,7 @@ import ppann.train as train
 from common.threads import set_rollout_threads
 from ppann.checkpoint import load
 from ppann.fit import new_model
-from ppann.lever import LEVER_START
-from ppann.machine import marginal_nll
-from ppann.train import MACHINE_SIGMA_START, History, make_splits
+from ppann.train import History, make_splits
 from ppann.train_config import TrainConfig
 from replay.heldout import heldout_check
 from twin.mcap_dataset import read_dataset
@@ -71,36 +69,20 @@ def main() -> None:
         if len(passes) == 1:  # the first pass as the chain runs it: the machine offsets
             chain_pass(model, terms, theta, omega, config, history=history, on_epoch=on_epoch)
             return
-        groups = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
-        log_force = None  # the slider force's channel, if the model has it (ppann/lever.py)
-        if terms.lever is not None:
-            log_force = torch.tensor([math.log(LEVER_START)], dtype=torch.float64)
-            log_force.requires_grad_(True)
-            groups.append({"params": [log_force], "lr": config.machine_lr})
-        log_machine = torch.full((3,), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
-        common = torch.zeros(3, dtype=torch.float64)
-        for tensor in (log_machine, common):
-            tensor.requires_grad_(True)
-        groups.append({"params": [log_machine, common], "lr": config.machine_lr})
-        optimizer = torch.optim.Adam(groups)
+        fit = train.SpreadFit.start(model, terms, config)  # the chain's second pass, longer
         for epoch in range(1, epochs[-1] + 1):
-            sigma = model.z_sigma(theta, omega)
-            force = None if log_force is None else log_force.exp()
-            loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp(), force)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
+            loss = fit.step(model, terms, theta, omega)
             if epoch in epochs:
                 kept = copy.deepcopy(model)
                 with torch.no_grad():
-                    kept.machine_sigma.copy_(log_machine.exp())
-                    if log_force is not None:
-                        kept.lever_sigma.copy_(log_force.exp())
-                copies[epoch] = (kept.eval(), float(loss.detach()))
+                    kept.machine_sigma.copy_(fit.log_machine.exp())
+                    if fit.log_force is not None:
+                        kept.lever_sigma.copy_(fit.log_force.exp())
+                copies[epoch] = (kept.eval(), loss)
                 force = ""
-                if log_force is not None:
-                    force = f", σ_F {float(log_force.detach().exp()[0]):.6f} N"
-                print(f"epoch {epoch}: loss {copies[epoch][1]:.5f}{force}", flush=True)
+                if fit.log_force is not None:
+                    force = f", σ_F {float(fit.log_force.detach().exp()[0]):.6f} N"
+                print(f"epoch {epoch}: loss {loss:.5f}{force}", flush=True)
 
     train._fit_spread = fit_spread
     try:

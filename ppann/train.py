@@ -226,6 +226,52 @@ def train_sigma(
     )
 
 
+@dataclass
+class SpreadFit:
+    """Phase 2's parameters beside the sigma networks, from their start: the slider force's
+    log sigma (a model with the channel), the machine spread's log sigmas and the line's
+    common offset (with `TrainConfig.machine_model`), and one Adam over all of them."""
+
+    log_force: torch.Tensor | None
+    log_machine: torch.Tensor | None
+    common: torch.Tensor | None
+    optimizer: torch.optim.Optimizer
+
+    @classmethod
+    def start(cls, model: PPANN, terms: EpisodeTerms, config: TrainConfig) -> SpreadFit:
+        groups: list[dict] = [
+            {"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}
+        ]
+        log_force = None
+        if terms.lever is not None:
+            log_force = torch.tensor([math.log(LEVER_START)], dtype=torch.float64)
+            log_force.requires_grad_(True)
+            groups.append({"params": [log_force], "lr": config.machine_lr})
+        log_machine = common = None
+        if config.machine_model:
+            log_machine = torch.full((3,), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
+            common = torch.zeros(3, dtype=torch.float64)
+            for tensor in (log_machine, common):
+                tensor.requires_grad_(True)
+            groups.append({"params": [log_machine, common], "lr": config.machine_lr})
+        return cls(log_force, log_machine, common, torch.optim.Adam(groups))
+
+    def step(
+        self, model: PPANN, terms: EpisodeTerms, theta: torch.Tensor, omega: torch.Tensor
+    ) -> float:
+        """One epoch (full batch): the loss before the step."""
+        sigma = model.z_sigma(theta, omega)
+        force = None if self.log_force is None else self.log_force.exp()
+        if self.log_machine is None:
+            loss = white_nll(terms, sigma, force)
+        else:
+            loss = marginal_nll(terms.shifted(self.common), sigma, self.log_machine.exp(), force)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return float(loss.detach())
+
+
 def _fit_spread(
     model: PPANN,
     terms: EpisodeTerms,
@@ -238,32 +284,10 @@ def _fit_spread(
 ) -> None:
     """One fit of phase 2 on `terms` from the sigma networks' present weights, the machine
     spread's and the slider force's start: the model's spread, offsets and population."""
-    lever = terms.lever
-    groups: list[dict] = [{"params": list(model.sigma_nets.parameters()), "lr": config.sigma_lr}]
-    log_force = None
-    if lever is not None:
-        log_force = torch.tensor([math.log(LEVER_START)], dtype=torch.float64)
-        log_force.requires_grad_(True)
-        groups.append({"params": [log_force], "lr": config.machine_lr})
-    log_machine = common = None
-    if config.machine_model:
-        log_machine = torch.full((3,), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
-        common = torch.zeros(3, dtype=torch.float64)
-        for tensor in (log_machine, common):
-            tensor.requires_grad_(True)
-        groups.append({"params": [log_machine, common], "lr": config.machine_lr})
-    optimizer = torch.optim.Adam(groups)
+    fit = SpreadFit.start(model, terms, config)
+    log_force, log_machine, common = fit.log_force, fit.log_machine, fit.common
     for epoch in range(config.sigma_epochs):
-        sigma = model.z_sigma(theta, omega)
-        force = None if log_force is None else log_force.exp()
-        if log_machine is None:
-            loss = white_nll(terms, sigma, force)
-        else:
-            loss = marginal_nll(terms.shifted(common), sigma, log_machine.exp(), force)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        history.sigma.append(float(loss.detach()))
+        history.sigma.append(fit.step(model, terms, theta, omega))
         if on_epoch is not None:
             on_epoch(epoch, history.sigma[-1])
     force = None
