@@ -45,6 +45,8 @@ from ppann.modes import MONTE_CARLO_MODES, check_mode
 
 _WHITE = PrefixDraws()
 """The white draws (eps) of the seeds used last, per number of samples."""
+_LEVER = PrefixDraws()
+"""The same for the slider force's normals (a model with the channel, ppann/lever.py)."""
 
 
 @dataclass(frozen=True)
@@ -109,7 +111,11 @@ def monte_carlo(
             force_seq = np.random.SeedSequence(
                 white_seq.entropy, spawn_key=(*white_seq.spawn_key, 0)
             )
-            lever_eps = np.random.default_rng(force_seq).standard_normal((per, n_samples))
+            lever_eps = _LEVER.get(
+                (sequence_key(force_seq), n_samples),
+                per,
+                lambda rows: np.random.default_rng(force_seq).standard_normal((rows, n_samples)),
+            )
     factors = None
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma

@@ -80,6 +80,23 @@ def test_compiled_rollout_with_the_force_equals_numpy(mode: str) -> None:
     np.testing.assert_allclose(fast.samples[..., 1], slow.samples[..., 1], rtol=0, atol=5e-5)
 
 
+def test_the_forces_normals_are_common_random_numbers_kept_as_a_prefix() -> None:
+    """The robust loop's drafts simulate 99 steps and its full solves more, with the same draws:
+    kept between calls (ppann/montecarlo.py `_LEVER`), a short run is the first steps of a long
+    one and a long run after a short one equals the long run drawn afresh, bit for bit."""
+    from ppann import montecarlo
+
+    heads = FusedHeads(_lever_model(15.0, z_sigma=0.02))
+    tau = 1.5 * np.sin(np.linspace(0, 9, 250)) + 0.6
+    montecarlo._LEVER._kept.clear()
+    fresh = monte_carlo(heads, [5.9, 8.0], tau, n_samples=64, mode="mixed", seed=3)
+    montecarlo._LEVER._kept.clear()
+    short = monte_carlo(heads, [5.9, 8.0], tau[:99], n_samples=64, mode="mixed", seed=3)
+    long = monte_carlo(heads, [5.9, 8.0], tau, n_samples=64, mode="mixed", seed=3)
+    assert np.array_equal(long.samples, fresh.samples)
+    assert np.array_equal(short.samples, fresh.samples[:, :100])
+
+
 def test_a_zero_force_draws_nothing_and_equals_no_channel() -> None:
     """A model with the channel and lever_sigma 0 gives the numbers of one without it, bit for
     bit, in every mode: no extra draws, the same white normals."""
