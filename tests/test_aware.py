@@ -200,14 +200,17 @@ def test_a_held_full_solve_is_returned_when_a_draft_shows_the_jump() -> None:
     assert acceptance.take(_mm(10.484, 14.516), _mm(0.001, 0.17), "probe") == "full"
 
 
-def test_without_a_jump_the_drafts_go_on_from_a_held_solve() -> None:
-    """A probe within the tolerance shows no jump: a full solve follows, returned when within
-    the tolerance itself."""
+def test_without_a_jump_a_full_solve_follows_from_the_held_one() -> None:
+    """A probe within the tolerance on the same side shows no jump: the next solve is a full
+    one from the held solve (where drafts went on from the probe, the seed-4 model at
+    Monte-Carlo seed 1 cycled: drafts settling on one crossing, full solves 0.12 mm safer on
+    another), returned when within the tolerance itself."""
     acceptance = _after_drafts()
     acceptance.take(*FULL, "full")
     assert acceptance.take(_mm(10.484, 14.516), _mm(0.001, -0.02), "probe") is None
-    assert not acceptance.draft
-    assert acceptance.take(_mm(10.484, 14.52), _mm(0.0, -0.03), "last") == "last"
+    assert not acceptance.draft and acceptance.start == "full"
+    assert acceptance.take(_mm(10.484, 14.55), _mm(0.0, -0.03), "last") == "last"
+    assert acceptance.start is None
 
 
 def test_a_full_solve_on_the_unsafe_side_is_followed_by_a_full_one() -> None:
