@@ -10,7 +10,11 @@ rises); last, one draft's Monte-Carlo with the rollout compiled (ppann/kernel.py
 where a C compiler is found) on every core (the kernel's threads) and on one, beside the NumPy
 rollout, in the same run.
 
-    python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3]
+    python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3] [--mc-seeds 0-4]
+
+Last, the default again on each of `--mc-seeds` (OCPConfig.mc_seed; the chain takes the
+training seed): the loop's path (drafts, full solves, IPOPT iterations) depends on the
+Monte-Carlo's draws, and one seed is one sample of it.
 
 Without --model it solves on a PPANN with constant networks (the test suite's: prior J_m, B_m,
 K_m, z_K = -0.9, z_sigma = 0.03, 0.05, 0.05), so it needs no training run; its nominal solve
@@ -27,11 +31,13 @@ import os
 import statistics
 import time
 
+from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
 from control.config import OCPConfig
 from control.ocp import NominalOCP, Solution
 from control.robust import solve_robust
 from control.tightening import slider_uncertainty
+from crank.study import parse_seeds
 from ppann import kernel
 from ppann.checkpoint import load
 from ppann.model import PPANN, FusedHeads, constant_ppann
@@ -41,7 +47,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", default=None, help="PPANN checkpoint (default: constant nets)")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds, e.g. 0-4 or 0,3")
     args = parser.parse_args()
+    try:
+        mc_seeds = parse_seeds(args.mc_seeds)
+    except ConfigError as exc:
+        raise SystemExit(f"bench_solve: {str(exc).replace('--seeds', '--mc-seeds')}") from None
     if args.model:
         model, _ = load(args.model)
         source = args.model
@@ -114,6 +125,35 @@ def main() -> None:
         )
         print(f"{profile} cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
     monte_carlo_paths(model, result.robust, OCPConfig(), repeat=args.repeat)
+    seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat)
+
+
+def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat: int) -> None:
+    """The default robust loop on each Monte-Carlo seed: its solves and the ratio (median of
+    `repeat`, each robust loop against the nominal solve timed just before it)."""
+    print(f"-- the default on Monte-Carlo seeds {', '.join(map(str, seeds))}")
+    ratios = []
+    for seed in seeds:
+        config = OCPConfig(mc_seed=seed)
+        runs = []
+        for _ in range(repeat):
+            started = time.perf_counter()
+            ocp.solve()
+            nominal = time.perf_counter() - started
+            result = solve_robust(model, config, ocp=ocp)
+            runs.append(result.wall_time / nominal)
+        its = result.iterations
+        drafts = sum(it.draft for it in its)
+        ratios.append(statistics.median(runs))
+        print(
+            f"seed {seed}: {drafts} draft + {len(its) - drafts} full solves, "
+            f"{sum(it.ipopt_iterations for it in its)} IPOPT iterations, ratio {ratios[-1]:.2f} "
+            f"(repeats {min(runs):.2f}-{max(runs):.2f})"
+        )
+    print(
+        f"ratio over the seeds: median {statistics.median(ratios):.2f}, "
+        f"{sum(r <= 3 for r in ratios)} of {len(ratios)} within 3"
+    )
 
 
 def monte_carlo_paths(model: PPANN, solution: Solution, config: OCPConfig, *, repeat: int) -> None:
