@@ -210,7 +210,8 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     )
     bottom.set_ylabel("robust cost premium [%]")
     premiums = [100 * r["premium"] for r in rows if r.get("premium") is not None]
-    bottom.set_ylim(bottom=min([0.0, *premiums]) - 0.5)  # a premium below 0 stays in view
+    # a premium below 0 stays in view, and the largest one's dot whole
+    bottom.set_ylim(min([0.0, *premiums]) - 0.5, max([0.0, *premiums]) * 1.06 + 0.5)
     ticks = []
     for members in grouped.values():
         values = (str(members[0].get(name)) for name in names)
