@@ -1,0 +1,71 @@
+"""The robust loop's ratio per model and Monte-Carlo seed, from bench/bench_solve.py's output
+(its "the default on Monte-Carlo seeds" section), one colour per labelled set of runs.
+
+    python bench/solve_seeds_figure.py --out docs/bench_solve_seeds.png \
+        "session 27's code=b27_*.log" "today's=b28_*.log" [--names "seed 0,seed 1,..."]
+
+Each glob is one set (one log per model); the models are those of the first set, in its sorted
+order, named by the folder of their logs' "model:" line or by --names, and matched by that line
+in the other sets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import re
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+SEED = re.compile(r"^seed (\d+): .*?(\d+) IPOPT iterations, ratio ([0-9.]+)")
+
+
+def read(path: str) -> tuple[str, list[tuple[int, int, float]]]:
+    """The model's folder and (seed, IPOPT iterations, ratio) per Monte-Carlo seed of one log."""
+    text = Path(path).read_text().splitlines()
+    model = next(line.split("model:")[1].strip() for line in text if line.startswith("model:"))
+    rows = [(int(m[1]), int(m[2]), float(m[3])) for line in text if (m := SEED.match(line))]
+    if not rows:
+        raise SystemExit(f"solve_seeds_figure: {path} has no Monte-Carlo seed section")
+    return Path(model).parent.name or model, rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sets", nargs="+", help="LABEL=GLOB, one per set of runs")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--names", default="", help="display names of the models, comma-separated")
+    args = parser.parse_args()
+    sets = []
+    for spec in args.sets:
+        label, _, pattern = spec.partition("=")
+        logs = sorted(glob.glob(pattern))
+        if not logs:
+            raise SystemExit(f"solve_seeds_figure: no log matches {pattern!r}")
+        sets.append((label, dict(map(read, logs))))
+    models = list(sets[0][1])
+    names = args.names.split(",") if args.names else models
+    if len(names) != len(models):
+        raise SystemExit(f"solve_seeds_figure: {len(names)} names for {len(models)} models")
+    fig = Figure(figsize=(8, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    width = 0.8 / len(sets)
+    for k, (label, runs) in enumerate(sets):
+        for i, model in enumerate(models):
+            x = i + (k - (len(sets) - 1) / 2) * width
+            ratios = [r for _, _, r in runs[model]]
+            ax.scatter([x] * len(ratios), ratios, color=f"C{k}", s=22, label=None if i else label)
+            median = sorted(ratios)[len(ratios) // 2]
+            ax.hlines(median, x - width / 3, x + width / 3, color=f"C{k}")
+    ax.axhline(3.0, color="k", ls="--", lw=1, label="target 3")
+    ax.set_xticks(range(len(names)), names, fontsize=8)
+    ax.set_xlabel("model (one dot per Monte-Carlo seed, a bar at the median)", fontsize=9)
+    ax.set_ylabel("robust loop / nominal solve")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    fig.savefig(args.out, dpi=110)
+
+
+if __name__ == "__main__":
+    main()
