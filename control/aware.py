@@ -37,14 +37,14 @@ on another 0.12 mm safer, draft and full in turn until MAX_SOLVES.)
 Drafts: a draft (control/ocp.py) is solved on its warm start's turns; where its 2 pi crossing
 moved, the NLP's states follow the stiffness term extrapolated across 2 pi for a step or more,
 not where its torque takes the machine (4-20 mrad of theta on the session-27 models, 0.85 mm of
-slider on tests/test_ocp.py's model). The scheme takes instead the torque's own states
-(`torque_states`, the mean model's rollout, ~2 ms), so that a draft's margin, its Monte-Carlo
-(whose centred part is the plan less the draws' mean) and the angles frozen from it belong to
-its torque, and its residual foretells the full solve's. With the NLP's states, the full solve
-after a settled draft missed by 0.12-0.17 mm on the seed-1 and seed-3 models of session 27 (a
-second full solve followed), and on tests/test_aware.py's model the scheme did not settle in
-MAX_SOLVES. The bracketed loop keeps the NLP's states: its abscissa is the margin it asks, which
-they keep.
+slider on the test suite's constant model, tests/test_aware.py). The scheme takes instead the
+torque's own states (`torque_states`, the mean model's rollout, ~2 ms), so that a draft's
+margin, its Monte-Carlo (whose centred part is the plan less the draws' mean) and the angles
+frozen from it belong to its torque, and its residual foretells the full solve's. With the
+NLP's states, the full solve after a settled draft missed by 0.12-0.17 mm on the seed-1 and
+seed-3 models of session 27 (a second full solve followed), and on that test model the scheme
+did not settle in MAX_SOLVES. The bracketed loop keeps the NLP's states: its abscissa is the
+margin it asks, which they keep.
 
 A solve that fails, a margin beyond the stroke share a margin may take
 (control/robust.py STROKE_SHARE), or MAX_SOLVES without settling raise AwareError; the bracketed
