@@ -90,7 +90,9 @@ class RobustResult:
     robust: Solution
     robust_uncertainty: Uncertainty
     iterations: tuple[Iteration, ...]
-    """Every robust solve in order (the nominal solve is not among them)."""
+    """Every robust solve in order (the nominal solve is not among them). The returned one is
+    the last full solve, or a full solve held before the draft that showed it sat by a jump
+    (control/aware.py, `Acceptance`)."""
     failed_proposals: tuple[np.ndarray, ...]
     """Margins IPOPT could not meet, and which halved the damping."""
     wall_time: float
