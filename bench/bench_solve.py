@@ -35,6 +35,7 @@ from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
 from control.config import OCPConfig
 from control.ocp import NominalOCP, Solution
+from control.records import RobustResult
 from control.robust import solve_robust
 from control.tightening import slider_uncertainty
 from crank.study import parse_seeds
@@ -50,9 +51,9 @@ def main() -> None:
     parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds, e.g. 0-4 or 0,3")
     args = parser.parse_args()
     try:
-        mc_seeds = parse_seeds(args.mc_seeds)
+        mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
     except ConfigError as exc:
-        raise SystemExit(f"bench_solve: {str(exc).replace('--seeds', '--mc-seeds')}") from None
+        raise SystemExit(f"bench_solve: {exc}") from None
     if args.model:
         model, _ = load(args.model)
         source = args.model
@@ -97,15 +98,8 @@ def main() -> None:
     )
     for label, (config, profile) in configs.items():
         ocp = ocps[config.compiled]
-        nominal, robust, ratios, mc = [], [], [], []
-        for _ in range(args.repeat):
-            started = time.perf_counter()
-            solution = ocp.solve()
-            nominal.append(time.perf_counter() - started)
-            result = solve_robust(model, config, profile=profile, ocp=ocp)
-            robust.append(result.wall_time)
-            ratios.append(robust[-1] / nominal[-1])
-            mc.append(sum(it.monte_carlo_time for it in result.iterations))
+        nominal, robust, mc, solution, result = timed(model, ocp, config, profile, args.repeat)
+        ratios = [b / a for a, b in zip(nominal, robust, strict=True)]
         n, r = statistics.median(nominal), statistics.median(robust)
         drafts = sum(it.draft for it in result.iterations)
         ipopt = sum(it.ipopt_iterations for it in result.iterations)
@@ -128,20 +122,31 @@ def main() -> None:
     seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat)
 
 
+def timed(
+    model: PPANN, ocp: NominalOCP, config: OCPConfig, profile: str, repeat: int
+) -> tuple[list[float], list[float], list[float], Solution, RobustResult]:
+    """`repeat` times a cold nominal solve and, just after it, the robust loop of `profile`:
+    the nominal times, the loops' times and their Monte-Carlos' times (s), the last nominal
+    solution and the last robust result."""
+    nominal, robust, mc = [], [], []
+    for _ in range(repeat):
+        started = time.perf_counter()
+        solution = ocp.solve()
+        nominal.append(time.perf_counter() - started)
+        result = solve_robust(model, config, profile=profile, ocp=ocp)
+        robust.append(result.wall_time)
+        mc.append(sum(it.monte_carlo_time for it in result.iterations))
+    return nominal, robust, mc, solution, result
+
+
 def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat: int) -> None:
     """The default robust loop on each Monte-Carlo seed: its solves and the ratio (median of
     `repeat`, each robust loop against the nominal solve timed just before it)."""
     print(f"-- the default on Monte-Carlo seeds {', '.join(map(str, seeds))}")
     ratios = []
     for seed in seeds:
-        config = OCPConfig(mc_seed=seed)
-        runs = []
-        for _ in range(repeat):
-            started = time.perf_counter()
-            ocp.solve()
-            nominal = time.perf_counter() - started
-            result = solve_robust(model, config, ocp=ocp)
-            runs.append(result.wall_time / nominal)
+        nominal, robust, _, _, result = timed(model, ocp, OCPConfig(mc_seed=seed), "robust", repeat)
+        runs = [b / a for a, b in zip(nominal, robust, strict=True)]
         its = result.iterations
         drafts = sum(it.draft for it in its)
         ratios.append(statistics.median(runs))

@@ -20,7 +20,7 @@ import json
 import time
 from pathlib import Path
 
-from common.errors import CrankError
+from common.errors import ConfigError, CrankError
 from control.config import OCPConfig
 from control.solve import solve_file
 from crank.console import HELDOUT_SEED
@@ -53,6 +53,10 @@ def main() -> None:
     parser.add_argument("--out", default="tasks.json", help="file name beside the model")
     parser.add_argument("--profiles", default="robust", help="robust profiles, comma-separated")
     args = parser.parse_args()
+    try:
+        mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
+    except ConfigError as exc:
+        raise SystemExit(f"bench_tasks: {exc}") from None
     profiles = tuple(p.strip() for p in args.profiles.split(","))
     model = Path(args.model)
     work = model.parent / "tasks"
@@ -61,7 +65,7 @@ def main() -> None:
     for t, (task, options) in enumerate(TASKS.items()):
         if args.only not in task:
             continue
-        for mc_seed in parse_seeds(args.mc_seeds):
+        for mc_seed in mc_seeds:
             config = OCPConfig(
                 **options, mc_seed=mc_seed, mc_samples=args.mc_samples, profiles=profiles
             )

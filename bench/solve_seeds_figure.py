@@ -18,14 +18,14 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-SEED = re.compile(r"^seed (\d+): .*?(\d+) IPOPT iterations, ratio ([0-9.]+)")
+SEED = re.compile(r"^seed \d+: .*, ratio ([0-9.]+)")
 
 
-def read(path: str) -> tuple[str, list[tuple[int, int, float]]]:
-    """The model's folder and (seed, IPOPT iterations, ratio) per Monte-Carlo seed of one log."""
+def read(path: str) -> tuple[str, list[float]]:
+    """The model's folder and the ratio per Monte-Carlo seed of one log."""
     text = Path(path).read_text().splitlines()
     model = next(line.split("model:")[1].strip() for line in text if line.startswith("model:"))
-    rows = [(int(m[1]), int(m[2]), float(m[3])) for line in text if (m := SEED.match(line))]
+    rows = [float(m[1]) for line in text if (m := SEED.match(line))]
     if not rows:
         raise SystemExit(f"solve_seeds_figure: {path} has no Monte-Carlo seed section")
     return Path(model).parent.name or model, rows
@@ -54,7 +54,7 @@ def main() -> None:
     for k, (label, runs) in enumerate(sets):
         for i, model in enumerate(models):
             x = i + (k - (len(sets) - 1) / 2) * width
-            ratios = [r for _, _, r in runs[model]]
+            ratios = runs[model]
             ax.scatter([x] * len(ratios), ratios, color=f"C{k}", s=22, label=None if i else label)
             median = sorted(ratios)[len(ratios) // 2]
             ax.hlines(median, x - width / 3, x + width / 3, color=f"C{k}")

@@ -39,23 +39,24 @@ from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
 MAX_SEEDS = 1000
 
 
-def parse_seeds(text: str) -> tuple[int, ...]:
-    """'0-9', '0,3,7' or '2' → seeds; anything else is a ConfigError naming the text."""
+def parse_seeds(text: str, *, option: str = "--seeds") -> tuple[int, ...]:
+    """'0-9', '0,3,7' or '2' → seeds; anything else is a ConfigError naming the text and the
+    `option` it was given to."""
     seeds: list[int] = []
     for part in text.split(","):
         part = part.strip()
         match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
         if not match:
-            raise ConfigError(f"--seeds takes a range like 0-9 or a list like 0,3,7; got {text!r}")
+            raise ConfigError(f"{option} takes a range like 0-9 or a list like 0,3,7; got {text!r}")
         low = int(match.group(1))
         high = int(match.group(2)) if match.group(2) else low
         if high < low:
-            raise ConfigError(f"--seeds range {part!r} runs backwards")
+            raise ConfigError(f"{option} range {part!r} runs backwards")
         seeds.extend(range(low, high + 1))
     if len(set(seeds)) != len(seeds):
-        raise ConfigError(f"--seeds repeats a seed: {text!r}")
+        raise ConfigError(f"{option} repeats a seed: {text!r}")
     if not 1 <= len(seeds) <= MAX_SEEDS:
-        raise ConfigError(f"--seeds must name 1..{MAX_SEEDS} seeds, got {len(seeds)}")
+        raise ConfigError(f"{option} must name 1..{MAX_SEEDS} seeds, got {len(seeds)}")
     return tuple(seeds)
 
 
