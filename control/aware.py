@@ -21,7 +21,8 @@ solution keeps, slider - height, equals its own Monte-Carlo's tightening: the re
 tightening - margin is the bracketed loop's, and so is the acceptance.
 
 The first solve starts from the nominal's primal point alone (its multipliers belong to the
-nominal's constraint function: 15 IPOPT iterations with them, 8 without, on the seed-0 model).
+nominal's constraint function: 15 IPOPT iterations with them, 8 without, on the seed-0 model; 5
+since that point is not pushed off its bounds, control/ocp.py PRIMAL_BOUND_PUSH).
 Drafts follow while any residual is outside the tolerance, then full solves until one is within
 it at every sample, or sits on the safe side of a jump there (residual <= 0 where some solve,
 draft or full, had residual > 0 at a margin within the tolerance; control/fixed_point.py's

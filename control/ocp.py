@@ -28,9 +28,10 @@ IPOPT pass on the warm start's turns at tolerance DRAFT_TOLERANCE, without the t
 torque of a draft meets every constraint of the NLP (to 1e-8) but where its crossing moved, its
 states follow the stiffness term extrapolated across 2 pi rather than the wrapped one; the robust
 loop uses a draft only for the Monte-Carlo of its torque, never as a result. A draft whose heights
-jump by more than DRAFT_JUMP starts from the warm start's primal point alone. The draft solvers
-share the derivative functions of the full one (CasADi's `cache` option), so they cost no second
-build (0.03 s against 3.5 s for the first).
+jump by more than DRAFT_JUMP starts from the warm start's primal point alone; so does one asked
+to (`multipliers=False`), not pushed off the bounds it sits on (PRIMAL_BOUND_PUSH). The draft
+solvers share the derivative functions of the full one (CasADi's `cache` option), so they cost no
+second build (0.03 s against 3.5 s for the first).
 """
 
 from __future__ import annotations
@@ -80,6 +81,13 @@ TURN_ACTIVE = 1e-7
 """theta_k this close to a turn edge means the optimum wants to cross it there, rad."""
 DRAFT_TOLERANCE = 1e-6
 """IPOPT's optimality tolerance in draft solves (full solves: 1e-10)."""
+PRIMAL_BOUND_PUSH = 1e-9
+"""How far a draft from a primal point alone (`solve(..., multipliers=False)`) is moved inside
+the torque bounds and the inequality slacks (IPOPT's bound_push and bound_frac; default 1e-2,
+kept after a DRAFT_JUMP). The point is a solution: on control/aware.py's first draft the default
+took 8-13 IPOPT iterations on the five session-27 models, this 5, to the same robust torques
+(1e-13 N·m); on the bracketed loop's drafts after a jump it took more in sum (350 against 325 on
+the same models), so they keep the default."""
 DRAFT_JUMP = 3e-3
 """A draft whose heights move further than this from its warm start's (m) starts from the warm
 start's primal point only: after a jump that large, IPOPT's multiplier warm start costs more
@@ -193,6 +201,13 @@ class NominalOCP:
         self._jump_solver = ca.nlpsol(
             "jump_ocp", "ipopt", nlp, {**options, "ipopt": jump_ipopt, "cache": derivatives}
         )
+        push = {"bound_push": PRIMAL_BOUND_PUSH, "bound_frac": PRIMAL_BOUND_PUSH}
+        self._primal_solver = ca.nlpsol(
+            "primal_ocp",
+            "ipopt",
+            nlp,
+            {**options, "ipopt": {**jump_ipopt, **push}, "cache": derivatives},
+        )
         self._lbx = np.concatenate([np.full(2 * n, -np.inf), np.full(n, -c.torque_limit)])
         self._ubx = np.concatenate([np.full(2 * n, np.inf), np.full(n, c.torque_limit)])
 
@@ -262,9 +277,11 @@ class NominalOCP:
         if draft:
             if warm is None:
                 raise ValueError("a draft solve needs a warm start")
-            jump = not multipliers or np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP
+            jump = np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP
             solver = self._jump_solver if jump else self._draft_solver
-            if jump:
+            if not multipliers:
+                solver = self._primal_solver
+            if jump or not multipliers:
                 args.pop("lam_g0", None)
                 args.pop("lam_x0", None)
         best: Solution | None = None

@@ -148,6 +148,20 @@ def test_draft_solve_agrees_with_the_full_solve(ocp: NominalOCP) -> None:
         ocp.solve(raised, draft=True)
 
 
+def test_primal_draft_is_not_pushed_off_its_bounds(ocp: NominalOCP) -> None:
+    """A draft from the warm start's primal point alone (`multipliers=False`, control/aware.py's
+    first solve) starts on that point (PRIMAL_BOUND_PUSH), where a draft after a height jump is
+    pushed off its bounds by IPOPT's default: the same torque to the draft tolerance, in fewer
+    IPOPT iterations."""
+    full = ocp.solve()
+    raised = full.heights + np.array([0.004, 0.006])  # beyond DRAFT_JUMP: pushed by default
+    pushed = ocp.solve(raised, warm=full, draft=True)
+    primal = ocp.solve(raised, warm=full, draft=True, multipliers=False)
+    np.testing.assert_allclose(primal.tau, pushed.tau, rtol=0, atol=1e-5)
+    assert np.all(primal.slider[SAMPLES] >= raised - 1e-8)
+    assert primal.iterations < pushed.iterations
+
+
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler here")
 def test_compiled_nlp_gives_the_same_solutions(
     model: PPANN, ocp: NominalOCP, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
