@@ -32,6 +32,7 @@ on (n_samples,) arrays, where torch's per-operation overhead would dominate.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,11 +52,21 @@ _LEVER = PrefixDraws()
 
 @dataclass(frozen=True)
 class Bands:
-    """Trajectories (n_samples, T + 1, 2) and their mean and standard deviation (T + 1, 2)."""
+    """Trajectories (n_samples, T + 1, 2) and their mean and standard deviation (T + 1, 2), the
+    two computed when first read (the robust loop's tightening reads the samples alone: 0.6 ms
+    of a draft's ~22 at 1000 trajectories)."""
 
     samples: np.ndarray
-    mean: np.ndarray
-    std: np.ndarray
+
+    @functools.cached_property
+    def mean(self) -> np.ndarray:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self.samples.mean(axis=0)
+
+    @functools.cached_property
+    def std(self) -> np.ndarray:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self.samples.std(axis=0, ddof=1)
 
 
 def machine_factors(
@@ -131,8 +142,7 @@ def monte_carlo(
         compiled=compiled,
         lever_eps=lever_eps,
     )
-    with np.errstate(over="ignore", invalid="ignore"):
-        return Bands(samples, samples.mean(axis=0), samples.std(axis=0, ddof=1))
+    return Bands(samples)
 
 
 @dataclass(frozen=True)
