@@ -164,6 +164,9 @@ class NominalOCP:
         options: dict[str, Any] = {
             "expand": True,
             "print_time": False,
+            # the parameters' multipliers (turns, aware terms) serve nothing here, and CasADi
+            # computes them after each solve by a derivative evaluation: ~5 ms of a draft's ~55
+            "calc_lam_p": False,
             "ipopt": {
                 "print_level": 0,
                 "sb": "yes",
