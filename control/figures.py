@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from control.ocp_file import OCPFile, Profile
 from twin.geometry import Geometry
@@ -136,6 +137,7 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
         bottom.axvline(step, color="0.6", lw=0.8, ls=":")
     scheme = " then ".join(sorted(schemes))  # aware, then the bracket it hands over to
     bottom.set_xlabel(f"robust iteration, {scheme} margins (dotted: full solve, others drafts)")
+    bottom.xaxis.set_major_locator(MaxNLocator(integer=True))  # solves: no 1.5
     bottom.set_ylabel("[mm]")
     bottom.legend(fontsize=7)
     return fig
