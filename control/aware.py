@@ -194,7 +194,6 @@ class Acceptance(Generic[Payload]):
         full solve, after a probe that showed no jump)."""
         self._seen: list[tuple[np.ndarray, np.ndarray]] = []
         self._held: tuple[np.ndarray, np.ndarray, Payload] | None = None
-        self._probing = False
 
     def settled(self, margin: np.ndarray, residual: np.ndarray) -> bool:
         """Within the tolerance at every sample, or on the safe side of a jump there: residual
@@ -212,19 +211,22 @@ class Acceptance(Generic[Payload]):
         """Take the solve just made (a draft if `self.draft` was): `payload` if it is a full
         solve that settled, a held full solve's payload if this solve showed the jump it sat
         by, else None, with `self.draft` and `self.start` set for the next solve."""
-        draft, probing = self.draft, self._probing
-        self.start, self._probing = None, False
+        draft = self.draft
+        # a draft while a solve is held is its probe: holding is the only way back to drafts
+        # once a full solve was made, and the probe's answer always leaves the drafts
+        probed = self._held if draft else None
+        self.start = None
         self._seen.append((margin, residual))
         if not draft and self.settled(margin, residual):
             return payload
         if self._held is not None and self.settled(*self._held[:2]):
             return self._held[2]
-        if probing and self._held is not None:  # no jump: a full solve from the held one
-            self.draft, self.start = False, self._held[2]
+        if probed is not None:  # no jump: a full solve from the held one
+            self.draft, self.start = False, probed[2]
             return None
         safe = bool(np.all((residual <= 0) | (np.abs(residual) < self.tolerance)))
         if not draft and safe:  # its slack may be a jump's: a draft from it probes it
-            self._held, self.draft, self._probing = (margin, residual, payload), True, True
+            self._held, self.draft = (margin, residual, payload), True
         else:
             self.draft = draft and not self.settled(margin, residual)
         return None
