@@ -280,13 +280,14 @@ class NominalOCP:
         if draft:
             if warm is None:
                 raise ValueError("a draft solve needs a warm start")
-            jump = np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP
-            solver = self._jump_solver if jump else self._draft_solver
-            if not multipliers:
+            if not multipliers:  # its point alone (no multipliers were passed above)
                 solver = self._primal_solver
-            if jump or not multipliers:
-                args.pop("lam_g0", None)
-                args.pop("lam_x0", None)
+            elif np.max(np.abs(heights - warm.heights)) > DRAFT_JUMP:
+                solver = self._jump_solver
+                args.pop("lam_g0")
+                args.pop("lam_x0")
+            else:
+                solver = self._draft_solver
         best: Solution | None = None
         for passes in range(1, 2 if draft else MAX_TURN_PASSES + 1):
             tried.add(turns.tobytes())
