@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import glob
 import re
+import statistics
 from pathlib import Path
 
 from matplotlib.figure import Figure
@@ -56,8 +57,7 @@ def main() -> None:
             x = i + (k - (len(sets) - 1) / 2) * width
             ratios = runs[model]
             ax.scatter([x] * len(ratios), ratios, color=f"C{k}", s=22, label=None if i else label)
-            median = sorted(ratios)[len(ratios) // 2]
-            ax.hlines(median, x - width / 3, x + width / 3, color=f"C{k}")
+            ax.hlines(statistics.median(ratios), x - width / 3, x + width / 3, color=f"C{k}")
     ax.axhline(3.0, color="k", ls="--", lw=1, label="target 3")
     ax.set_xticks(range(len(names)), names, fontsize=8)
     ax.set_xlabel("model (one dot per Monte-Carlo seed, a bar at the median)", fontsize=9)
