@@ -30,6 +30,7 @@ STREAMS: dict[str, str] = {
     "dataset_start_times": "how long each dataset machine has run before its episode",
     "training": "network initialisation and minibatch order",
     "monte_carlo": "Monte-Carlo draws of the OCP's robust loop",
+    "tail_check": "Monte-Carlo draws of a robust torque's own tail, checked after its loop",
     "validation_monte_carlo": "Monte-Carlo bands of the validation report",
     "calibration_machines": "twin machines of the model report's calibration",
     "calibration_noise": "slider disturbance of the calibration replays",

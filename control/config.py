@@ -38,6 +38,10 @@ QUANTILE_TAIL = 20
 """Quantile tightening draws enough trajectories that this many fall beyond the quantile."""
 MAX_MC_SAMPLES = 200_000
 """Most Monte-Carlo trajectories (150 steps of 200 000 samples hold ~0.5 GB)."""
+TARGET_RATE = 0.005
+"""Largest share of the line's machines a robust torque may put below the height: what held-out
+machines judge it by (replay/rates.py) and what its own tail is checked against
+(control/tail.py)."""
 
 
 def loop_of(profile: str) -> str:
@@ -120,6 +124,11 @@ class OCPConfig:
     control/robust.py). The tubes always use the bracket."""
     max_robust_iterations: int = 30
     max_ipopt_iterations: int = 3000
+    tail_check: bool = True
+    """After a robust profile's loop, check its torque's own violation rate (its Monte-Carlo,
+    with the tightening's allowances, TAIL_DRAWS trajectories) and solve it again with the
+    quantile tightening where that rate is above TARGET_RATE (control/tail.py): k sigma reads a
+    skewed spread as normal. No effect with the quantile tightening."""
     compiled: bool = False
     """Compile the NLP's functions to C (CasADi's JIT with the system's C compiler, ~15 s once
     per model; CasADi's virtual machine if there is none). Each IPOPT iteration is then ~3x
@@ -184,8 +193,9 @@ class OCPConfig:
                 f"samples ({QUANTILE_TAIL} beyond the {100 * tail:.3g} % quantile), "
                 f"got {self.mc_samples}"
             )
-        if not isinstance(self.compiled, bool):
-            raise OCPConfigError(f"compiled must be true or false, got {self.compiled!r}")
+        for name in ("compiled", "tail_check"):
+            if not isinstance(getattr(self, name), bool):
+                raise OCPConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         for name in ("max_robust_iterations", "max_ipopt_iterations"):
             if getattr(self, name) < 1:
                 raise OCPConfigError(f"{name} must be >= 1, got {getattr(self, name)}")

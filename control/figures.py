@@ -40,14 +40,15 @@ def _slider(
     loop = loop or profile.loop
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
     lower, upper = predicted_band(profile, profile.sigma_in(loop), k, geometry=ocp.geometry)
+    # the trajectories its last decision drew (control/profiles.py may draw more than configured)
+    runs = ocp.raw.get(label, {}).get("mc_samples", ocp.config.mc_samples)
     ax.fill_between(
         profile.time,
         lower,
         upper,
         color=color,
         alpha=0.2,
-        label=f"{label}: ±{k:g}σ {loop} loop (Monte-Carlo, {ocp.config.mc_samples} runs; "
-        f"within the stroke)",
+        label=f"{label}: ±{k:g}σ {loop} loop (Monte-Carlo, {runs} runs; within the stroke)",
     )
 
 
@@ -101,9 +102,21 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     top.plot(robust.time, robust.tau, color=COLORS[name], label=name)
     torque_limits(top, ocp)
     top.set_ylabel("τ [N·m]")
-    how = TIGHTENING_WORDS.get(ocp.config.tightening, ocp.config.tightening)
+    method = ocp.raw[name].get("tightening_method", ocp.config.tightening)
+    how = TIGHTENING_WORDS.get(method, method)
+    checks = ocp.raw[name].get("tail_checks", [])
+    tail = ""
+    if checks:  # control/tail.py: the returned torque's own tail; the one before it, if re-solved
+        tail = f"\nits own Monte-Carlo {100 * checks[-1]['rate']:.2f} % below the height"
+        if len(checks) > 1:
+            first = checks[0]
+            tail += (
+                f"; re-solved: the {first['tightening']} torque's {100 * first['rate']:.2f} % "
+                f"was above the {100 * first['target']:g} % target"
+            )
     top.set_title(
-        f"{TITLES[name]} ({how}): cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal",
+        f"{TITLES[name]} ({how}): cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal"
+        + tail,
         fontsize=10,
     )
     top.legend(fontsize=8)
@@ -129,8 +142,7 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
             fmt="x--",
             color=f"C{i}",
             capsize=3,
-            label=f"tightening its solution asks (± s.e.; {ocp.config.tightening} and allowances), "
-            f"sample {k}",
+            label=f"tightening its solution asks (± s.e.; {method} and allowances), sample {k}",
         )
     full = [step for step, it in enumerate(iterations, 1) if not it.get("draft", False)]
     for step in full:

@@ -46,7 +46,11 @@ was tightened for), plus
 `heights`, the slider lower bounds used at the constraint samples, and `tightening`,
 `tightening_se` there (m), and `population` and `sampling`, the parts of `tightening` that
 allow for the line's uncertain mean and for the Monte-Carlo's standard error (m,
-control/robust.py; 0 at confidence 0); and `gain_theta`, `gain_omega`
+control/robust.py; 0 at confidence 0); a robust profile also `tightening_method` (the
+tightening its torque was solved with: config.tightening, or "quantile" where its own tail sent
+it there) and `tail_checks` (control/tail.py: each check of a torque's own Monte-Carlo, {draws,
+rate, samples, target, tightening, passed, wall_time_s}; empty without config.tail_check; both
+keys absent in files written before session 30); and `gain_theta`, `gain_omega`
 (N - 1 each), the gains of the profile's law (control/config.py law_of: the LQR along the plan,
 control/lqr.py, or robust-pd's fixed PD at every sample; N·m/rad and N·m·s/rad) that the twin's
 closed loop applies before samples 1..N-1. The nominal profile carries the gains of the first

@@ -159,7 +159,11 @@ def write_ocp(
     replays draw their machines from; `engine` what evaluated the NLP (compiled or vm)."""
     first_name, first = next(iter(solved.results.items()))
     robust = {
-        name: _part(result, "robust", config=config, dt=dt, loop=loop_of(name))
+        name: {
+            **_part(result, "robust", config=config, dt=dt, loop=loop_of(name)),
+            "tightening_method": result.tightening,
+            "tail_checks": [check.as_dict() for check in result.tail_checks],
+        }
         for name, result in solved.results.items()
     }
     payload = {

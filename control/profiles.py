@@ -12,6 +12,11 @@ or a refusal, is therefore decided again with ESCALATION times the trajectories,
 MAX_ESCALATIONS times: the band where the draws decide narrows like 1/sqrt(n), and only the
 tasks inside it pay for the precision. It cannot vanish: a tightening exactly at the cap stays
 a coin toss at any finite count.
+
+Then its own tail (OCPConfig.tail_check, control/tail.py): k sigma stands for Φ(−k) only where
+the slider's spread is normal; where the decided torque's own Monte-Carlo, with the
+tightening's allowances, puts more than the target rate below the height, the profile is
+decided again with the quantile tightening, and that torque is returned.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from control.config import MAX_MC_SAMPLES, OCPConfig
+from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
 from control.robust import (
     STROKE_SHARE,
@@ -31,7 +36,8 @@ from control.robust import (
     RobustResult,
     solve_robust,
 )
-from ppann.model import PPANN
+from control.tail import TailCheck, tail_check
+from ppann.model import PPANN, FusedHeads
 
 DECISION_BAND = 2.0
 """A verdict whose tightening is within this many standard errors of the cap is decided again
@@ -60,6 +66,66 @@ def undecided(tightening: np.ndarray, se: np.ndarray, cap: float) -> bool:
 
 
 def solve_decided(
+    model: PPANN,
+    config: OCPConfig,
+    *,
+    profile: str,
+    ocp: NominalOCP,
+    nominal: Solution,
+    on_iteration: Callable[[Iteration], None] | None = None,
+) -> RobustResult:
+    """`decide`, then (OCPConfig.tail_check) the torque's own tail (control/tail.py): where
+    its own violation rate is above the target, the profile is decided again with the quantile
+    tightening (unless that was the tightening) and that torque is returned, its check beside
+    the first. The wall time is all of it, checks included.
+
+    Raises:
+      RobustError: no robust torque; or, where the tail sent the profile to the quantile
+        tightening, none with that one (its error, saying why it was tried).
+    """
+    result = decide(
+        model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+    )
+    if not config.tail_check:
+        return result
+    heads = FusedHeads(model)
+    closed = loop_of(profile) == "closed"
+
+    def checked(result: RobustResult) -> TailCheck:
+        return tail_check(
+            heads,
+            result.robust,
+            config,
+            tightening=result.tightening,
+            population=result.robust_uncertainty.population,
+            gains=result.robust_gains if closed else None,
+        )
+
+    first = checked(result)
+    if first.passed or config.tightening == "quantile":  # nothing sounder to send it to
+        return replace(result, tail_checks=(first,), wall_time=result.wall_time + first.wall_time)
+    quantile = replace(config, tightening="quantile", mc_samples=0)
+    spent = result.wall_time + first.wall_time
+    try:
+        tail = decide(
+            model, quantile, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+        )
+    except RobustError as exc:
+        exc.args = (
+            f"its {config.tightening} torque's own Monte-Carlo went below the height on "
+            f"{100 * first.rate:.2f} % of {first.draws} trajectories (target "
+            f"{100 * first.target:g} %), and with the quantile tightening: {exc}",
+        )
+        raise
+    second = checked(tail)
+    return replace(
+        tail,
+        tail_checks=(first, second),
+        wall_time=spent + tail.wall_time + second.wall_time,
+    )
+
+
+def decide(
     model: PPANN,
     config: OCPConfig,
     *,

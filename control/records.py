@@ -10,6 +10,7 @@ import numpy as np
 from common.errors import NoSolutionError
 from control.config import OCPConfig
 from control.ocp import Solution
+from control.tail import TailCheck
 from control.tightening import Uncertainty
 
 
@@ -105,6 +106,13 @@ class RobustResult:
     """Monte-Carlo slider std (N,) of the nominal plan open loop and closed under its gains,
     whatever the tightening was sized for (the replay's rows compare against these)."""
     robust_loops: dict[str, np.ndarray]
+    tightening: str
+    """The tightening the torque was solved with (OCPConfig.tightening, or "quantile" where its
+    own tail sent it there: control/tail.py)."""
+    tail_checks: tuple[TailCheck, ...] = ()
+    """The torque's own tail, checked (control/tail.py): the configured tightening's torque,
+    then, where that was above the target, the quantile tightening's, the one returned (its
+    `iterations` are the quantile loop's). Empty without OCPConfig.tail_check."""
 
 
 def iteration(

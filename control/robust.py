@@ -157,6 +157,7 @@ def solve_robust(
             robust_gains=robust_gains,
             nominal_loops=feedback_loops,
             robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
+            tightening=config.tightening,
         )
 
     if scheme == "aware":

@@ -268,6 +268,14 @@ def solve_command(
         ),
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
+    tail_check: Annotated[
+        bool,
+        typer.Option(
+            "--tail-check/--no-tail-check",
+            help="Check each robust torque's own violation rate (20 000 trajectories) and solve "
+            "it again with the quantile tightening where it is above 0.5 %.",
+        ),
+    ] = OCPConfig.tail_check,
     profiles: ProfilesOption = DEFAULT_PROFILES,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
@@ -301,6 +309,7 @@ def solve_command(
         mc_mode=mc_mode,
         tightening=tightening,
         confidence=confidence,
+        tail_check=tail_check,
         profiles=tuple(profiles_list(profiles)),
         torque_limit=torque_limit,
         theta_start=theta_start,

@@ -113,6 +113,16 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
                 f"{1e3 * v:.2f} mm" for v in r["sampling"]
             ),
         }
+        checks = r.get("tail_checks", [])
+        if checks:  # control/tail.py
+            told = "; ".join(
+                f"{c['tightening']} torque {100 * c['rate']:.2f} % of {c['draws']} below "
+                f"(target {100 * c['target']:g} %)"
+                for c in checks
+            )
+            if len(checks) > 1:
+                told += f" -> solved with the {r['tightening_method']} tightening"
+            rows[f"{name}: its own tail"] = told
     for name, why in payload.get("refused", {}).items():
         rows[name] = f"refused: {why}"
     return rows

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 
-TARGET_RATE = 0.005
-"""Largest violation rate of the robust profile on held-out machines that counts as holding."""
+from control.config import TARGET_RATE
+
 CONFIDENCE = 0.95
 """The one-sided confidence of the rate's upper bound."""
 

@@ -1,0 +1,143 @@
+"""control/tail.py: a robust torque's own violation rate, counted on its own Monte-Carlo with
+the tightening's allowances; control/profiles.py solves a profile again with the quantile
+tightening where that rate is above the target."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import control.profiles as profiles
+import control.tail as tail
+from common.streams import stream
+from control.config import OCPConfig, OCPConfigError
+from control.ocp import NominalOCP
+from control.records import BeyondStrokeError
+from control.tail import tail_check
+from control.tightening import line_allowance
+from ppann.model import FusedHeads, constant_ppann
+from ppann.montecarlo import monte_carlo
+from ppann.transmission import draw
+
+NARROW = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+CONFIG = OCPConfig(mc_samples=100, confidence=0.0)
+
+
+@pytest.fixture(scope="module")
+def centred():
+    ocp = NominalOCP(NARROW, replace(CONFIG, tail_check=False))
+    nominal = ocp.solve()
+    config = replace(CONFIG, tail_check=False)
+    result = profiles.solve_decided(NARROW, config, profile="robust", ocp=ocp, nominal=nominal)
+    return ocp, nominal, result
+
+
+def test_the_rate_is_the_share_of_its_draws_below_the_height(centred) -> None:
+    """The check against the same draws made by hand: the union over the constraint samples of
+    slider - population < height; a population of a metre puts every draw below, minus a metre
+    none."""
+    _, _, result = centred
+    heads = FusedHeads(NARROW)
+    population = np.array([0.5e-3, 1.5e-3])
+    check = tail_check(
+        heads, result.robust, CONFIG, tightening="centred", population=population, draws=3000
+    )
+    paths, angles = stream(CONFIG.mc_seed, "tail_check").spawn(2)
+    spread, _ = line_allowance(heads, CONFIG)
+    bands = monte_carlo(
+        heads,
+        result.robust.states[0],
+        result.robust.tau[:99],
+        n_samples=3000,
+        mode=CONFIG.mc_mode,
+        seed=paths,
+        machine_sigma=spread,
+    )
+    delta = draw(heads.transmission, (3000,), np.random.default_rng(angles))
+    slider = heads.geometry.slider_position(bands.samples[:, [49, 99], 0] + delta[:, None])
+    below = slider - population < CONFIG.height
+    assert check.rate == below.any(axis=1).mean()
+    assert check.samples == {50: below[:, 0].mean(), 100: below[:, 1].mean()}
+    assert 0 < check.rate < 1  # the test would say nothing otherwise
+    assert check.draws == 3000 and check.tightening == "centred"
+    every = tail_check(heads, result.robust, CONFIG, tightening="centred", population=[1, 1])
+    none = tail_check(heads, result.robust, CONFIG, tightening="centred", population=[-1, -1])
+    assert (every.rate, none.rate) == (1.0, 0.0)
+    assert none.passed and not every.passed
+
+
+def test_a_tail_within_the_target_keeps_the_torque(centred, monkeypatch) -> None:
+    """Checked and within the target: the same torque to the bit, one check recorded."""
+    ocp, nominal, alone = centred
+    monkeypatch.setattr(tail, "target", lambda config: 1.0)
+    result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+    np.testing.assert_array_equal(result.robust.tau, alone.robust.tau)
+    assert [c.tightening for c in result.tail_checks] == ["centred"]
+    assert result.tightening == "centred"
+    assert result.wall_time >= result.tail_checks[0].wall_time
+
+
+def test_a_tail_above_the_target_is_solved_with_the_quantile_tightening(
+    centred, monkeypatch
+) -> None:
+    """A target of 0 sends every torque to the quantile tightening: the torque returned is the
+    quantile tightening's own (solved alone, to the bit), both checks recorded, the second on
+    it; its own rate is at most the two samples' Φ(-3) each, within the check's draws' error.
+    Asked for the quantile tightening itself, the check is recorded and nothing re-solved."""
+    ocp, nominal, _ = centred
+    monkeypatch.setattr(tail, "target", lambda config: 0.0)
+    result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+    quantile = replace(CONFIG, tightening="quantile", mc_samples=0)
+    alone = profiles.solve_decided(NARROW, quantile, profile="robust", ocp=ocp, nominal=nominal)
+    np.testing.assert_array_equal(result.robust.tau, alone.robust.tau)
+    (own,) = alone.tail_checks
+    assert own.tightening == "quantile" and not own.passed
+    assert own.rate == result.tail_checks[1].rate
+    first, second = result.tail_checks
+    assert (first.tightening, second.tightening, result.tightening) == (
+        "centred",
+        "quantile",
+        "quantile",
+    )
+    assert second.rate < 2 * 0.00135 + 3 * np.sqrt(2 * 0.00135 / second.draws)
+    assert result.robust_uncertainty.samples == alone.robust_uncertainty.samples
+
+
+def test_a_quantile_refusal_says_why_it_was_tried(centred, monkeypatch) -> None:
+    """Where the quantile tightening finds no torque, the error is its own, saying that the
+    configured torque's tail sent the profile there."""
+    ocp, nominal, _ = centred
+    monkeypatch.setattr(tail, "target", lambda config: 0.0)
+    decide = profiles.decide
+
+    def refusing(model, config, **kwargs):
+        if config.tightening == "quantile":
+            raise BeyondStrokeError(
+                "the quantile asks 21 mm", sample=100, tightening=0.021, available=0.019, line=0
+            )
+        return decide(model, config, **kwargs)
+
+    monkeypatch.setattr(profiles, "decide", refusing)
+    with pytest.raises(
+        BeyondStrokeError,
+        match=r"own Monte-Carlo went below the height on .* "
+        r"and with the quantile tightening: the quantile asks 21 mm",
+    ):
+        profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+
+
+def test_the_target_is_the_products_or_what_k_stands_for() -> None:
+    """0.5 % at k = 3 on two samples (k sigma stands for 0.27 % there); a k of 0.5 asks for no
+    better than 1 - (1 - Φ(-0.5))^2 = 52.4 %, and the check holds it to that."""
+    assert tail.target(OCPConfig()) == 0.005
+    loose = tail.target(OCPConfig(k_sigma=0.5))
+    assert loose == pytest.approx(1 - (1 - 0.3085375387259869) ** 2, rel=1e-12)
+    three = tail.target(OCPConfig(k_sigma=2.5, constraint_samples=(40, 80, 120)))
+    assert three == pytest.approx(1 - (1 - 0.006209665325776132) ** 3, rel=1e-12)
+
+
+def test_tail_check_is_a_boolean() -> None:
+    with pytest.raises(OCPConfigError, match="tail_check must be true or false"):
+        OCPConfig(tail_check="yes")
