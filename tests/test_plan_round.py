@@ -29,7 +29,7 @@ from twin.plan_data import plan_dataset_file, plan_torques
 EPISODES = 6
 PLANNED = replace(
     SHORT,  # a 12 s model with a small, uncorrected margin: a robust torque to play
-    ocp=replace(SHORT.ocp, profiles=("robust",)),
+    ocp=replace(SHORT.ocp, profiles=("robust",), tail_check=False),  # the sweep spec's
     replay=replace(SHORT.replay, modes=("open",)),
     heldout_seed=5,
     plan=PlanConfig(episodes=EPISODES),
