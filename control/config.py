@@ -127,8 +127,9 @@ class OCPConfig:
     tail_check: bool = True
     """After a robust profile's loop, check its torque's own violation rate (its Monte-Carlo,
     with the tightening's allowances, TAIL_DRAWS trajectories) and solve it again with the
-    quantile tightening where that rate is above TARGET_RATE (control/tail.py): k sigma reads a
-    skewed spread as normal. No effect with the quantile tightening."""
+    quantile tightening where that rate is above its target, TARGET_RATE or what k stands for
+    if looser (control/tail.py): k sigma reads a skewed spread as normal. With the quantile
+    tightening the check is recorded and nothing is solved again."""
     compiled: bool = False
     """Compile the NLP's functions to C (CasADi's JIT with the system's C compiler, ~15 s once
     per model; CasADi's virtual machine if there is none). Each IPOPT iteration is then ~3x

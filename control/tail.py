@@ -4,10 +4,10 @@ k sigma stands for Φ(−k) below the height at each constraint sample (0.135 % 
 where the slider's spread there is normal. Near top dead centre it is not: the slider is a
 concave function of the crank angle, and the angle's own spread is skewed, so the slider's lower
 tail is longer than k sigma says. Measured on session 27's five default models (README, *The
-torque's own tail*): at the centred torques of the horizon-200 task (samples 70, 130) the
-robust OCP's own Monte-Carlo, with its allowances, put 0.65-0.93 % of 20 000 trajectories below
-the height, and on 4000 held-out machines one of those torques went below on 0.75 %; on the
-paper's task 0.28-0.43 %.
+torque's own tail, checked after its loop*): this check put 0.80-1.09 % of the centred torques'
+own trajectories below the height on the horizon-200 task (samples 70, 130), where such torques
+went below on up to 0.75 % of 4000 held-out machines; 0.41-0.66 % on the paper's task over
+Monte-Carlo seeds 0-4.
 
 So after the loop, the returned torque's Monte-Carlo is drawn again, TAIL_DRAWS trajectories
 from a stream of its own ("tail_check"), with the same allowances as its tightening: the line's
@@ -18,7 +18,7 @@ TARGET_RATE, the rate held-out machines judge a robust torque by, or the rate k 
 for where that is looser: a k of 0.5 asks for no better than 31 % per sample) the profile is
 solved again with the quantile tightening (control/profiles.py), whose own rate is at most the
 number of constraint samples times Φ(−k) by construction. The check costs one Monte-Carlo of
-TAIL_DRAWS (0.3-1 s).
+TAIL_DRAWS (0.28-0.45 s idle on the paper's task, ~4 nominal solves).
 """
 
 from __future__ import annotations
