@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from common.streams import stream
 from control.config import TARGET_RATE, OCPConfig, lower_tail
@@ -94,31 +95,65 @@ def tail_check(
     `solution`'s torque (solved with `tightening`), open loop or (with `gains`, (N-1, 2)) under
     the tracking law along it, each slider lowered by `population` (per constraint sample, m)."""
     started = time.perf_counter()
-    index = np.array(config.constraint_samples) - 1
     spread, _ = line_allowance(heads, config)
     feedback = None
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
     paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
-    bands = monte_carlo(
+    rate, samples = share_below(
         heads,
         solution.states[0],
-        solution.tau[: index.max()],
+        solution.tau,
+        config,
+        draws=draws,
+        paths=paths,
+        angles=angles,
+        machine_sigma=spread,
+        feedback=feedback,
+        population=population,
+    )
+    return TailCheck(
+        draws=draws,
+        rate=rate,
+        samples=samples,
+        target=target(config),
+        tightening=tightening,
+        wall_time=time.perf_counter() - started,
+    )
+
+
+def share_below(
+    heads: FusedHeads,
+    x0: np.ndarray,
+    tau: np.ndarray,
+    config: OCPConfig,
+    *,
+    draws: int,
+    paths: np.random.SeedSequence,
+    angles: np.random.SeedSequence,
+    machine_sigma: np.ndarray | None = None,
+    feedback: Feedback | None = None,
+    population: npt.ArrayLike = 0.0,
+) -> tuple[float, dict[int, float]]:
+    """The share of `draws` Monte-Carlo trajectories (config.mc_mode, from `paths`; the
+    transmission's angles from `angles`) under `tau` from x0, simulated to the last constraint
+    sample only, whose slider, lowered by `population` (per constraint sample, m), is below the
+    height: at any constraint sample, and at each (1-based). A diverged draw counts below. The
+    check's rate here; replay/heldout.py's model_rate (the model alone, its own streams)."""
+    index = np.array(config.constraint_samples) - 1
+    bands = monte_carlo(
+        heads,
+        x0,
+        np.asarray(tau)[: index.max()],
         n_samples=draws,
         mode=config.mc_mode,
         seed=paths,
-        machine_sigma=spread,
+        machine_sigma=machine_sigma,
         feedback=feedback,
     )
     delta = draw(heads.transmission, (draws,), np.random.default_rng(angles))
     with np.errstate(over="ignore", invalid="ignore"):
         slider = heads.geometry.slider_position(bands.samples[:, index, 0] + delta[:, None])
-    below = ~(slider - np.asarray(population) >= config.height)  # a diverged draw counts below
-    return TailCheck(
-        draws=draws,
-        rate=float(below.any(axis=1).mean()),
-        samples={k: float(below[:, j].mean()) for j, k in enumerate(config.constraint_samples)},
-        target=target(config),
-        tightening=tightening,
-        wall_time=time.perf_counter() - started,
-    )
+    below = ~(slider - np.asarray(population) >= config.height)
+    samples = {k: float(below[:, j].mean()) for j, k in enumerate(config.constraint_samples)}
+    return float(below.any(axis=1).mean()), samples

@@ -74,6 +74,7 @@ from common.jsonio import recorded_path, write_json
 from control.config import PD_GAINS, OCPConfig, lower_tail
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import Profile, read_ocp
+from control.tail import share_below
 from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
@@ -138,25 +139,21 @@ def model_rate(
     """heldout.json's model_rate for one profile and loop (module docstring): `n_samples`
     trajectories of the model under `planned`'s torque, open loop or under `law`, simulated up
     to the last constraint sample only (every draw a prefix of the whole run's)."""
-    index = np.array(c.constraint_samples) - 1
-    bands = monte_carlo(
+    rate, samples = share_below(
         heads,
-        [planned.theta[0], planned.omega[0]],
-        planned.tau[: index.max()],
-        n_samples=n_samples,
-        mode=c.mc_mode,
-        seed=streams.stream(c.mc_seed, "monte_carlo"),
+        np.array([planned.theta[0], planned.omega[0]]),
+        planned.tau,
+        c,
+        draws=n_samples,
+        paths=streams.stream(c.mc_seed, "monte_carlo"),
+        angles=streams.stream(c.mc_seed, "transmission"),
         feedback=law,
     )
-    delta = draw(heads.transmission, (n_samples,), streams.rng(c.mc_seed, "transmission"))
-    with np.errstate(over="ignore", invalid="ignore"):
-        slider = heads.geometry.slider_position(bands.samples[:, index, 0] + delta[:, None])
-    below = ~(slider >= c.height)  # a diverged draw (NaN) counts as below
     return {
         "mode": c.mc_mode,
         "draws": n_samples,
-        "rate": float(below.any(axis=1).mean()),
-        "samples": {str(k): float(below[:, j].mean()) for j, k in enumerate(c.constraint_samples)},
+        "rate": rate,
+        "samples": {str(k): v for k, v in samples.items()},
     }
 
 
