@@ -38,9 +38,9 @@ from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
 from control.config import OCPConfig
 from control.ocp import NominalOCP, Solution
+from control.profiles import own_tail
 from control.records import RobustResult
 from control.robust import solve_robust
-from control.tail import tail_check
 from control.tightening import slider_uncertainty
 from crank.study import parse_seeds
 from ppann import kernel
@@ -156,13 +156,7 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
         drafts = sum(it.draft for it in its)
         ratios.append(statistics.median(runs))
         # the product's solve (control/profiles.py) checks the torque's own tail after the loop
-        check = tail_check(
-            FusedHeads(model),
-            result.robust,
-            config,
-            tightening=result.tightening,
-            population=result.robust_uncertainty.population,
-        )
+        check = own_tail(FusedHeads(model), result, config, profile="robust")
         checked.append(
             statistics.median(
                 (b + check.wall_time) / a for a, b in zip(nominal, robust, strict=True)

@@ -73,42 +73,43 @@ def solve_decided(
     ocp: NominalOCP,
     nominal: Solution,
     on_iteration: Callable[[Iteration], None] | None = None,
+    heads: FusedHeads | None = None,
 ) -> RobustResult:
-    """`decide`, then (OCPConfig.tail_check) the torque's own tail (control/tail.py): where
-    its own violation rate is above the target, the profile is decided again with the quantile
-    tightening (unless that was the tightening) and that torque is returned, its check beside
-    the first. The wall time is all of it, checks included.
+    """`decide`, then (OCPConfig.tail_check) the torque's own tail (`own_tail`): where its own
+    violation rate is above the target, the profile is solved again with the quantile
+    tightening (unless that was the tightening), and that torque is returned, its check after
+    the first. The wall time is all of it, checks included. `heads`: the model's FusedHeads,
+    if already built (every decision and check shares one).
 
     Raises:
       RobustError: no robust torque; or, where the tail sent the profile to the quantile
         tightening, none with that one (its error, saying why it was tried).
     """
+    heads = FusedHeads(model) if heads is None else heads
     result = decide(
-        model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+        model,
+        config,
+        profile=profile,
+        ocp=ocp,
+        nominal=nominal,
+        on_iteration=on_iteration,
+        heads=heads,
     )
     if not config.tail_check:
         return result
-    heads = FusedHeads(model)
-    closed = loop_of(profile) == "closed"
-
-    def checked(result: RobustResult) -> TailCheck:
-        return tail_check(
-            heads,
-            result.robust,
-            config,
-            tightening=result.tightening,
-            population=result.robust_uncertainty.population,
-            gains=result.robust_gains if closed else None,
-        )
-
-    first = checked(result)
-    if first.passed or config.tightening == "quantile":  # nothing sounder to send it to
-        return replace(result, tail_checks=(first,), wall_time=result.wall_time + first.wall_time)
-    quantile = replace(config, tightening="quantile", mc_samples=0)
+    first = own_tail(heads, result, config, profile=profile)
     spent = result.wall_time + first.wall_time
+    if first.passed or config.tightening == "quantile":  # nothing sounder to send it to
+        return replace(result, tail_checks=(first,), wall_time=spent)
     try:
-        tail = decide(
-            model, quantile, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+        tail = solve_decided(
+            model,
+            replace(config, tightening="quantile", mc_samples=0),
+            profile=profile,
+            ocp=ocp,
+            nominal=nominal,
+            on_iteration=on_iteration,
+            heads=heads,
         )
     except RobustError as exc:
         exc.args = (
@@ -117,11 +118,21 @@ def solve_decided(
             f"{100 * first.target:g} %), and with the quantile tightening: {exc}",
         )
         raise
-    second = checked(tail)
-    return replace(
-        tail,
-        tail_checks=(first, second),
-        wall_time=spent + tail.wall_time + second.wall_time,
+    return replace(tail, tail_checks=(first, *tail.tail_checks), wall_time=spent + tail.wall_time)
+
+
+def own_tail(
+    heads: FusedHeads, result: RobustResult, config: OCPConfig, *, profile: str
+) -> TailCheck:
+    """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
+    tightening used, open loop or, for a tube, under the profile's law along it."""
+    return tail_check(
+        heads,
+        result.robust,
+        config,
+        tightening=result.tightening,
+        population=result.robust_uncertainty.population,
+        gains=result.robust_gains if loop_of(profile) == "closed" else None,
     )
 
 
@@ -133,6 +144,7 @@ def decide(
     ocp: NominalOCP,
     nominal: Solution,
     on_iteration: Callable[[Iteration], None] | None = None,
+    heads: FusedHeads | None = None,
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
     as many while its verdict is undecided (module docstring). The result's uncertainties say
@@ -153,7 +165,13 @@ def decide(
         final = attempt == len(counts) - 1
         try:
             result = solve_robust(
-                model, trial, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
+                model,
+                trial,
+                profile=profile,
+                ocp=ocp,
+                nominal=nominal,
+                on_iteration=on_iteration,
+                heads=heads,
             )
         except BeyondStrokeError as exc:
             if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):
