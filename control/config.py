@@ -19,6 +19,11 @@ class OCPConfigError(CrankError, ValueError):
 
 TIGHTENINGS = ("centred", "gaussian", "quantile")
 MARGIN_SCHEMES = ("aware", "bracket")
+TAIL_REMEDIES = ("raise-k", "quantile")
+"""What a torque whose own tail is above its target is solved again with (control/tail.py):
+"raise-k", the configured tightening at the k its check predicts to bring it to the target,
+then the quantile tightening if that does not pass; "quantile", the quantile tightening
+straight away (session 30's)."""
 ROBUST_PROFILES = {"robust": "open", "robust-fb": "closed", "robust-pd": "closed"}
 """The robust profiles `crank solve` knows, each with the loop its tightening is sized for:
 `robust`, open loop (the paper's eq. 16); `robust-fb`, the closed loop under the plan's
@@ -127,9 +132,11 @@ class OCPConfig:
     tail_check: bool = True
     """After a robust profile's loop, check its torque's own violation rate (its Monte-Carlo,
     with the tightening's allowances, TAIL_DRAWS trajectories) and solve it again with the
-    quantile tightening where that rate is above its target, TARGET_RATE or what k stands for
-    if looser (control/tail.py): k sigma reads a skewed spread as normal. With the quantile
+    `tail_remedy` where that rate is above its target, TARGET_RATE or what k stands for if
+    looser (control/tail.py): k sigma reads a skewed spread as normal. With the quantile
     tightening the check is recorded and nothing is solved again."""
+    tail_remedy: str = "raise-k"
+    """What the tail check solves such a torque again with (TAIL_REMEDIES)."""
     compiled: bool = False
     """Compile the NLP's functions to C (CasADi's JIT with the system's C compiler, ~15 s once
     per model; CasADi's virtual machine if there is none). Each IPOPT iteration is then ~3x
@@ -174,6 +181,7 @@ class OCPConfig:
             )
         check_choice("margin_scheme", self.margin_scheme, MARGIN_SCHEMES, error=OCPConfigError)
         check_choice("tightening", self.tightening, TIGHTENINGS, error=OCPConfigError)
+        check_choice("tail_remedy", self.tail_remedy, TAIL_REMEDIES, error=OCPConfigError)
         check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
         tail = lower_tail(self.k_sigma)
         needed = GAUSSIAN_SAMPLES

@@ -36,7 +36,8 @@ def _slider(
 ) -> None:
     """The profile's mean slider and its ±kσ band in `loop` (default: the loop it was sized
     for)."""
-    k = ocp.config.k_sigma
+    # the k the profile was solved with (its own tail's check may have raised it)
+    k = ocp.raw.get(label, {}).get("k_sigma", ocp.config.k_sigma)
     loop = loop or profile.loop
     ax.plot(profile.time, profile.slider, color=color, label=f"{label}: mean PPANN")
     lower, upper = predicted_band(profile, profile.sigma_in(loop), k, geometry=ocp.geometry)
@@ -114,9 +115,14 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
         )
         if len(checks) > 1:
             first = checks[0]
+            now = (
+                f"at k {last['k_sigma']:g}"
+                if last["tightening"] == first["tightening"]
+                else "with this tightening"
+            )
             tail += (
-                f"\nsolved again with this tightening: the {first['tightening']} torque's was "
-                f"{100 * first['rate']:.2f} %"
+                f"\nsolved again {now}: the {first['tightening']} torque at k "
+                f"{first.get('k_sigma', ocp.config.k_sigma):g} had {100 * first['rate']:.2f} %"
             )
     top.set_title(
         f"{TITLES[name]} ({how}): cost {robust.cost:.4g}, {ocp.premium(name):+.1%} over nominal"

@@ -162,6 +162,7 @@ def write_ocp(
         name: {
             **_part(result, "robust", config=config, dt=dt, loop=loop_of(name)),
             "tightening_method": result.tightening,
+            "k_sigma": result.k_sigma,
             "tail_checks": [check.as_dict() for check in result.tail_checks],
         }
         for name, result in solved.results.items()

@@ -16,7 +16,8 @@ a coin toss at any finite count.
 Then its own tail (OCPConfig.tail_check, control/tail.py): k sigma stands for Φ(−k) only where
 the slider's spread is normal; where the decided torque's own Monte-Carlo, with the
 tightening's allowances, puts more than the target rate below the height, the profile is
-decided again with the quantile tightening, and that torque is returned.
+decided again (OCPConfig.tail_remedy): at the k the check predicts, at most TAIL_STEPS times,
+then with the quantile tightening; the last torque is returned.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from control import tail
 from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
 from control.robust import (
@@ -36,7 +38,7 @@ from control.robust import (
     RobustResult,
     solve_robust,
 )
-from control.tail import TailCheck, tail_check
+from control.tail import TailCheck, raised_k, tail_check
 from ppann.model import PPANN, FusedHeads
 
 DECISION_BAND = 2.0
@@ -48,6 +50,11 @@ MAX_ESCALATIONS = 2
 """At most this many re-decisions: up to 16x the configured trajectories, and never more than
 control/config.py MAX_MC_SAMPLES (the quantile tightening's 14 816 at k = 3 escalate once, to
 59 264, then to the cap)."""
+
+
+TAIL_STEPS = 2
+"""At most this many re-decisions at a raised k (control/tail.py `raised_k`) before the
+quantile tightening."""
 
 
 @dataclass(frozen=True)
@@ -76,63 +83,106 @@ def solve_decided(
     heads: FusedHeads | None = None,
 ) -> RobustResult:
     """`decide`, then (OCPConfig.tail_check) the torque's own tail (`own_tail`): where its own
-    violation rate is above the target, the profile is solved again with the quantile
-    tightening (unless that was the tightening), and that torque is returned, its check after
-    the first. The wall time is all of it, checks included. `heads`: the model's FusedHeads,
-    if already built (every decision and check shares one).
+    violation rate is above the target, the profile is decided again at the k its check's own
+    trajectories predict to bring it to the target (control/tail.py `raised_k`), and checked
+    again, at most TAIL_STEPS times; where no raised k passes (or none exists, or it is
+    refused), with the quantile tightening at the configured k (unless that was the
+    tightening). The torque returned is the last one, its checks after the ones before it; the
+    wall time is all of it, checks included. `heads`: the model's FusedHeads, if already built
+    (every decision and check shares one).
 
     Raises:
       RobustError: no robust torque; or, where the tail sent the profile to the quantile
         tightening, none with that one (its error, saying why it was tried).
     """
     heads = FusedHeads(model) if heads is None else heads
-    result = decide(
-        model,
-        config,
-        profile=profile,
-        ocp=ocp,
-        nominal=nominal,
-        on_iteration=on_iteration,
-        heads=heads,
-    )
+    arguments = {
+        "profile": profile,
+        "ocp": ocp,
+        "nominal": nominal,
+        "on_iteration": on_iteration,
+        "heads": heads,
+    }
+    result = decide(model, config, **arguments)
     if not config.tail_check:
         return result
-    first = own_tail(heads, result, config, profile=profile)
-    spent = result.wall_time + first.wall_time
-    if first.passed or config.tightening == "quantile":  # nothing sounder to send it to
-        return replace(result, tail_checks=(first,), wall_time=spent)
+    goal = tail.target(config)
+    checks = [own_tail(heads, result, config, profile=profile, goal=goal)]
+    spent = result.wall_time + checks[0].wall_time
+    if checks[0].passed or config.tightening == "quantile":  # nothing sounder to send it to
+        return replace(result, tail_checks=(checks[0],), wall_time=spent)
+    tried = []
+    for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
+        k = raised_k(checks[-1], replace(config, k_sigma=result.k_sigma), **_slack(result, config))
+        if k is None:
+            tried.append("no k reaches the target")
+            break
+        try:
+            result = decide(model, replace(config, k_sigma=k), **arguments)
+        except RobustError as exc:
+            spent += exc.partial.wall_time if exc.partial is not None else 0.0
+            if isinstance(exc, BeyondStrokeError):  # the quantile's error will say the rest
+                tried.append(
+                    f"at k {k:g} its tightening at sample {exc.sample} "
+                    f"({1e3 * exc.tightening:.1f} mm) was beyond the stroke"
+                )
+            else:
+                tried.append(f"at k {k:g} refused ({exc})")
+            break
+        checks.append(own_tail(heads, result, config, profile=profile, goal=goal))
+        spent += result.wall_time + checks[-1].wall_time
+        if checks[-1].passed:
+            return replace(result, tail_checks=tuple(checks), wall_time=spent)
+        tried.append(f"at k {k:g} {100 * checks[-1].rate:.2f} %")
+    first = checks[0]
+    why = (
+        f"its {config.tightening} torque's own Monte-Carlo went below the height on "
+        f"{100 * first.rate:.2f} % of {first.draws} trajectories (target {100 * goal:g} %)"
+        + "".join(f"; {step}" for step in tried)
+    )
     try:
-        tail = solve_decided(
-            model,
-            replace(config, tightening="quantile", mc_samples=0),
-            profile=profile,
-            ocp=ocp,
-            nominal=nominal,
-            on_iteration=on_iteration,
-            heads=heads,
+        quantile = solve_decided(
+            model, replace(config, tightening="quantile", mc_samples=0), **arguments
         )
     except RobustError as exc:
-        exc.args = (
-            f"its {config.tightening} torque's own Monte-Carlo went below the height on "
-            f"{100 * first.rate:.2f} % of {first.draws} trajectories (target "
-            f"{100 * first.target:g} %), and with the quantile tightening: {exc}",
-        )
+        exc.args = (f"{why}; and with the quantile tightening: {exc}",)
         raise
-    return replace(tail, tail_checks=(first, *tail.tail_checks), wall_time=spent + tail.wall_time)
+    return replace(
+        quantile,
+        tail_checks=(*checks, *quantile.tail_checks),
+        wall_time=spent + quantile.wall_time,
+    )
+
+
+def _slack(result: RobustResult, config: OCPConfig) -> dict[str, np.ndarray]:
+    """What control/tail.py `raised_k` predicts from: the torque's mean-model slider, its
+    tightening and that tightening's change with k (sigma, and the Monte-Carlo's allowance,
+    which is proportional to k) at each constraint sample, m."""
+    unc = result.robust_uncertainty
+    index = np.array(config.constraint_samples) - 1
+    per_k = unc.std[index] + (unc.sampling / result.k_sigma if result.k_sigma > 0 else 0.0)
+    return {"plan": result.robust.slider[index], "tightening": unc.tightening, "per_k": per_k}
 
 
 def own_tail(
-    heads: FusedHeads, result: RobustResult, config: OCPConfig, *, profile: str
+    heads: FusedHeads,
+    result: RobustResult,
+    config: OCPConfig,
+    *,
+    profile: str,
+    goal: float | None = None,
 ) -> TailCheck:
     """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
-    tightening used, open loop or, for a tube, under the profile's law along it."""
+    tightening used, open loop or, for a tube, under the profile's law along it, at the k it
+    was solved with; `goal` the target (default: the configured k's)."""
     return tail_check(
         heads,
         result.robust,
-        config,
+        replace(config, k_sigma=result.k_sigma),
         tightening=result.tightening,
         population=result.robust_uncertainty.population,
         gains=result.robust_gains if loop_of(profile) == "closed" else None,
+        goal=tail.target(config) if goal is None else goal,
     )
 
 

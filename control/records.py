@@ -109,10 +109,14 @@ class RobustResult:
     tightening: str
     """The tightening the torque was solved with (OCPConfig.tightening, or "quantile" where its
     own tail sent it there: control/tail.py)."""
+    k_sigma: float
+    """The k the torque was solved with (OCPConfig.k_sigma, or raised by its own tail's check:
+    control/tail.py)."""
     tail_checks: tuple[TailCheck, ...] = ()
-    """The torque's own tail, checked (control/tail.py): the configured tightening's torque,
-    then, where that was above the target, the quantile tightening's, the one returned (its
-    `iterations` are the quantile loop's). Empty without OCPConfig.tail_check."""
+    """The torque's own tail, checked (control/tail.py), in order: the configured tightening's
+    torque, then, where that was above the target, each torque solved again at a raised k, and
+    last, where none of those passed, the quantile tightening's. The last is the one returned
+    (its `iterations` are its own loop's). Empty without OCPConfig.tail_check."""
 
 
 def iteration(

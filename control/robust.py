@@ -159,6 +159,7 @@ def solve_robust(
             nominal_loops=feedback_loops,
             robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
             tightening=config.tightening,
+            k_sigma=config.k_sigma,
         )
 
     if scheme == "aware":

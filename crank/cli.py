@@ -273,9 +273,16 @@ def solve_command(
         typer.Option(
             "--tail-check/--no-tail-check",
             help="Check each robust torque's own violation rate (20 000 trajectories) and solve "
-            "it again with the quantile tightening where it is above 0.5 %.",
+            "it again where it is above 0.5 % (--tail-remedy).",
         ),
     ] = OCPConfig.tail_check,
+    tail_remedy: Annotated[
+        str,
+        typer.Option(
+            help="What the tail check solves such a torque again with: raise-k (the k its "
+            "check predicts, then quantile) or quantile."
+        ),
+    ] = OCPConfig.tail_remedy,
     profiles: ProfilesOption = DEFAULT_PROFILES,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
@@ -310,6 +317,7 @@ def solve_command(
         tightening=tightening,
         confidence=confidence,
         tail_check=tail_check,
+        tail_remedy=tail_remedy,
         profiles=tuple(profiles_list(profiles)),
         torque_limit=torque_limit,
         theta_start=theta_start,

@@ -95,7 +95,7 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
     why it was refused."""
     n = payload["nominal"]
     rows: dict[str, Any] = {"nominal cost": f"{n['cost']:.6g}"}
-    height = payload["config"]["height"]
+    height, k = payload["config"]["height"], payload["config"]["k_sigma"]
     for name in payload["profiles"][1:]:
         r = payload[name]
         solves = [it for it in payload["robust_iterations"] if it["profile"] == name]
@@ -116,12 +116,12 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
         checks = r.get("tail_checks", [])
         if checks:  # control/tail.py
             told = "; ".join(
-                f"{c['tightening']} torque {100 * c['rate']:.2f} % of {c['draws']} below "
-                f"(target {100 * c['target']:g} %)"
+                f"{c['tightening']} at k {c.get('k_sigma', k):g} {100 * c['rate']:.2f} % of "
+                f"{c['draws']} below (target {100 * c['target']:g} %)"
                 for c in checks
             )
             if len(checks) > 1:
-                told += f" -> solved with the {r['tightening_method']} tightening"
+                told += " -> the last one returned"
             rows[f"{name}: its own tail"] = told
     for name, why in payload.get("refused", {}).items():
         rows[name] = f"refused: {why}"

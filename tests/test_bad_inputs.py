@@ -239,6 +239,7 @@ CASES: list[tuple[str, str]] = [
     ("solve --model {m.pt} --out o/ocp.json --k-sigma nan", "k_sigma must be a finite number"),
     ("solve --model {m.pt} --out o/ocp.json --mc-mode often", "Monte-Carlo mode must be one of"),
     ("solve --model {m.pt} --out o/ocp.json --tightening mean", "tightening must be one of"),
+    ("solve --model {m.pt} --out o/ocp.json --tail-remedy more", "tail_remedy must be one of"),
     ("solve --model {m.pt} --out o/ocp.json --mc-samples 100000000", "mc_samples must be an"),
     ("solve --model {m.pt} --out o/ocp.json --mc-samples -5", "mc_samples must be an"),
     ("solve --model {m.pt} --out o/ocp.json --mc-samples 1", "mc_samples must be >= 2"),

@@ -1,6 +1,6 @@
 """control/tail.py: a robust torque's own violation rate, counted on its own Monte-Carlo with
-the tightening's allowances; control/profiles.py solves a profile again with the quantile
-tightening where that rate is above the target."""
+the tightening's allowances; control/profiles.py solves a profile again where that rate is above
+the target: at the k the check predicts (`raised_k`), then with the quantile tightening."""
 
 from __future__ import annotations
 
@@ -82,14 +82,16 @@ def test_a_tail_within_the_target_keeps_the_torque(centred, monkeypatch) -> None
 def test_a_tail_above_the_target_is_solved_with_the_quantile_tightening(
     centred, monkeypatch
 ) -> None:
-    """A target of 0 sends every torque to the quantile tightening: the torque returned is the
+    """With `tail_remedy` "quantile", a target of 0 sends every torque to the quantile
+    tightening: the torque returned is the
     quantile tightening's own (solved alone, to the bit), both checks recorded, the second on
     it; its own rate is at most the two samples' Φ(-3) each, within the check's draws' error.
     Asked for the quantile tightening itself, the check is recorded and nothing re-solved."""
     ocp, nominal, _ = centred
     monkeypatch.setattr(tail, "target", lambda config: 0.0)
-    result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
-    quantile = replace(CONFIG, tightening="quantile", mc_samples=0)
+    config = replace(CONFIG, tail_remedy="quantile")
+    result = profiles.solve_decided(NARROW, config, profile="robust", ocp=ocp, nominal=nominal)
+    quantile = replace(config, tightening="quantile", mc_samples=0)
     alone = profiles.solve_decided(NARROW, quantile, profile="robust", ocp=ocp, nominal=nominal)
     np.testing.assert_array_equal(result.robust.tau, alone.robust.tau)
     (own,) = alone.tail_checks
@@ -106,26 +108,88 @@ def test_a_tail_above_the_target_is_solved_with_the_quantile_tightening(
 
 
 def test_a_quantile_refusal_says_why_it_was_tried(centred, monkeypatch) -> None:
-    """Where the quantile tightening finds no torque, the error is its own, saying that the
-    configured torque's tail sent the profile there."""
+    """Where neither a raised k nor the quantile tightening finds a torque, the error is the
+    quantile's own, saying that the configured torque's tail sent the profile there and what
+    the raised k asked."""
     ocp, nominal, _ = centred
     monkeypatch.setattr(tail, "target", lambda config: 0.0)
     decide = profiles.decide
 
     def refusing(model, config, **kwargs):
-        if config.tightening == "quantile":
+        if config.tightening == "quantile" or config.k_sigma != CONFIG.k_sigma:
             raise BeyondStrokeError(
-                "the quantile asks 21 mm", sample=100, tightening=0.021, available=0.019, line=0
+                f"the {config.tightening} asks 21 mm",
+                sample=100,
+                tightening=0.021,
+                available=0.019,
+                line=0,
             )
         return decide(model, config, **kwargs)
 
     monkeypatch.setattr(profiles, "decide", refusing)
     with pytest.raises(
         BeyondStrokeError,
-        match=r"own Monte-Carlo went below the height on .* "
-        r"and with the quantile tightening: the quantile asks 21 mm",
+        match=r"own Monte-Carlo went below the height on [0-9.]+ % of 20000 trajectories "
+        r"\(target 0 %\); at k [0-9.]+ its tightening at sample 100 \(21.0 mm\) was beyond "
+        r"the stroke; and with the quantile tightening: the quantile asks 21 mm",
     ):
         profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+
+
+def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -> None:
+    """The default remedy: the centred torque's own rate (0.27 %) above a target of 0.2 %
+    raises k to what its check predicts (the configured tightening, decided alone at that k: the
+    same torque to the bit), and that torque's own rate, on the check's same draws, is within
+    the target; both checks recorded, the target the configured k's."""
+    ocp, nominal, alone = centred
+    monkeypatch.setattr(tail, "target", lambda config: 0.002)
+    result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+    first, second = result.tail_checks
+    assert first.k_sigma == 3.0 and first.rate > 0.002  # the test would say nothing otherwise
+    assert result.k_sigma == second.k_sigma > 3.0 and result.tightening == "centred"
+    assert second.passed and second.rate <= 0.002 and second.target == 0.002
+    raised = replace(CONFIG, k_sigma=result.k_sigma, tail_check=False)
+    by_hand = profiles.decide(NARROW, raised, profile="robust", ocp=ocp, nominal=nominal)
+    np.testing.assert_array_equal(result.robust.tau, by_hand.robust.tau)
+    assert result.robust.cost > alone.robust.cost
+
+
+def _check(lowered: np.ndarray, *, target: float) -> tail.TailCheck:
+    """A check of the given trajectories (draws, constraint samples) at `target`."""
+    return tail.TailCheck(
+        draws=lowered.shape[0],
+        rate=0.0,
+        samples={},
+        target=target,
+        tightening="centred",
+        k_sigma=3.0,
+        wall_time=0.0,
+        lowered=lowered,
+    )
+
+
+def test_raised_k_moves_the_draws_with_the_plan_beyond_its_slack() -> None:
+    """1000 draws, 30 below the height at sample 100 in 1 mm steps; the aim at a 2 % target is
+    2 % - 2 sqrt(2 % 98 % / 1000) = 1.11 %: at most 11 below, so the plan must rise 19 mm.
+    With d tightening / dk of 8 mm and no slack that is dk = 2.375 (k 5.375, rounded up to
+    5.38); with 4 mm of slack the plan rises only after it, dk = 23 / 8 = 2.875 (5.88). Sample
+    50, far above, plays no part. A draw that diverged (NaN) stays below at any k: with 3 %
+    of them no k reaches the aim."""
+    config = OCPConfig()
+    height = config.height
+    lowered = np.column_stack([np.full(1000, height + 1.0), height + 1e-3 * (np.arange(1000) - 30)])
+    check = _check(lowered, target=0.02)
+    assert tail.aim(check) == pytest.approx(0.02 - 2 * np.sqrt(0.02 * 0.98 / 1000))
+    plan = np.array([height + 1.0, height])
+    kwargs = {"plan": plan, "per_k": np.array([0.008, 0.008])}
+    assert tail.raised_k(check, config, tightening=np.zeros(2), **kwargs) == 5.38
+    slack = {"tightening": np.array([0.0, -0.004])}  # plan - height - tightening = 4 mm
+    assert tail.raised_k(check, config, **slack, **kwargs) == 5.88
+    lowered[:30, 1] = np.nan
+    assert (
+        tail.raised_k(_check(lowered, target=0.02), config, tightening=np.zeros(2), **kwargs)
+        is None
+    )
 
 
 def test_the_target_is_the_products_or_what_k_stands_for() -> None:
@@ -138,6 +202,8 @@ def test_the_target_is_the_products_or_what_k_stands_for() -> None:
     assert three == pytest.approx(1 - (1 - 0.006209665325776132) ** 3, rel=1e-12)
 
 
-def test_tail_check_is_a_boolean() -> None:
+def test_tail_check_is_a_boolean_and_its_remedy_a_known_one() -> None:
     with pytest.raises(OCPConfigError, match="tail_check must be true or false"):
         OCPConfig(tail_check="yes")
+    with pytest.raises(OCPConfigError, match="tail_remedy must be one of"):
+        OCPConfig(tail_remedy="wider")
