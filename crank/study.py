@@ -103,8 +103,13 @@ def _profile_row(
         "phase1_converged": ppann["phase1_converged"],
         "machine_sigma": ppann["machine_sigma"],
         "mc_mode": mode,
+        # what the torque was solved with: its own tail's check may have raised k or sent it
+        # to the quantile tightening (control/tail.py; keys absent before sessions 30, 31)
+        "solved_tightening": ocp[name].get("tightening_method", ocp["config"]["tightening"]),
+        "solved_k": ocp[name].get("k_sigma", k),
         "wall_s": report["wall_seconds"]["total"],
     }
+    row["solved_with"] = f"{row['solved_tightening']} k {row['solved_k']:g}"
     if heldout is not None and loop in heldout["modes"]:
         robust, nominal = heldout["profiles"][name][loop], heldout["profiles"]["nominal"][loop]
         row |= {
@@ -230,8 +235,8 @@ def markdown(study: dict[str, Any]) -> str:
     lines.append(
         f"Variability scenario `{scenario}`, Monte-Carlo `{study['config']['ocp']['mc_mode']}` "
         f"({study['config']['ocp']['mc_samples']} samples, {study['config']['ocp']['tightening']} "
-        f"tightening, confidence {study['config']['ocp'].get('confidence', 0):g}), held-out seed "
-        f"{study['config']['heldout_seed']}."
+        f"tightening, confidence {study['config']['ocp'].get('confidence', 0):g}; each seed's "
+        f'torque as "solved with" says), held-out seed {study["config"]["heldout_seed"]}.'
     )
     lines.append("")
     for name in study["config"]["ocp"]["profiles"]:
@@ -273,6 +278,7 @@ def markdown(study: dict[str, Any]) -> str:
         ("robust_heldout_upper_95", "95 % bound", ".2%"),
         ("nominal_heldout_rate", "nominal held-out", ".1%"),
         ("premium", "premium", ".1%"),
+        ("solved_with", "solved with", ""),
         ("robust_heldout_lowest_mm", "lowest held-out mm", ".1f"),
         ("phase1_epochs", "phase-1 epochs", ""),
     ]

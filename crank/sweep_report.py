@@ -116,6 +116,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         "robust campaign",
         "premium (min–max)",
         "model's own rate (mean, worst)",
+        "solved with",
         "errors",
     ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -123,7 +124,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
         bad = len(members) - len(good)
         if not good:
-            lines.append(f"| {label} | {len(members)} |" + " n/a |" * 6 + f" {bad} |")
+            lines.append(f"| {label} | {len(members)} |" + " n/a |" * 7 + f" {bad} |")
             continue
         machines = sum(r["heldout_runs"] for r in good)
         violated = sum(round(r["robust_heldout_rate"] * r["heldout_runs"]) for r in good)
@@ -139,6 +140,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             f"{campaign[0]}/{campaign[1]}",
             f"{_pct(mean, 1)} ({_pct(min(premium), 1)}–{_pct(max(premium), 1)})",
             _own(good),
+            _solved(good),
             str(bad),
         ]
         lines.append("| " + " | ".join(cells) + " |")
@@ -158,6 +160,20 @@ def _own(rows: list[dict[str, Any]]) -> str:
     if len(own) < len(rows):
         return "n/a"
     return f"{_pct(sum(own) / len(own), 3)}, {_pct(max(own), 3)}"
+
+
+def _solved(rows: list[dict[str, Any]]) -> str:
+    """The tightenings and k the group's torques were solved with (their own tail's check may
+    have raised k or changed the tightening), with how many of each; "n/a" where a row has no
+    record of it."""
+    if any("solved_k" not in r for r in rows):
+        return "n/a"
+    parts = []
+    for method in dict.fromkeys(r["solved_tightening"] for r in rows):
+        ks = [r["solved_k"] for r in rows if r["solved_tightening"] == method]
+        span = f"{min(ks):g}" if min(ks) == max(ks) else f"{min(ks):g}–{max(ks):g}"
+        parts.append(f"{method} k {span} ×{len(ks)}")
+    return ", ".join(parts)
 
 
 TICK_WIDTH = 15

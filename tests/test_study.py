@@ -30,6 +30,12 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
         heldout = json.loads((out / f"seed-{seed}" / "heldout.json").read_text())
         assert row["robust_heldout_rate"] == heldout["profiles"][profile][loop]["rate"]
         assert row["heldout_runs"] == 20
+        ocp = json.loads((out / f"seed-{seed}" / "ocp.json").read_text())[profile]
+        assert (row["solved_tightening"], row["solved_k"]) == (
+            ocp["tightening_method"],
+            ocp["k_sigma"],
+        )
+        assert row["solved_with"] == f"{ocp['tightening_method']} k {ocp['k_sigma']:g}"
         for k, entry in heldout["profiles"][profile][loop]["samples"].items():
             interval = entry["predicted"][row["mc_mode"]]["ratio_ci95"]
             assert [row[f"ratio_{k}_low"], row[f"ratio_{k}_high"]] == interval
@@ -38,6 +44,7 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
         assert (out / name).stat().st_size > 0
     text = (out / "study.md").read_text()
     assert "| seed | profile |" in text and "- robust-fb closed loop on held-out" in text
+    assert "| premium | solved with |" in text
     assert "| pred/obs σ @50 | pred/obs σ @50 95 % from | pred/obs σ @50 95 % to |" in text
     assert "- robust-pd closed loop on held-out" in text
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns

@@ -37,9 +37,18 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     text = markdown(sweep, [row(0, 0.006, 0.011)])
     assert "worst 0.60 % (seed=0, robust), target <= 0.5 %: **NOT met**" in text
     assert "| all | 1 | 6/1000 (0.60 %) |" in text
-    assert text.rstrip().endswith("| 30.0 % (30.0 %–30.0 %) | n/a | 0 |")  # no model_rate yet
+    # no model_rate yet, nor what the torque was solved with
+    assert text.rstrip().endswith("| 30.0 % (30.0 %–30.0 %) | n/a | n/a | 0 |")
     own = [row(0, 0.001, 0.0047) | {"robust_model_rate": r} for r in (0.001, 0.002)]
-    assert "| 30.0 % (30.0 %–30.0 %) | 0.150 %, 0.200 % | 0 |" in markdown(sweep, own)
+    assert "| 30.0 % (30.0 %–30.0 %) | 0.150 %, 0.200 % | n/a | 0 |" in markdown(sweep, own)
+    # the tightenings and k the torques were solved with, in order of first appearance
+    solved = [
+        row(seed, 0.001, 0.0047) | {"solved_tightening": method, "solved_k": k}
+        for seed, (method, k) in enumerate(
+            [("centred", 3.0), ("centred", 3.21), ("quantile", 3.0), ("centred", 3.11)]
+        )
+    ]
+    assert "| n/a | centred k 3–3.21 ×3, quantile k 3 ×1 | 0 |" in markdown(sweep, solved)
 
 
 def test_sweep_figure_names_each_column_by_its_values() -> None:
