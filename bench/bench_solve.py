@@ -14,10 +14,10 @@ rollout, in the same run.
 
 Last, the default again on each of `--mc-seeds` (OCPConfig.mc_seed; the chain takes the
 training seed): the loop's path (drafts, full solves, IPOPT iterations) depends on the
-Monte-Carlo's draws, and one seed is one sample of it. Each seed's line also gives the ratio with
-the torque's own tail check that `crank solve` runs after the loop (control/tail.py: one
-Monte-Carlo of 20 000 trajectories; where it sends the profile to the quantile tightening, that
-solve is not timed here).
+Monte-Carlo's draws, and one seed is one sample of it. Each seed's line also gives the ratio of
+the profile as `crank solve` decides it (control/profiles.py solve_decided: the verdict's
+re-decisions, then the torque's own tail check, one Monte-Carlo of 20 000 trajectories, and
+where that is above its target the remedy, a raised k or the quantile tightening).
 
 Without --model it solves on a PPANN with constant networks (the test suite's: prior J_m, B_m,
 K_m, z_K = -0.9, z_sigma = 0.03, 0.05, 0.05), so it needs no training run; its nominal solve
@@ -38,7 +38,7 @@ from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
 from control.config import OCPConfig
 from control.ocp import NominalOCP, Solution
-from control.profiles import own_tail
+from control.profiles import solve_decided
 from control.records import RobustResult
 from control.robust import solve_robust
 from control.tightening import slider_uncertainty
@@ -145,9 +145,13 @@ def timed(
 
 def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat: int) -> None:
     """The default robust loop on each Monte-Carlo seed: its solves and the ratio (median of
-    `repeat`, each robust loop against the nominal solve timed just before it)."""
+    `repeat`, each robust loop against the nominal solve timed just before it); beside it the
+    profile as `crank solve` decides it (control/profiles.py solve_decided: the verdict's
+    re-decisions, the torque's own tail check and, where that is above its target, the
+    remedy), against a nominal solve timed just before it too."""
     print(f"-- the default on Monte-Carlo seeds {', '.join(map(str, seeds))}")
-    ratios, checked = [], []
+    ratios, decided = [], []
+    heads = FusedHeads(model)
     for seed in seeds:
         config = OCPConfig(mc_seed=seed)
         nominal, robust, _, _, result = timed(model, ocp, config, "robust", repeat)
@@ -155,20 +159,26 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
         its = result.iterations
         drafts = sum(it.draft for it in its)
         ratios.append(statistics.median(runs))
-        # the product's solve (control/profiles.py) checks the torque's own tail after the loop
-        check = own_tail(FusedHeads(model), result, config, profile="robust")
-        checked.append(
-            statistics.median(
-                (b + check.wall_time) / a for a, b in zip(nominal, robust, strict=True)
+        whole = []
+        for _ in range(repeat):
+            started = time.perf_counter()
+            solution = ocp.solve()
+            spent = time.perf_counter() - started
+            final = solve_decided(
+                model, config, profile="robust", ocp=ocp, nominal=solution, heads=heads
             )
-        )
+            whole.append(final.wall_time / spent)
+        decided.append(statistics.median(whole))
+        checks = ", ".join(f"k {c.k_sigma:g} {100 * c.rate:.2f} %" for c in final.tail_checks)
         print(
             f"seed {seed}: {drafts} draft + {len(its) - drafts} full solves, "
             f"{sum(it.ipopt_iterations for it in its)} IPOPT iterations, ratio {ratios[-1]:.2f} "
-            f"(repeats {min(runs):.2f}-{max(runs):.2f}); with its tail check {checked[-1]:.2f} "
-            f"(own rate {100 * check.rate:.2f} %, {check.wall_time:.2f} s)"
+            f"(repeats {min(runs):.2f}-{max(runs):.2f}); as crank solve decides it "
+            f"{decided[-1]:.2f} (repeats {min(whole):.2f}-{max(whole):.2f}; own tail {checks}; "
+            f"{final.tightening} at k {final.k_sigma:g}, premium "
+            f"{final.robust.cost / final.nominal.cost - 1:+.1%})"
         )
-    for what, values in (("", ratios), (" with the tail check", checked)):
+    for what, values in (("", ratios), (" as crank solve decides it", decided)):
         print(
             f"ratio over the seeds{what}: median {statistics.median(values):.2f}, "
             f"{sum(r <= 3 for r in values)} of {len(values)} within 3"
