@@ -305,12 +305,21 @@ def print_heldout(heldout: dict[str, Any]) -> None:
             typer.echo(
                 f"  {profile:<9} {loop:<6} {entry['violating_runs']:>5} below the height "
                 f"({100 * entry['rate']:.2f} %, 95 % upper bound "
-                f"{100 * entry['rate_upper_95']:.2f} %)" + _predicted(entry)
+                f"{100 * entry['rate_upper_95']:.2f} %)" + _predicted(entry) + _which(entry)
             )
     for profile in heldout["holds"]:
         below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
         said = verdict_text(below, heldout["runs"], target=heldout["target_rate"])
         typer.echo(f"  {profile} in its loop {said}")
+
+
+def _which(entry: dict[str, Any], most: int = 5) -> str:
+    """The held-out machines below the height by index, where at most `most` (heldout.json's
+    violating_machines, since session 31), else nothing."""
+    machines = entry.get("violating_machines") or []
+    if not machines or len(machines) > most:
+        return ""
+    return f"; machine{'s' if len(machines) > 1 else ''} {', '.join(map(str, machines))}"
 
 
 def show_iteration(it: Iteration) -> None:

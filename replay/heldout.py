@@ -30,6 +30,9 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
   profiles.<nominal|robust|robust-fb|robust-pd>.<mode>:
     mpc                  (mpc mode) the MPC steps' compute times, as in replay.stats.json
     violating_runs, rate, rate_upper_95
+    violating_machines   the machines below the height at any constraint sample, by their
+                         index in the held-out draw (replay/campaign.py draw_machines), or
+                         null beyond LISTED_MACHINES of them (since session 31)
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_sigma_ci95 (its 95 % bootstrap interval over the machines,
                           replay/spread_interval.py), observed_quantile (at Φ(-k_sigma)), skew,
@@ -93,6 +96,9 @@ from twin.variability import Variability
 
 FORMAT = "crank-heldout"
 VERSION = 6
+LISTED_MACHINES = 50
+"""A profile's machines below the height are listed by index up to this many (a robust
+profile's few; a nominal plan's hundreds are counted only)."""
 TAIL_DRAWS = 20_000
 """Trajectories of the model's own violation rate (`model_rate`): 27 expected below at 0.135 %,
 a relative standard error of 19 %; ~1 s for 150 steps."""
@@ -299,6 +305,11 @@ def heldout_check(
         out["profiles"][profile][mode] = {
             **({} if replay.mpc is None else {"mpc": mpc_timing(replay)}),
             "violating_runs": violating,
+            # which held-out machines (their index in draw_machines' order: a replay can
+            # play them again), where few enough to list
+            "violating_machines": (
+                np.flatnonzero(below).tolist() if violating <= LISTED_MACHINES else None
+            ),
             "rate": violating / runs,
             "rate_upper_95": rate_upper(violating, runs),
             "samples": samples,

@@ -295,6 +295,11 @@ def _check_heldout_entry(
             bands.samples[:, int(k) - 1, 0].mean(), rel=1e-12
         )
     assert result["theta_final"]["observed_sigma"] == float(replay.theta[:, -1].std(ddof=1))
+    # the machines below, by index: those of the direct replay of the same machines
+    index = np.array(ocp.config.constraint_samples) - 1
+    below = (replay.slider_position[:, index] < ocp.config.height).any(axis=1)
+    assert result["violating_machines"] == np.flatnonzero(below).tolist()
+    assert len(result["violating_machines"]) == result["violating_runs"]
     # the model's own rate below the height: its Monte-Carlo of the same loop, 300 draws
     tail = monte_carlo(
         model,
