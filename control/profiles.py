@@ -106,14 +106,13 @@ def solve_decided(
     result = decide(model, config, **arguments)
     if not config.tail_check:
         return result
-    goal = tail.target(config)
-    checks = [own_tail(heads, result, config, profile=profile, goal=goal)]
+    checks = [own_tail(heads, result, config, profile=profile)]
     spent = result.wall_time + checks[0].wall_time
     if checks[0].passed or config.tightening == "quantile":  # nothing sounder to send it to
         return replace(result, tail_checks=(checks[0],), wall_time=spent)
     tried = []
     for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
-        k = raised_k(checks[-1], replace(config, k_sigma=result.k_sigma), **_slack(result, config))
+        k = raised_k(checks[-1], config, **_slack(result, config))
         if k is None:
             tried.append("no k reaches the target")
             break
@@ -129,7 +128,7 @@ def solve_decided(
             else:
                 tried.append(f"at k {k:g} refused ({exc})")
             break
-        checks.append(own_tail(heads, result, config, profile=profile, goal=goal))
+        checks.append(own_tail(heads, result, config, profile=profile))
         spent += result.wall_time + checks[-1].wall_time
         if checks[-1].passed:
             return replace(result, tail_checks=tuple(checks), wall_time=spent)
@@ -137,7 +136,7 @@ def solve_decided(
     first = checks[0]
     why = (
         f"its {config.tightening} torque's own Monte-Carlo went below the height on "
-        f"{100 * first.rate:.2f} % of {first.draws} trajectories (target {100 * goal:g} %)"
+        f"{100 * first.rate:.2f} % of {first.draws} trajectories (target {100 * first.target:g} %)"
         + "".join(f"; {step}" for step in tried)
     )
     try:
@@ -170,11 +169,11 @@ def own_tail(
     config: OCPConfig,
     *,
     profile: str,
-    goal: float | None = None,
 ) -> TailCheck:
     """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
     tightening used, open loop or, for a tube, under the profile's law along it, at the k it
-    was solved with; `goal` the target (default: the configured k's)."""
+    was solved with, judged by the configured k's target (`config`'s: a raised k does not
+    move it)."""
     return tail_check(
         heads,
         result.robust,
@@ -182,7 +181,7 @@ def own_tail(
         tightening=result.tightening,
         population=result.robust_uncertainty.population,
         gains=result.robust_gains if loop_of(profile) == "closed" else None,
-        goal=tail.target(config) if goal is None else goal,
+        goal=tail.target(config),
     )
 
 

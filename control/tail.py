@@ -200,8 +200,9 @@ def raised_k(
     tightening: np.ndarray,
     per_k: np.ndarray,
 ) -> float | None:
-    """The k at which the checked torque's own rate is predicted to be `aim(check)`, or None if
-    no k reaches it (more of the draws diverged than that).
+    """The k (the check's own, raised) at which the checked torque's own rate is predicted to be
+    `aim(check)`, or None if no k reaches it (more of the draws diverged than that); config
+    gives the height.
 
     The prediction reads the check's own trajectories: raising k by dk raises the tightening at
     each constraint sample by about per_k dk (its sigma, and the Monte-Carlo's allowance that
@@ -225,7 +226,7 @@ def raised_k(
     while high - low > 1e-3:
         middle = 0.5 * (low + high)
         low, high = (middle, high) if rate(middle) > goal else (low, middle)
-    return math.ceil(100 * (config.k_sigma + high)) / 100
+    return math.ceil(100 * (check.k_sigma + high)) / 100
 
 
 def aim(check: TailCheck) -> float:
