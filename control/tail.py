@@ -218,7 +218,7 @@ def raised_k(
 
     def rate(dk: float) -> float:
         moved = check.lowered + np.clip(np.asarray(per_k) * dk - slack, 0.0, None)
-        return float((~(moved >= config.height)).any(axis=1).mean())
+        return share_below(moved, config)[0]
 
     low, high = 0.0, MAX_RAISE
     if rate(high) > goal:
