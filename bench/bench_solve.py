@@ -11,6 +11,7 @@ where a C compiler is found) on every core (the kernel's threads) and on one, be
 rollout, in the same run.
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3] [--mc-seeds 0-4]
+        [--seeds-only]
 
 Last, the default again on each of `--mc-seeds` (OCPConfig.mc_seed; the chain takes the
 training seed): the loop's path (drafts, full solves, IPOPT iterations) depends on the
@@ -53,6 +54,9 @@ def main() -> None:
     parser.add_argument("--model", default=None, help="PPANN checkpoint (default: constant nets)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds, e.g. 0-4 or 0,3")
+    parser.add_argument(
+        "--seeds-only", action="store_true", help="only the last section, per Monte-Carlo seed"
+    )
     args = parser.parse_args()
     try:
         mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
@@ -92,6 +96,10 @@ def main() -> None:
     started = time.perf_counter()
     ocps = {False: NominalOCP(model, OCPConfig())}
     build = time.perf_counter() - started
+    if args.seeds_only:
+        print(f"model: {source}\nbuild (SX expansion + IPOPT setup, once): {build:.2f} s")
+        seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat)
+        return
     started = time.perf_counter()
     ocps[True] = NominalOCP(model, OCPConfig(compiled=True))
     build_compiled = time.perf_counter() - started
@@ -169,7 +177,10 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
             )
             whole.append(final.wall_time / spent)
         decided.append(statistics.median(whole))
-        checks = ", ".join(f"k {c.k_sigma:g} {100 * c.rate:.2f} %" for c in final.tail_checks)
+        checks = ", ".join(
+            f"k {c.k_sigma:g} {100 * c.rate:.2f} % in {c.wall_time:.2f} s"
+            for c in final.tail_checks
+        )
         print(
             f"seed {seed}: {drafts} draft + {len(its) - drafts} full solves, "
             f"{sum(it.ipopt_iterations for it in its)} IPOPT iterations, ratio {ratios[-1]:.2f} "

@@ -10,9 +10,10 @@ went below on up to 0.75 % of 4000 held-out machines; 0.41-0.66 % on the paper's
 Monte-Carlo seeds 0-4.
 
 So after the loop, the returned torque's Monte-Carlo is drawn again, TAIL_DRAWS trajectories
-from a stream of its own ("tail_check"), with the same allowances as its tightening: the line's
-spread at its upper confidence bound (`line_allowance`) and the line's mean at its drop
-(`Uncertainty.population`, subtracted from every draw). The share of trajectories below the
+from a stream of its own ("tail_check"; its white normals counter-based, ppann/counter.py,
+generated inside the kernel where they are used), with the same allowances as its tightening:
+the line's spread at its upper confidence bound (`line_allowance`) and the line's mean at its
+drop (`Uncertainty.population`, subtracted from every draw). The share of trajectories below the
 height at any constraint sample is the torque's own violation rate. Above its target (`target`:
 TARGET_RATE, the rate held-out machines judge a robust torque by, or the rate k itself stands
 for where that is looser: a k of 0.5 asks for no better than 31 % per sample) the profile is
@@ -135,6 +136,7 @@ def tail_check(
         machine_sigma=spread,
         feedback=feedback,
         population=population,
+        normals="counter",
     )
     rate, samples = share_below(lowered, config)
     return TailCheck(
@@ -161,12 +163,14 @@ def lowered_sliders(
     machine_sigma: np.ndarray | None = None,
     feedback: Feedback | None = None,
     population: npt.ArrayLike = 0.0,
+    normals: str = "stream",
 ) -> np.ndarray:
     """The slider of `draws` Monte-Carlo trajectories (config.mc_mode, from `paths`; the
     transmission's angles from `angles`) under `tau` from x0, simulated to the last constraint
     sample only, at each constraint sample, lowered by `population` (per constraint sample, m),
-    (draws, constraint samples), m; NaN where a draw diverged. The check's; replay/heldout.py's
-    model_rate (the model alone, its own streams)."""
+    (draws, constraint samples), m; NaN where a draw diverged. `normals`: ppann/montecarlo.py's
+    source of white normals. The check's (counter-based normals); replay/heldout.py's
+    model_rate (the model alone, its own streams, the calibration Monte-Carlo's draws)."""
     index = np.array(config.constraint_samples) - 1
     bands = monte_carlo(
         heads,
@@ -177,6 +181,7 @@ def lowered_sliders(
         seed=paths,
         machine_sigma=machine_sigma,
         feedback=feedback,
+        normals=normals,
     )
     delta = draw(heads.transmission, (draws,), np.random.default_rng(angles))
     with np.errstate(over="ignore", invalid="ignore"):

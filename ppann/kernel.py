@@ -76,6 +76,7 @@ int crank_rollout(
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
     const double *lever_eps, const double *lever_table, /* the slider force's channel, or NULL */
+    int use_key, uint64_t key, int64_t offset, /* counter normals in place of eps (below) */
     double *samples)
 {
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
@@ -86,7 +87,10 @@ int crank_rollout(
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
     float *g = malloc(sizeof(float) * np * (3 + n_speed));
     double *out = malloc(sizeof(double) * np * 6);
-    if (!th || !g || !out) { free(th); free(g); free(out); return 1; }
+    double *w = use_key ? malloc(sizeof(double) * np * 5) : NULL, *ws = w + 4 * np;
+    if (!th || !g || !out || (use_key && !w)) {
+        free(th); free(g); free(out); free(w); return 1;
+    }
     float *g0 = g, *g1 = g + np, *g2 = g + 2 * np, *acc = g + 3 * np;
     const size_t stride = (size_t)(steps + 1) * 2;
     EACH(s) { th[s] = x0[0]; om[s] = x0[1]; }
@@ -135,6 +139,33 @@ int crank_rollout(
                     + table[(size_t)(cell + 1) * n_angle + c] * frac;
         }
         const double *e = has_eps ? eps + (size_t)(eps_per_step ? k : 0) * n * 3 : NULL;
+        if (use_key && (eps_per_step || k == 0)) {
+            /* sample (offset + s)'s four normals of step k (of step 0 for a draw per
+               trajectory): Box-Muller on two SplitMix64 outputs of the counter
+               (sample << 32 | step << 1 | pair), ppann/counter.py */
+            const uint64_t step = eps_per_step ? (uint64_t)k : 0;
+            for (int p = 0; p < 2; ++p) {
+                double *wa = w + (size_t)(2 * p) * np, *wb = wa + np;
+                EACH(s) {
+                    const uint64_t c = (uint64_t)(offset + (s < n ? s : n - 1)) << 32
+                        | step << 1 | (uint64_t)p;
+                    uint64_t z = key + 0x9e3779b97f4a7c15ULL * (c + 1);
+                    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+                    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+                    z ^= z >> 31;
+                    const double u1 = ((double)(z >> 32) + 0.5) * 2.3283064365386963e-10;
+                    const double u2 = ((double)(z & 0xffffffffULL) + 0.5)
+                        * 2.3283064365386963e-10;
+                    wa[s] = sqrt(-2.0 * log(u1));
+                    wb[s] = two_pi * u2;
+                }
+                /* apart: in one loop GCC makes sin and cos one sincos, which it does not
+                   vectorise */
+                EACH(s) ws[s] = wa[s] * sin(wb[s]);
+                EACH(s) wa[s] *= cos(wb[s]);
+                EACH(s) wb[s] = ws[s];
+            }
+        }
         EACH(s) {
             const int src = s < n ? s : n - 1;  /* a padding lane repeats the last sample */
             double z0 = use_nets ? out[s] : 0.0, z1 = use_nets ? out[np + s] : 0.0;
@@ -142,6 +173,9 @@ int crank_rollout(
             if (e) {
                 z0 += out[3 * np + s] * e[3 * src]; z1 += out[4 * np + s] * e[3 * src + 1];
                 z2 += out[5 * np + s] * e[3 * src + 2];
+            } else if (use_key) {
+                z0 += out[3 * np + s] * w[s]; z1 += out[4 * np + s] * w[np + s];
+                z2 += out[5 * np + s] * w[2 * np + s];
             }
             double u = tau[k];
             if (plan) {
@@ -149,14 +183,15 @@ int crank_rollout(
                     - gains[2 * k + 1] * (om[s] - plan[2 * k + 1]);
                 u = u < -limit ? -limit : (u > limit ? limit : u);
             }
-            if (lever_eps) {  /* a load disturbance, after the law's saturation */
+            if (lever_table) {  /* a load disturbance, after the law's saturation */
                 double at = ang[s] * cellscale;
                 if (!finite_bits(at) || at < 0 || at > table_rows - 1) at = 0;
                 int cell = (int)at;
                 if (cell > table_rows - 2) cell = table_rows - 2;
                 double frac = at - cell;
                 u += (lever_table[cell] * (1 - frac) + lever_table[cell + 1] * frac)
-                    * lever_eps[(size_t)(eps_per_step ? k : 0) * n + src];
+                    * (use_key ? w[3 * np + s]
+                               : lever_eps[(size_t)(eps_per_step ? k : 0) * n + src]);
             }
             double f0 = 1 + z0, f1 = 1 + z1, f2 = 1 + z2;
             if (factors && machine_prior) {  /* the machine scales the prior's term alone */
@@ -190,7 +225,7 @@ int crank_rollout(
             }
         }
     }
-    free(th); free(g); free(out);
+    free(th); free(g); free(out); free(w);
     return 0;
 }
 """
@@ -271,11 +306,16 @@ def rollout(
     limit: float,
     per_step: bool,
     lever_eps: np.ndarray | None = None,
+    key: int | None = None,
 ) -> np.ndarray | None:
     """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or None when the kernel is
     not available (the caller then runs NumPy's); `per_step`: eps (and `lever_eps`, the slider
     force's normals) has a row per step (else one row for the whole run), as the caller
-    decided."""
+    decided. `key` (with eps and lever_eps None): the white normals (and the slider force's,
+    for a model with the channel) generated here, ppann/counter.py's `counter_normals(key)`,
+    per step or per trajectory as `per_step` says."""
+    if key is not None and (eps is not None or lever_eps is not None):
+        raise ValueError("rollout: give the white normals as arrays or as a key, not both")
     library = load()
     if library is None:
         return None
@@ -318,7 +358,8 @@ def rollout(
     angle_out, speed_out = ints(heads.angle_outputs), ints(heads.speed_outputs)
     b_out = c64(heads.b_out.ravel())
     lever_eps = c64(lever_eps)
-    lever_table = None if lever_eps is None else c64(heads.lever_table)
+    lever = lever_eps is not None or (key is not None and heads.lever_sigma > 0)
+    lever_table = c64(heads.lever_table) if lever else None
 
     def run(a: int, b: int) -> int:
         """Samples a..b-1 into samples[a:b] (a contiguous block of rows)."""
@@ -350,6 +391,9 @@ def rollout(
             _ptr(b_out),
             _ptr(None if lever_eps is None else np.ascontiguousarray(lever_eps[:, part])),
             _ptr(lever_table),
+            ctypes.c_int(int(key is not None)),
+            ctypes.c_uint64(0 if key is None else key),
+            ctypes.c_int64(a),
             _ptr(samples[part]),
         )
 

@@ -40,10 +40,13 @@ import numpy.typing as npt
 
 from common.streams import PrefixDraws, sequence_key
 from ppann import kernel
+from ppann.counter import counter_normals, key_of
 from ppann.lever import lever_torque_sigma
 from ppann.model import PPANN, FusedHeads
 from ppann.modes import MONTE_CARLO_MODES, check_mode
 
+NORMAL_SOURCES = ("stream", "counter")
+"""Where `monte_carlo`'s white normals come from (its docstring)."""
 _WHITE = PrefixDraws()
 """The white draws (eps) of the seeds used last, per number of samples."""
 _LEVER = PrefixDraws()
@@ -88,6 +91,7 @@ def monte_carlo(
     machine_sigma: npt.ArrayLike | None = None,
     feedback: Feedback | None = None,
     compiled: bool = True,
+    normals: str = "stream",
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
@@ -96,6 +100,10 @@ def monte_carlo(
     feedback: simulate the closed loop under this tracking law (None: open loop).
     compiled: the rollout in C where it builds (`rollout`); False: NumPy's, bit for bit the
     per-step arithmetic of FusedHeads.
+    normals: where the white normals come from: "stream", NumPy's generator on the white child
+    (cached per seed, the common random numbers of the robust loop); "counter", ppann/counter.py's
+    counter-based normals under the white child's key, generated inside the kernel (the tail
+    check's 20 000 trajectories; the same numbers on the NumPy path).
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -110,8 +118,12 @@ def monte_carlo(
     white_seq, machine_seq = root.spawn(2)
     steps = tau.shape[0]
     draw = MONTE_CARLO_MODES[mode]
-    eps = lever_eps = None
-    if draw.white is not None:
+    if normals not in NORMAL_SOURCES:
+        raise ValueError(f"normals must be one of {', '.join(NORMAL_SOURCES)}, got {normals!r}")
+    eps = lever_eps = key = None
+    if draw.white is not None and normals == "counter":
+        key = key_of(white_seq)
+    elif draw.white is not None:
         per = steps if draw.white == "step" else 1
         eps = _WHITE.get(
             (sequence_key(white_seq), n_samples),
@@ -141,6 +153,8 @@ def monte_carlo(
         feedback=feedback,
         compiled=compiled,
         lever_eps=lever_eps,
+        key=key,
+        per_trajectory=draw.white == "held",
     )
     return Bands(samples)
 
@@ -169,15 +183,22 @@ def rollout(
     feedback: Feedback | None = None,
     compiled: bool = True,
     lever_eps: np.ndarray | None = None,
+    key: int | None = None,
+    per_trajectory: bool = False,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
     mean model), on machines `factors` (n, 3) (None: the fitted line's mean machine), open loop
     or under `feedback`; `lever_eps` (T or 1, n): the slider force's normals (ppann/lever.py),
     with eps, for a model that has the channel. `compiled`: by the C kernel of ppann/kernel.py
-    where it builds (the same numbers to float32 rounding), else by the NumPy loop below."""
+    where it builds (the same numbers to float32 rounding), else by the NumPy loop below.
+    `key` (eps and lever_eps None): ppann/counter.py's normals under it in their place, drawn
+    per step, or per trajectory with `per_trajectory`."""
     steps = tau.shape[0]
-    per_step = eps is not None and eps.shape[0] == steps and steps > 1
+    if key is not None:
+        per_step = not per_trajectory and steps > 1
+    else:
+        per_step = eps is not None and eps.shape[0] == steps and steps > 1
     if compiled:
         samples = kernel.rollout(
             heads,
@@ -191,9 +212,14 @@ def rollout(
             limit=0.0 if feedback is None else feedback.limit,
             per_step=per_step,
             lever_eps=lever_eps,
+            key=key,
         )
         if samples is not None:
             return samples
+    if key is not None:
+        drawn = counter_normals(key, samples=n_samples, steps=steps if per_step else 1)
+        eps = drawn[..., :3]
+        lever_eps = drawn[..., 3] if heads.lever_sigma > 0 else None
     samples = np.empty((n_samples, steps + 1, 2))
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))

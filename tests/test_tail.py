@@ -35,9 +35,9 @@ def centred():
 
 
 def test_the_rate_is_the_share_of_its_draws_below_the_height(centred) -> None:
-    """The check against the same draws made by hand: the union over the constraint samples of
-    slider - population < height; a population of a metre puts every draw below, minus a metre
-    none."""
+    """The check against the same draws made by hand (its white normals counter-based,
+    ppann/counter.py): the union over the constraint samples of slider - population < height;
+    a population of a metre puts every draw below, minus a metre none."""
     _, _, result = centred
     heads = FusedHeads(NARROW)
     population = np.array([0.5e-3, 1.5e-3])
@@ -54,6 +54,7 @@ def test_the_rate_is_the_share_of_its_draws_below_the_height(centred) -> None:
         mode=CONFIG.mc_mode,
         seed=paths,
         machine_sigma=spread,
+        normals="counter",
     )
     delta = draw(heads.transmission, (3000,), np.random.default_rng(angles))
     slider = heads.geometry.slider_position(bands.samples[:, [49, 99], 0] + delta[:, None])
