@@ -17,7 +17,10 @@ Then its own tail (OCPConfig.tail_check, control/tail.py): k sigma stands for Φ
 the slider's spread is normal; where the decided torque's own Monte-Carlo, with the
 tightening's allowances, puts more than the target rate below the height, the profile is
 decided again (OCPConfig.tail_remedy): at the k the check predicts, at most TAIL_STEPS times,
-then with the quantile tightening; the last torque is returned.
+each from the torque before it (the aware scheme's first solve warm from it, with its
+Monte-Carlo at the raised k: on the test suite's model 2 solves against 3 from the nominal, the
+same margins to the loop's tolerance), then with the quantile tightening; the last torque is
+returned.
 """
 
 from __future__ import annotations
@@ -117,7 +120,7 @@ def solve_decided(
             tried.append("no k reaches the target")
             break
         try:
-            result = decide(model, replace(config, k_sigma=k), **arguments)
+            result = decide(model, replace(config, k_sigma=k), start=result.robust, **arguments)
         except RobustError as exc:
             spent += exc.partial.wall_time if exc.partial is not None else 0.0
             if isinstance(exc, BeyondStrokeError):  # the quantile's error will say the rest
@@ -194,11 +197,13 @@ def decide(
     nominal: Solution,
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
+    start: Solution | None = None,
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
-    as many while its verdict is undecided (module docstring). The result's uncertainties say
-    how many trajectories the last decision drew (`Uncertainty.samples`), its iterations are
-    the last decision's, its wall time is all of them.
+    as many while its verdict is undecided (module docstring); `start`: solve_robust's. The
+    result's uncertainties say how many trajectories the last decision drew
+    (`Uncertainty.samples`), its iterations are the last decision's, its wall time is all of
+    them.
 
     Raises:
       RobustError: no robust torque (or none confirmed) at the last trajectory count tried.
@@ -221,6 +226,7 @@ def decide(
                 nominal=nominal,
                 on_iteration=on_iteration,
                 heads=heads,
+                start=start,
             )
         except BeyondStrokeError as exc:
             if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):

@@ -92,12 +92,16 @@ def solve_robust(
     nominal: Solution | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
+    start: Solution | None = None,
 ) -> RobustResult:
     """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
     margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
     tightening sized for the open loop, or for the closed loop under the plan's LQR or the
     fixed PD); the result carries both plans' gains of the profile's law and their open- and
     closed-loop spread. `heads`: the model's FusedHeads, if already built (~30 ms to build).
+    `start`: a robust torque of the same task solved before (at another k: control/profiles.py's
+    raise), where the aware scheme starts, with its Monte-Carlo under `config`, in place of the
+    nominal plan (where the aware scheme hands over, the bracket starts from the nominal).
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -169,14 +173,17 @@ def solve_robust(
             if on_iteration is not None:
                 on_iteration(iterations[-1])
 
+        first = nominal if start is None else start
         try:
             found = aware.iterate(
                 model,
                 ocp,
                 config,
                 heads=heads,
-                nominal=nominal,
-                nominal_unc=nominal_unc,
+                nominal=first,
+                nominal_unc=nominal_unc
+                if start is None
+                else slider_uncertainty(heads, first, config),
                 cap=cap,
                 record=record,
             )
