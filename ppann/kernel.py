@@ -52,6 +52,15 @@ SOURCE = r"""
 #include <stdlib.h>
 #include <string.h>
 
+#define GOLDEN 0x9e3779b97f4a7c15ULL
+
+/* SplitMix64's output function (ppann/counter.py) */
+static inline uint64_t splitmix(uint64_t z) {
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+}
+
 static int finite_bits(double x) {
     uint64_t u; memcpy(&u, &x, 8);
     return ((u >> 52) & 0x7ff) != 0x7ff;
@@ -88,9 +97,12 @@ int crank_rollout(
     float *g = malloc(sizeof(float) * np * (3 + n_speed));
     double *out = malloc(sizeof(double) * np * 6);
     double *w = use_key ? malloc(sizeof(double) * np * 5) : NULL, *ws = w + 4 * np;
-    if (!th || !g || !out || (use_key && !w)) {
-        free(th); free(g); free(out); free(w); return 1;
+    uint64_t *seed = use_key ? malloc(sizeof(uint64_t) * np) : NULL;
+    if (!th || !g || !out || (use_key && (!w || !seed))) {
+        free(th); free(g); free(out); free(w); free(seed); return 1;
     }
+    if (use_key)  /* each sample's own stream, seeded from the key (ppann/counter.py) */
+        EACH(s) seed[s] = splitmix(key + GOLDEN * (uint64_t)(offset + (s < n ? s : n - 1) + 1));
     float *g0 = g, *g1 = g + np, *g2 = g + 2 * np, *acc = g + 3 * np;
     const size_t stride = (size_t)(steps + 1) * 2;
     EACH(s) { th[s] = x0[0]; om[s] = x0[1]; }
@@ -141,18 +153,14 @@ int crank_rollout(
         const double *e = has_eps ? eps + (size_t)(eps_per_step ? k : 0) * n * 3 : NULL;
         if (use_key && (eps_per_step || k == 0)) {
             /* sample (offset + s)'s four normals of step k (of step 0 for a draw per
-               trajectory): Box-Muller on two SplitMix64 outputs of the counter
-               (sample << 32 | step << 1 | pair), ppann/counter.py */
+               trajectory): Box-Muller on outputs 2 k + 1 and 2 k + 2 of the SplitMix64
+               stream seeded with the sample's seed (ppann/counter.py) */
             const uint64_t step = eps_per_step ? (uint64_t)k : 0;
             for (int p = 0; p < 2; ++p) {
                 double *wa = w + (size_t)(2 * p) * np, *wb = wa + np;
+                const uint64_t at = GOLDEN * (2 * step + (uint64_t)p + 1);
                 EACH(s) {
-                    const uint64_t c = (uint64_t)(offset + (s < n ? s : n - 1)) << 32
-                        | step << 1 | (uint64_t)p;
-                    uint64_t z = key + 0x9e3779b97f4a7c15ULL * (c + 1);
-                    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-                    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-                    z ^= z >> 31;
+                    const uint64_t z = splitmix(seed[s] + at);
                     const double u1 = ((double)(z >> 32) + 0.5) * 2.3283064365386963e-10;
                     const double u2 = ((double)(z & 0xffffffffULL) + 0.5)
                         * 2.3283064365386963e-10;
@@ -225,7 +233,7 @@ int crank_rollout(
             }
         }
     }
-    free(th); free(g); free(out); free(w);
+    free(th); free(g); free(out); free(w); free(seed);
     return 0;
 }
 """

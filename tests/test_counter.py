@@ -56,6 +56,23 @@ def test_the_normals_are_standard_normal_and_independent() -> None:
         assert abs(np.corrcoef(a, b)[0, 1]) < 4 / math.sqrt(a.size)
 
 
+def test_a_sample_s_sum_over_its_steps_is_normal() -> None:
+    """What a trajectory integrates: each sample's sum over 100 steps, divided by 10, over
+    40 000 samples, is N(0, 1) to 4 standard errors (variance, the share below -2.5) for each of
+    the four normals, and the sums of neighbouring samples, and of samples 2^j apart, are
+    uncorrelated to 4 / sqrt(n)."""
+    z = counter_normals(KEY, samples=40_000, steps=100)
+    n = z.shape[1]
+    p = 0.0062097  # Φ(-2.5)
+    for c in range(4):
+        total = z[:, :, c].sum(axis=0) / 10
+        assert abs(total.var() - 1) < 4 * math.sqrt(2 / n)
+        assert abs(np.mean(total < -2.5) - p) < 4 * math.sqrt(p * (1 - p) / n)
+        for lag in (1, 2, 64, 1024, 2**14):
+            r = np.corrcoef(total[:-lag], total[lag:])[0, 1]
+            assert abs(r) < 4 / math.sqrt(n - lag)
+
+
 def test_a_sample_s_normals_do_not_depend_on_its_block_or_on_the_length() -> None:
     """Samples 3..12 from offset 3 equal samples 3..12 of a run from 0; fewer steps are a
     prefix; another key gives other numbers."""
