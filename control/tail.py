@@ -29,8 +29,9 @@ solved again (control/profiles.py, OCPConfig.tail_remedy):
   at most 11 of 4000 below, 2.5-6.3 points of premium less.
 - "quantile" (session 30's): the quantile tightening at the configured k, whose own rate is at
   most the number of constraint samples times Φ(−k) by construction.
-The check costs one Monte-Carlo of TAIL_DRAWS (0.28-0.45 s idle on the paper's task, ~4
-nominal solves).
+The check costs one Monte-Carlo of TAIL_DRAWS, its white normals generated inside the kernel
+(ppann/counter.py): 0.07 s idle on the paper's task, ~0.7 nominal solves (0.28-0.45 s with
+NumPy's generator before session 32).
 """
 
 from __future__ import annotations
