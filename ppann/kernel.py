@@ -96,7 +96,7 @@ int crank_rollout(
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
     float *g = malloc(sizeof(float) * np * (3 + n_speed));
     double *out = malloc(sizeof(double) * np * 6);
-    double *w = use_key ? malloc(sizeof(double) * np * 5) : NULL, *ws = w + 4 * np;
+    double *w = use_key ? malloc(sizeof(double) * np * 5) : NULL, *ws = w ? w + 4 * np : NULL;
     uint64_t *seed = use_key ? malloc(sizeof(uint64_t) * np) : NULL;
     if (!th || !g || !out || (use_key && (!w || !seed))) {
         free(th); free(g); free(out); free(w); free(seed); return 1;
