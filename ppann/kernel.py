@@ -165,13 +165,12 @@ int crank_rollout(
                     const double u2 = ((double)(z & 0xffffffffULL) + 0.5)
                         * 2.3283064365386963e-10;
                     wa[s] = sqrt(-2.0 * log(u1));
-                    wb[s] = two_pi * u2;
+                    ws[s] = two_pi * u2;
                 }
                 /* apart: in one loop GCC makes sin and cos one sincos, which it does not
                    vectorise */
-                EACH(s) ws[s] = wa[s] * sin(wb[s]);
-                EACH(s) wa[s] *= cos(wb[s]);
-                EACH(s) wb[s] = ws[s];
+                EACH(s) wb[s] = wa[s] * sin(ws[s]);
+                EACH(s) wa[s] *= cos(ws[s]);
             }
         }
         EACH(s) {
