@@ -173,7 +173,9 @@ def solve_robust(
             if on_iteration is not None:
                 on_iteration(iterations[-1])
 
-        first = nominal if start is None else start
+        first, first_unc = nominal, nominal_unc
+        if start is not None:  # a raise: from the torque before, its Monte-Carlo at this k
+            first, first_unc = start, slider_uncertainty(heads, start, config)
         try:
             found = aware.iterate(
                 model,
@@ -181,9 +183,7 @@ def solve_robust(
                 config,
                 heads=heads,
                 nominal=first,
-                nominal_unc=nominal_unc
-                if start is None
-                else slider_uncertainty(heads, first, config),
+                nominal_unc=first_unc,
                 cap=cap,
                 record=record,
             )
