@@ -185,10 +185,10 @@ class Acceptance(Generic[Payload]):
     docstring): `take` each solve's margin and residual (tightening - margin, per constraint
     sample) with what to return for it; it answers that payload, a held one, or None."""
 
-    def __init__(self, tolerance: float) -> None:
+    def __init__(self, tolerance: float, *, draft: bool = True) -> None:
         self.tolerance = tolerance
-        self.draft = True
-        """Whether the next solve is a draft."""
+        self.draft = draft
+        """Whether the next solve is a draft (`draft`: the first one)."""
         self.start: Payload | None = None
         """The solve the next one starts from, where it is not the one just taken (a held
         full solve, after a probe that showed no jump)."""
@@ -242,9 +242,14 @@ def iterate(
     nominal_unc: Uncertainty,
     cap: np.ndarray,
     record: Callable[[Solution, Uncertainty, np.ndarray, bool], None],
+    draft: bool = True,
+    multipliers: bool = False,
 ) -> tuple[Solution, Uncertainty]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
     sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
+    `draft`: whether the first solve is a draft; `multipliers`: whether it starts from
+    `nominal`'s multipliers too (where `nominal` is this NLP's own solution, e.g. at another
+    k: control/robust.py's `start`).
     Returns the accepted full solve, its `heights` the height plus that margin (the bounds
     under which the bracketed loop's NLP has this solution), and its Monte-Carlo.
 
@@ -254,8 +259,10 @@ def iterate(
     aware = aware_ocp(model, ocp, samples=config.mc_samples)
     index = np.array(config.constraint_samples) - 1
     base = np.full(len(index), config.height)
-    current, unc, fresh = nominal, nominal_unc, True
-    acceptance: Acceptance[tuple[Solution, Uncertainty]] = Acceptance(config.margin_tolerance)
+    current, unc, fresh = nominal, nominal_unc, not multipliers
+    acceptance: Acceptance[tuple[Solution, Uncertainty]] = Acceptance(
+        config.margin_tolerance, draft=draft
+    )
     for attempt in range(MAX_SOLVES):
         aware.freeze(current, unc)
         if attempt == 0 and not aware.reachable(base + unc.population).all():

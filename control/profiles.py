@@ -18,9 +18,9 @@ the slider's spread is normal; where the decided torque's own Monte-Carlo, with 
 tightening's allowances, puts more than the target rate below the height, the profile is
 decided again (OCPConfig.tail_remedy): at the k the check predicts, at most TAIL_STEPS times,
 each from the torque before it (the aware scheme's first solve warm from it, with its
-Monte-Carlo at the raised k: on the test suite's model 2 solves against 3 from the nominal, the
-same margins to the loop's tolerance), then with the quantile tightening; the last torque is
-returned.
+Monte-Carlo at the raised k, and a full solve from its multipliers where it was the aware
+scheme's own: control/robust.py `solve_robust`; the same margins to the loop's tolerance as from
+the nominal, in fewer solves), then with the quantile tightening; the last torque is returned.
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ def solve_decided(
             tried.append("no k reaches the target")
             break
         try:
-            result = decide(model, replace(config, k_sigma=k), start=result.robust, **arguments)
+            result = decide(model, replace(config, k_sigma=k), start=result, **arguments)
         except RobustError as exc:
             spent += exc.partial.wall_time if exc.partial is not None else 0.0
             if isinstance(exc, BeyondStrokeError):  # the quantile's error will say the rest
@@ -197,7 +197,7 @@ def decide(
     nominal: Solution,
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
-    start: Solution | None = None,
+    start: RobustResult | None = None,
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
     as many while its verdict is undecided (module docstring); `start`: solve_robust's. The

@@ -92,16 +92,20 @@ def solve_robust(
     nominal: Solution | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
-    start: Solution | None = None,
+    start: RobustResult | None = None,
 ) -> RobustResult:
     """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
     margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
     tightening sized for the open loop, or for the closed loop under the plan's LQR or the
     fixed PD); the result carries both plans' gains of the profile's law and their open- and
     closed-loop spread. `heads`: the model's FusedHeads, if already built (~30 ms to build).
-    `start`: a robust torque of the same task solved before (at another k: control/profiles.py's
-    raise), where the aware scheme starts, with its Monte-Carlo under `config`, in place of the
-    nominal plan (where the aware scheme hands over, the bracket starts from the nominal).
+    `start`: the robust result of the same task solved before (at another k: control/profiles.py's
+    raise), whose torque the aware scheme starts from, with its Monte-Carlo under `config`, in
+    place of the nominal plan (where the aware scheme hands over, the bracket starts from the
+    nominal). Where that torque is the aware scheme's own, its first solve is a full one from
+    its multipliers too (they belong to the same NLP): on the ten raised pairs of session 33
+    (five models, Monte-Carlo seeds 3 and 4) 1-2 full solves where three (two drafts and a full
+    one) were made from its primal point, the same margins to 0.07 mm.
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -173,9 +177,11 @@ def solve_robust(
             if on_iteration is not None:
                 on_iteration(iterations[-1])
 
-        first, first_unc = nominal, nominal_unc
+        first, first_unc, again = nominal, nominal_unc, False
         if start is not None:  # a raise: from the torque before, its Monte-Carlo at this k
-            first, first_unc = start, slider_uncertainty(heads, start, config)
+            first = start.robust
+            first_unc = slider_uncertainty(heads, first, config)
+            again = bool(start.iterations) and start.iterations[-1].scheme == "aware"
         try:
             found = aware.iterate(
                 model,
@@ -186,6 +192,8 @@ def solve_robust(
                 nominal_unc=first_unc,
                 cap=cap,
                 record=record,
+                draft=not again,
+                multipliers=again,
             )
             return finish(*found, None)
         except aware.AwareError:

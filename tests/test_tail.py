@@ -143,7 +143,8 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     centred torque: the same torque to the bit), and that torque's own rate, on the check's same
     draws, is within the target; both checks recorded, the target the configured k's. Decided
     at that k from the nominal plan instead, the torque keeps the same margins to the loop's
-    tolerance, in more solves."""
+    tolerance, in more solves; its first solve a full one (from the aware torque before it,
+    multipliers included)."""
     ocp, nominal, alone = centred
     monkeypatch.setattr(tail, "target", lambda config: 0.002)
     result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
@@ -153,7 +154,7 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     assert second.passed and second.rate <= 0.002 and second.target == 0.002
     raised = replace(CONFIG, k_sigma=result.k_sigma, tail_check=False)
     arguments = {"profile": "robust", "ocp": ocp, "nominal": nominal}
-    by_hand = profiles.decide(NARROW, raised, start=alone.robust, **arguments)
+    by_hand = profiles.decide(NARROW, raised, start=alone, **arguments)
     np.testing.assert_array_equal(result.robust.tau, by_hand.robust.tau)
     assert result.robust.cost > alone.robust.cost
     cold = profiles.decide(NARROW, raised, **arguments)
@@ -162,6 +163,8 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
         result.robust.slider[index], cold.robust.slider[index], atol=CONFIG.margin_tolerance
     )
     assert len(result.iterations) < len(cold.iterations)
+    assert alone.iterations[-1].scheme == result.iterations[0].scheme == "aware"
+    assert not result.iterations[0].draft and cold.iterations[0].draft
 
 
 def _check(lowered: np.ndarray, *, target: float) -> tail.TailCheck:
