@@ -365,7 +365,7 @@ def rollout(
     angle_out, speed_out = ints(heads.angle_outputs), ints(heads.speed_outputs)
     b_out = c64(heads.b_out.ravel())
     lever_eps = c64(lever_eps)
-    lever = lever_eps is not None or (key is not None and heads.lever_sigma > 0)
+    lever = lever_eps is not None or (key is not None and heads.has_lever)
     lever_table = c64(heads.lever_table) if lever else None
 
     def run(a: int, b: int) -> int:

@@ -276,6 +276,12 @@ class FusedHeads:
             row += width
         self._workspace: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
+    @property
+    def has_lever(self) -> bool:
+        """Whether the model has the slider force's channel (ppann/lever.py): the Monte-Carlo
+        draws its normals and the rollout applies `lever_table`."""
+        return self.lever_sigma > 0
+
     def __call__(self, theta: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(z_mean, z_sigma), each (n, 3), for theta and omega of shape (n,); NaN rows where
         theta is not finite."""

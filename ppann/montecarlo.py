@@ -130,7 +130,7 @@ def monte_carlo(
             per,
             lambda rows: np.random.default_rng(white_seq).standard_normal((rows, n_samples, 3)),
         )
-        if heads.lever_sigma > 0:
+        if heads.has_lever:
             force_seq = np.random.SeedSequence(
                 white_seq.entropy, spawn_key=(*white_seq.spawn_key, 0)
             )
@@ -219,7 +219,7 @@ def rollout(
     if key is not None:
         drawn = counter_normals(key, samples=n_samples, steps=steps if per_step else 1)
         eps = drawn[..., :3]
-        lever_eps = drawn[..., 3] if heads.lever_sigma > 0 else None
+        lever_eps = drawn[..., 3] if heads.has_lever else None
     samples = np.empty((n_samples, steps + 1, 2))
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
