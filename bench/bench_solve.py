@@ -167,7 +167,7 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
         its = result.iterations
         drafts = sum(it.draft for it in its)
         ratios.append(statistics.median(runs))
-        whole = []
+        whole, checked = [], []
         for _ in range(repeat):
             started = time.perf_counter()
             solution = ocp.solve()
@@ -176,6 +176,7 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
                 model, config, profile="robust", ocp=ocp, nominal=solution, heads=heads
             )
             whole.append(final.wall_time / spent)
+            checked.append(sum(c.wall_time for c in final.tail_checks) / spent)
         decided.append(statistics.median(whole))
         checks = ", ".join(
             f"k {c.k_sigma:g} {100 * c.rate:.2f} % in {c.wall_time:.2f} s"
@@ -185,7 +186,8 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
             f"seed {seed}: {drafts} draft + {len(its) - drafts} full solves, "
             f"{sum(it.ipopt_iterations for it in its)} IPOPT iterations, ratio {ratios[-1]:.2f} "
             f"(repeats {min(runs):.2f}-{max(runs):.2f}); as crank solve decides it "
-            f"{decided[-1]:.2f} (repeats {min(whole):.2f}-{max(whole):.2f}; own tail {checks}; "
+            f"{decided[-1]:.2f} (repeats {min(whole):.2f}-{max(whole):.2f}, of which the own "
+            f"tail's checks {statistics.median(checked):.2f}; own tail {checks}; "
             f"{final.tightening} at k {final.k_sigma:g}, premium "
             f"{final.robust.cost / final.nominal.cost - 1:+.1%})"
         )
