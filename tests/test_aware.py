@@ -204,6 +204,19 @@ def test_a_full_solve_beside_a_settled_draft_is_returned_at_once() -> None:
     assert short.take(*FULL, "full") is None and short.draft  # held, and probed
 
 
+def test_a_raise_starts_with_a_full_solve() -> None:
+    """From a torque of the same NLP at another k (a raise) the first solve is a full one: one
+    that settles is returned at once, one that does not is followed by another full solve
+    (on the unsafe side) or held and probed by a draft (on the safe side with slack)."""
+    settles: Acceptance[str] = Acceptance(1e-4, draft=False)
+    assert not settles.draft
+    assert settles.take(_mm(10.3, 15.5), _mm(0.02, -0.05), "first") == "first"
+    unsafe: Acceptance[str] = Acceptance(1e-4, draft=False)
+    assert unsafe.take(_mm(10.3, 15.5), _mm(0.02, 0.3), "first") is None and not unsafe.draft
+    slack: Acceptance[str] = Acceptance(1e-4, draft=False)
+    assert slack.take(_mm(10.3, 15.5), _mm(0.02, -0.3), "first") is None and slack.draft
+
+
 # A full solve 0.14 mm of margin from the drafts: no earlier solve speaks for its slack.
 AWAY = (_mm(10.483, 14.45), _mm(0.001, -0.165))
 
