@@ -16,8 +16,9 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 6 (3: samples.<k>.theta; 4: model_rate; 5: the
-                         intervals; 6: 10 000 trajectories, sigma_se, ratio_ci95 with both)
+  format, version        "crank-heldout", 7 (3: samples.<k>.theta; 4: model_rate; 5: the
+                         intervals; 6: 10 000 trajectories, sigma_se, ratio_ci95 with both;
+                         7: violating_placements)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
@@ -33,6 +34,7 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
     violating_machines   the machines below the height at any constraint sample, by their
                          index in the held-out draw (replay/campaign.py draw_machines), or
                          null beyond LISTED_MACHINES of them (since session 31)
+    violating_placements each listed machine's place in the line (replay/placement.py; 7)
     samples.<k>          {height, violations, lowest, mean, plan, observed_sigma,
                           observed_sigma_ci95 (its 95 % bootstrap interval over the machines,
                           replay/spread_interval.py), observed_quantile (at Φ(-k_sigma)), skew,
@@ -87,6 +89,7 @@ from ppann.transmission import draw
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
+from replay.placement import placements
 from replay.rates import TARGET_RATE, rate_upper, verdict
 from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
 from replay.statistics import mpc_timing
@@ -95,7 +98,7 @@ from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 6
+VERSION = 7
 LISTED_MACHINES = 50
 """A profile's machines below the height are listed by index up to this many (a robust
 profile's few; a nominal plan's hundreds are counted only)."""
@@ -299,6 +302,7 @@ def heldout_check(
             entry["theta"] = _theta_calibration(replay.theta[:, k - 1], predicted, k - 1)
             samples[str(k)] = entry
         violating = int(below.sum())
+        listed = np.flatnonzero(below).tolist() if violating <= LISTED_MACHINES else None
         t0 = time.perf_counter()
         tail = model_rate(heads, planned, c, n_samples=tail_draws, law=law)
         mc_s += time.perf_counter() - t0
@@ -307,8 +311,13 @@ def heldout_check(
             "violating_runs": violating,
             # which held-out machines (their index in draw_machines' order: a replay can
             # play them again), where few enough to list
-            "violating_machines": (
-                np.flatnonzero(below).tolist() if violating <= LISTED_MACHINES else None
+            "violating_machines": listed,
+            "violating_placements": placements(
+                machines,
+                listed,
+                variability,
+                until=max(c.constraint_samples),
+                max_start_s=max_start_time,
             ),
             "rate": violating / runs,
             "rate_upper_95": rate_upper(violating, runs),

@@ -67,13 +67,32 @@ def test_the_terminal_says_what_the_count_can_confirm(capsys: pytest.CaptureFixt
             "profiles": {
                 "nominal": {"open": entry(40, 50)},
                 "robust": {"open": entry(0, 50)},
-                "robust-fb": {"closed": entry(1, 50) | {"violating_machines": [17]}},
+                "robust-fb": {
+                    "closed": entry(1, 50)
+                    | {
+                        "violating_machines": [17],
+                        "violating_placements": [
+                            {
+                                "range_position": {"motor_damping": 0.04, "slider_damping": 0.5},
+                                "start_s": 10.0,
+                                "start_share": 0.5,
+                                "force_mean_N": 5.67,
+                                "force_mean_z": 4.01,
+                            }
+                        ],
+                    }
+                },
             },
         }
     )
     out = capsys.readouterr().out
     # the machine below named by its index (heldout.json since session 31)
     assert "1 below the height (2.00 %, 95 % upper bound 9.14 %); machine 17" in out
+    # and where it sits in the line (heldout.json version 7)
+    assert (
+        "    machine 17: motor_damping at 4 % of its range, mean slider force +5.7 N "
+        "(+4.0 standard errors)\n"
+    ) in out
     assert "  robust in its loop is within 0.5 % on these 50 machines but not confirmed" in out
     assert "  robust-fb in its loop does NOT hold (2.00 % > 0.5 %)" in out
     assert " holds at" not in out

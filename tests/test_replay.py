@@ -22,6 +22,7 @@ from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, model_rate
+from replay.placement import placement
 from replay.spread_interval import ratio_interval
 from replay.statistics import campaign_statistics, replay_statistics
 from tests.conftest import LATE_MPC
@@ -300,6 +301,19 @@ def _check_heldout_entry(
     below = (replay.slider_position[:, index] < ocp.config.height).any(axis=1)
     assert result["violating_machines"] == np.flatnonzero(below).tolist()
     assert len(result["violating_machines"]) == result["violating_runs"]
+    # and where each sits in the line: its draws, its start, its force to the last sample
+    last = max(ocp.config.constraint_samples)
+    for machine, where in zip(
+        result["violating_machines"], result["violating_placements"], strict=True
+    ):
+        expected = placement(
+            machines.draws[machine],
+            variability,
+            force=machines.disturbance[machine][:last],
+            start_s=float(machines.start_times[machine]),
+            max_start_s=config.max_start_time,
+        )
+        assert where == expected
     # the model's own rate below the height: its Monte-Carlo of the same loop, 300 draws
     tail = monte_carlo(
         model,
