@@ -296,7 +296,7 @@ def _predicted(entry: dict[str, Any]) -> str:
 def print_heldout(heldout: dict[str, Any]) -> None:
     from control.config import loop_of
     from replay.config import loop_label
-    from replay.placement import in_words
+    from replay.placement import in_words, named
     from replay.rates import verdict_text
 
     typer.echo(f"held-out check ({heldout['runs']} machines per profile and loop):")
@@ -308,10 +308,8 @@ def print_heldout(heldout: dict[str, Any]) -> None:
                 f"({100 * entry['rate']:.2f} %, 95 % upper bound "
                 f"{100 * entry['rate_upper_95']:.2f} %)" + _predicted(entry) + _which(entry)
             )
-            if _which(entry):  # where they sit in the line (none before heldout.json 7)
-                where_all = entry.get("violating_placements") or []
-                for machine, where in zip(entry["violating_machines"], where_all, strict=False):
-                    typer.echo(f"    machine {machine}: {in_words(where)}")
+            for machine, where in named(entry):  # where they sit in the line
+                typer.echo(f"    machine {machine}: {in_words(where)}")
     for profile in heldout["holds"]:
         below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
         said = verdict_text(below, heldout["runs"], target=heldout["target_rate"])

@@ -9,6 +9,7 @@ from common.atomic import atomic_path
 from common.jsonio import finite_or_none
 from control.config import law_of, loop_of
 from ppann.modes import MODES
+from replay.placement import in_words, named
 from replay.statistics import format_table, summary_rows
 
 FIGURES = (
@@ -282,6 +283,7 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
                 f"on {100 * nominal['rate']:.1f} %. Against the target of <= "
                 f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}"
             )
+            lines += [f"  - machine {i} below: {in_words(where)}" for i, where in named(robust)]
     allow = (
         "these machines and that Monte-Carlo allow (a bootstrap over the machines, widened by "
         "the Monte-Carlo's standard error)"

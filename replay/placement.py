@@ -98,3 +98,13 @@ def placements(
         )
         for i in indices
     ]
+
+
+def named(entry: dict[str, Any], *, most: int = 5) -> list[tuple[int, dict[str, Any]]]:
+    """A heldout.json entry's machines below the height with their placements, where it lists
+    at most `most` (a robust profile's few), else none (nor from a file before version 7)."""
+    machines = entry.get("violating_machines") or []
+    where = entry.get("violating_placements") or []
+    if len(machines) > most or len(where) != len(machines):
+        return []
+    return list(zip(machines, where, strict=True))

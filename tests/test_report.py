@@ -66,6 +66,28 @@ def test_a_pd_tube_under_its_pd_is_in_the_loop_it_was_tightened_for() -> None:
     assert f"- closed loop under its LQR gains{tightened} robust-fb torque" in text
 
 
+def test_the_machines_below_are_placed_in_the_line() -> None:
+    """A robust torque's few machines below the height, each with its extremes in the line
+    (heldout.json version 7); a file without placements (before 7) says nothing more."""
+    heldout = _heldout("open", 1.1)
+    entry = dict(heldout["profiles"]["robust"]["open"], violating_runs=1, violating_machines=[9])
+    where = {
+        "range_position": {"motor_frictionloss": 0.036, "slider_damping": 0.5},
+        "start_s": 30.0,
+        "start_share": 0.5,
+        "force_mean_N": 1.2,
+        "force_mean_z": 0.7,
+    }
+    heldout["profiles"]["robust"] = {"open": entry}
+    assert "machine 9" not in "\n".join(heldout_lines(heldout))
+    entry["violating_placements"] = [where]
+    text = "\n".join(heldout_lines(heldout))
+    assert (
+        "  - machine 9 below: motor_frictionloss at 4 % of its range, mean slider force +1.2 N\n"
+        in text
+    )
+
+
 def test_a_runaway_ratio_is_named_not_printed_in_full() -> None:
     text = "\n".join(heldout_lines(_heldout("closed", 1.46e68)))
     assert "diverged (1.5e+68)" in text and "| 0.95 |" in text
