@@ -19,6 +19,7 @@ import json
 import re
 import shutil
 import time
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -118,6 +119,8 @@ def _profile_row(
             "robust_heldout_upper_95": robust["rate_upper_95"],
             "nominal_heldout_rate": nominal["rate"],
             "robust_heldout_lowest_mm": 1e3 * min(s["lowest"] for s in robust["samples"].values()),
+            # by index in the held-out draw: the same root gives every seed the same machines
+            "robust_heldout_machines": robust.get("violating_machines"),
         }
         if "model_rate" in robust:  # heldout.json version 4
             row["robust_model_rate"] = robust["model_rate"]["rate"]
@@ -265,6 +268,7 @@ def markdown(study: dict[str, Any]) -> str:
             f"- {name} {loop} loop 0/100 campaign runs on every seed: "
             f"**{'yes' if campaign and every else 'no'}**"
         )
+        lines += _recurring(good)
     failed = [r for r in rows if r.get("error")]
     if failed:
         lines.append(f"- {len(failed)} seed(s) gave no result (errors below)")
@@ -298,6 +302,22 @@ def markdown(study: dict[str, Any]) -> str:
             continue
         lines.append("| " + " | ".join(_cell(r.get(key), spec) for key, _, spec in columns) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _recurring(rows: list[dict[str, Any]]) -> list[str]:
+    """A line naming the held-out machines below the height under more than one seed's torque
+    (every seed plays the same held-out machines), or none: the seeds' counts then share
+    machines of the line's tail and are not independent samples of it."""
+    listed = [r["robust_heldout_machines"] for r in rows if r.get("robust_heldout_machines")]
+    counts = Counter(m for machines in listed for m in set(machines))
+    again = sorted((m for m, n in counts.items() if n > 1), key=lambda m: (-counts[m], m))
+    if not again:
+        return []
+    named = ", ".join(f"{m} ({counts[m]} of {len(rows)} seeds)" for m in again)
+    return [
+        f"  - the same held-out machines below under several seeds' torques: {named}; the "
+        "seeds' counts are not independent (each seed's heldout.json places them in the line)"
+    ]
 
 
 def figure(rows: list[dict[str, Any]]) -> Figure:

@@ -108,3 +108,39 @@ def test_the_verdict_names_seeds_whose_bound_cannot_confirm_the_target() -> None
     assert "  - on 1 seed(s) the 95 % bound is above the target (worst 0.63 %): too few" in text
     study["rows"] = [row(0, 0), row(1, 1)]  # 1 of 1000: bound 0.47 %
     assert "bound is above the target" not in markdown(study)
+
+
+def test_machines_below_under_several_seeds_are_named() -> None:
+    """Every seed's torque plays the same held-out machines: those below under more than one
+    seed are named with how many, most first; one seed's alone, or none listed, say nothing."""
+    from crank.study import markdown
+
+    def row(seed: int, machines: list[int] | None) -> dict:
+        return {
+            "seed": seed,
+            "profile": "robust",
+            "error": None,
+            "robust_100": 0,
+            "robust_heldout_rate": len(machines or []) / 4000,
+            "robust_heldout_upper_95": 0.002,
+            "robust_heldout_machines": machines,
+        }
+
+    ocp = {"mc_mode": "mixed", "mc_samples": 1000, "tightening": "centred"}
+    study = {
+        "seeds": [5, 6, 7],
+        "rows": [row(5, [3106, 3128]), row(6, [3128, 3229, 3106]), row(7, [3128, 12])],
+        "target_heldout_rate": 0.005,
+        "config": {
+            "generation": {"variability": {"name": "paper"}},
+            "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
+            "heldout_seed": 20261167,
+        },
+    }
+    text = markdown(study)
+    assert (
+        "  - the same held-out machines below under several seeds' torques: 3128 (3 of 3 "
+        "seeds), 3106 (2 of 3 seeds); the seeds' counts are not independent" in text
+    )
+    study["rows"] = [row(5, [1]), row(6, None), row(7, [2])]
+    assert "several seeds" not in markdown(study)
