@@ -15,12 +15,14 @@ rather than dug out of the draws.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from replay.campaign import Machines
 from twin.variability import MachineDraw, Variability
+
+if TYPE_CHECKING:  # the campaign's simulation stack is not needed to place a machine
+    from replay.campaign import Machines
 
 EDGE = 0.1
 """A parameter within this share of its range from either end is named in words."""
