@@ -4,13 +4,15 @@ bracket where it cannot settle."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi as ca
 import numpy as np
 import pytest
 import torch
 
 from control import aware as aware_module
-from control.aware import Acceptance, AwareOCP, torque_states
+from control.aware import Acceptance, AwareOCP, repeats, torque_states
 from control.config import OCPConfig, OCPConfigError
 from control.ocp import NominalOCP, Solution
 from control.robust import BeyondStrokeError, solve_robust
@@ -268,6 +270,33 @@ def test_where_it_cannot_settle_the_bracket_decides() -> None:
     handed = [it for it in errors["aware"].partial.iterations if it.scheme == "bracket"]
     alone = errors["bracket"].partial.iterations
     assert [it.margin.tolist() for it in handed] == [it.margin.tolist() for it in alone]
+
+
+def test_a_cycle_is_seen_where_a_solve_comes_back() -> None:
+    """Drafts 6.51 / 7.09 / 6.49 mm of margin (residual +0.30 / -0.32 / +0.34 mm): the third
+    came back to the first within the 0.1 mm tolerance after going away: a cycle. Creeping
+    (each solve within the tolerance of the one before) is not, nor a full solve that comes back
+    to a draft."""
+    first = (True, _mm(10.1, 6.506), _mm(0.01, 0.304))
+    away = (True, _mm(10.2, 7.093), _mm(0.02, -0.324))
+    back = (_mm(10.1, 6.487), _mm(0.01, 0.336))
+    assert repeats([first, away], True, *back, tolerance=1e-4)
+    assert not repeats([first, away], False, *back, tolerance=1e-4)
+    creep = (True, _mm(10.1, 6.45), _mm(0.01, 0.31))
+    assert not repeats([first, creep], True, *back, tolerance=1e-4)
+    assert not repeats([away], True, *back, tolerance=1e-4)
+
+
+def test_a_cycling_scheme_hands_over_at_once(model: PPANN) -> None:
+    """At Monte-Carlo seed 5 the constant model's drafts go round two 2 pi crossings (6.49 /
+    7.10 mm of margin at sample 100 in turn): handed over to the bracket after four aware
+    solves (until session 33, after MAX_SOLVES), whose torque is the bracket's alone."""
+    config = OCPConfig(tightening="gaussian", mc_seed=5)
+    result = solve_robust(model, config)
+    schemes = [it.scheme for it in result.iterations]
+    assert schemes[:4] == ["aware"] * 4 and set(schemes[4:]) == {"bracket"}
+    alone = solve_robust(model, replace(config, margin_scheme="bracket"))
+    np.testing.assert_array_equal(result.robust.tau, alone.robust.tau)
 
 
 def test_an_unknown_scheme_is_refused() -> None:
