@@ -195,7 +195,8 @@ class Acceptance(Generic[Payload]):
         self.start: Payload | None = None
         """The solve the next one starts from, where it is not the one just taken (a held
         full solve, after a probe that showed no jump)."""
-        self._seen: list[tuple[np.ndarray, np.ndarray]] = []
+        self._seen: list[tuple[bool, np.ndarray, np.ndarray]] = []
+        """Every solve taken: whether a draft, its margin, its residual."""
         self._held: tuple[np.ndarray, np.ndarray, Payload] | None = None
 
     def settled(self, margin: np.ndarray, residual: np.ndarray) -> bool:
@@ -205,10 +206,15 @@ class Acceptance(Generic[Payload]):
         tol = self.tolerance
         near = np.abs(residual) < tol
         jumped = np.zeros_like(near)
-        for other_margin, other_residual in self._seen:
+        for _, other_margin, other_residual in self._seen:
             rose = (other_residual > -tol) & (other_residual - residual > tol)
             jumped |= rose & (np.abs(margin - other_margin) < tol)
         return bool((near | (jumped & (residual <= 0))).all())
+
+    def cycling(self) -> bool:
+        """Whether the solve taken last, unsettled, came back to an earlier one (`repeats`)."""
+        *before, (draft, margin, residual) = self._seen
+        return repeats(before, draft, margin, residual, tolerance=self.tolerance)
 
     def take(self, margin: np.ndarray, residual: np.ndarray, payload: Payload) -> Payload | None:
         """Take the solve just made (a draft if `self.draft` was): `payload` if it is a full
@@ -219,7 +225,7 @@ class Acceptance(Generic[Payload]):
         # once a full solve was made, and the probe's answer always leaves the drafts
         probed = self._held if draft else None
         self.start = None
-        self._seen.append((margin, residual))
+        self._seen.append((draft, margin, residual))
         if not draft and self.settled(margin, residual):
             return payload
         if self._held is not None and self.settled(*self._held[:2]):
@@ -267,7 +273,6 @@ def iterate(
     acceptance: Acceptance[tuple[Solution, Uncertainty]] = Acceptance(
         config.margin_tolerance, draft=draft
     )
-    seen: list[tuple[bool, np.ndarray, np.ndarray]] = []
     for attempt in range(MAX_SOLVES):
         aware.freeze(current, unc)
         if attempt == 0 and not aware.reachable(base + unc.population).all():
@@ -292,9 +297,8 @@ def iterate(
         accepted = acceptance.take(margin, residual, kept)
         if accepted is not None:
             return accepted
-        if repeats(seen, draft, margin, residual, tolerance=config.margin_tolerance):
+        if acceptance.cycling():
             raise AwareError(f"cycling: solve {attempt + 1} repeats an earlier one, unsettled")
-        seen.append((draft, margin, residual))
         current, fresh = solution, False
         if acceptance.start is not None:
             current, unc = acceptance.start
