@@ -6,19 +6,26 @@ the robust loop's 1000 samples each costs more in NumPy's per-call overhead than
 the Monte-Carlo was half of the robust loop's time. Here one call runs every step, the samples
 the inner loop of each stage (structure of arrays) so that GCC vectorises across them: the same
 arithmetic as FusedHeads and FusedHeads.acceleration — the angle-only outputs from the same
-float64 table, the speed networks in float32 with tanh(x) = 1 - 2 / (exp(2 x) + 1), softplus and
-floor in float64, the inertia factor floored. The two paths agree to float32 rounding in the
-speed networks (tests/test_kernel.py bounds it), not bit for bit: the sums run in another order
-and glibc's vector expf is not NumPy's. Within the kernel, equal states give bit-equal results
+float64 table, the speed networks in float32, softplus and floor in float64, the inertia factor
+floored — except tanh, here a rational function inlined (`tanh_rational`, within 4e-7 of tanh;
+FusedHeads computes 1 - 2 / (exp(2 x) + 1) with NumPy's float32 exp, within 2e-7). The two paths
+agree to float32 rounding in the speed networks (tests/test_kernel.py bounds it), not bit for
+bit: the sums run in another order and the tanh are not the same function.
+
+Session 34 made the kernel 1.65x faster on one thread (20 000 trajectories of a trained model to
+sample 100: 127 -> 77 ms; bench/bench_solve.py): the speed networks' tanh had called glibc's
+vector expf and divided (45 % of the time), and the features' sin and cos, in one loop, had
+become one scalar sincos per sample (16 %). Within the kernel, equal states give bit-equal results
 wherever they sit among the samples (every sample runs through the vector code, none through a
 scalar remainder loop).
 
-The build: `cc -O3 -march=native -ffast-math -c` (fast-math lets GCC call glibc's vector expf,
-exp and log1p; finiteness is tested on the bits, which fast-math cannot assume away, and no inf
-enters the tanh), then linked without fast-math (FLAGS says why), into a per-user cache keyed by
-the source, the flags and the CPU, written beside its target and renamed into place. Without a
-compiler, or if the build fails, `load()` returns None and the NumPy path runs (the same numbers
-to float32 rounding, slower). CRANK_KERNEL=0 forces the NumPy path.
+The build: `cc -O3 -march=native -ffast-math -c` (fast-math lets GCC call glibc's vector sin,
+cos, exp, log and log1p; finiteness is tested on the bits, which fast-math cannot assume away,
+and the tanh's argument is clamped), then linked without fast-math (FLAGS says why), into a
+per-user cache keyed by the source, the flags and the CPU, written beside its target and
+renamed into place. Without a compiler, or if the build fails, `load()` returns None and the
+NumPy path runs (the same numbers to float32 rounding, slower).
+CRANK_KERNEL=0 forces the NumPy path.
 
 Threads: a rollout of many trajectories runs as blocks of at least CHUNK_SAMPLES of them, one
 per thread up to `common.threads.rollout_threads()` (every core unless set; a sweep's worker sets
@@ -61,16 +68,38 @@ static inline uint64_t splitmix(uint64_t z) {
     return z ^ (z >> 31);
 }
 
+/* tanh in float32 as a rational function (Eigen's generic_fast_tanh_float): odd degree 13
+   over even degree 6, within 4e-7 of tanh on [-TANH_CLAMP, TANH_CLAMP], where it reaches 1.0f.
+   Inline FMAs and one division, where 1 - 2 / (expf(2 x) + 1) called the vector expf: the
+   speed networks in 0.45 of the time (module docstring). */
+#define TANH_CLAMP 7.90531110763549805f
+static inline float tanh_rational(float x) {
+    const float x2 = x * x;
+    float p = -2.76076847742355e-16f;
+    p = p * x2 + 2.00018790482477e-13f;
+    p = p * x2 - 8.60467152213735e-11f;
+    p = p * x2 + 5.12229709037114e-08f;
+    p = p * x2 + 1.48572235717979e-05f;
+    p = p * x2 + 6.37261928875436e-04f;
+    p = p * x2 + 4.89352455891786e-03f;
+    float q = 1.19825839466702e-06f;
+    q = q * x2 + 1.18534705686654e-04f;
+    q = q * x2 + 2.26843463243900e-03f;
+    q = q * x2 + 4.89352518554385e-03f;
+    return x * p / q;
+}
+
 static int finite_bits(double x) {
     uint64_t u; memcpy(&u, &x, 8);
     return ((u >> 52) & 0x7ff) != 0x7ff;
 }
 
 /* Samples are the inner loop of every stage (structure of arrays), so that GCC vectorises
-   across them, expf, exp and log1p through glibc's vector math library. Every loop over samples
-   runs in whole blocks of LANES (n padded with copies of the last sample), so no sample falls in
-   a scalar remainder loop, where expf rounds otherwise: equal states give bit-equal results
-   wherever they sit. Returns 0, or 1 if the workspace could not be allocated. */
+   across them, sin, cos, exp, log and log1p through glibc's vector math library. Every loop
+   over samples runs in whole blocks of LANES (n padded with copies of the last sample), so no
+   sample falls in a scalar remainder loop, where the scalar functions round otherwise: equal
+   states give bit-equal results wherever they sit. Returns 0, or 1 if the workspace could not
+   be allocated. */
 #define LANES 64
 #define EACH(s) \
     for (int b_ = 0; b_ < np; b_ += LANES) \
@@ -111,9 +140,11 @@ int crank_rollout(
         EACH(s) {
             double a = th[s] - two_pi * floor(th[s] / two_pi);  /* theta mod 2 pi */
             ang[s] = a < 0 ? 0 : a;
-            g0[s] = (float)sin(ang[s]); g1[s] = (float)cos(ang[s]);
             g2[s] = (float)(om[s] / oscale);
         }
+        /* apart, as the normals' below: in one loop GCC makes sin and cos one scalar sincos */
+        EACH(s) g0[s] = (float)sin(ang[s]);
+        EACH(s) g1[s] = (float)cos(ang[s]);
         memset(acc, 0, sizeof(float) * np * n_speed);
         for (int j = 0; j < n_speed; ++j) {
             float *aj = acc + (size_t)j * np;
@@ -122,10 +153,8 @@ int crank_rollout(
                 const float a3 = w_in[3 * hidden + h], wo = w_out[h];
                 EACH(s) {
                     float x = g0[s] * a0 + g1[s] * a1 + g2[s] * a2 + a3;
-                    /* beyond +-15 the formula gives +-1.0f exactly; clamped, no inf enters
-                       the arithmetic fast-math may assume finite */
-                    x = x > 15.0f ? 15.0f : (x < -15.0f ? -15.0f : x);
-                    aj[s] += (1.0f - 2.0f / (expf(2.0f * x) + 1.0f)) * wo;
+                    x = x > TANH_CLAMP ? TANH_CLAMP : (x < -TANH_CLAMP ? -TANH_CLAMP : x);
+                    aj[s] += tanh_rational(x) * wo;
                 }
             }
         }
