@@ -316,11 +316,14 @@ def print_heldout(heldout: dict[str, Any]) -> None:
         typer.echo(f"  {profile} in its loop {said}")
 
 
-def _which(entry: dict[str, Any], most: int = 5) -> str:
-    """The held-out machines below the height by index, where at most `most` (heldout.json's
-    violating_machines, since session 31), else nothing."""
+def _which(entry: dict[str, Any]) -> str:
+    """The held-out machines below the height by index, where at most MOST_NAMED
+    (heldout.json's violating_machines, since session 31; a file before version 7 has no
+    placements, so `named` gives none), else nothing."""
+    from replay.placement import MOST_NAMED
+
     machines = entry.get("violating_machines") or []
-    if not machines or len(machines) > most:
+    if not machines or len(machines) > MOST_NAMED:
         return ""
     return f"; machine{'s' if len(machines) > 1 else ''} {', '.join(map(str, machines))}"
 

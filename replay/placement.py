@@ -28,6 +28,9 @@ EDGE = 0.1
 """A parameter within this share of its range from either end is named in words."""
 FAR = 2.0
 """A mean force this many standard errors from zero is named in words (always given in N)."""
+MOST_NAMED = 5
+"""The most machines below the height a line names one by one (a robust profile's few): the
+terminal and report.md, by index and by place; more are counted, not listed."""
 
 
 def placement(
@@ -102,7 +105,7 @@ def placements(
     ]
 
 
-def named(entry: dict[str, Any], *, most: int = 5) -> list[tuple[int, dict[str, Any]]]:
+def named(entry: dict[str, Any], *, most: int = MOST_NAMED) -> list[tuple[int, dict[str, Any]]]:
     """A heldout.json entry's machines below the height with their placements, where it lists
     at most `most` (a robust profile's few), else none (nor from a file before version 7)."""
     machines = entry.get("violating_machines") or []

@@ -96,3 +96,45 @@ def test_the_terminal_says_what_the_count_can_confirm(capsys: pytest.CaptureFixt
     assert "  robust in its loop is within 0.5 % on these 50 machines but not confirmed" in out
     assert "  robust-fb in its loop does NOT hold (2.00 % > 0.5 %)" in out
     assert " holds at" not in out
+
+
+def test_more_machines_below_than_named_are_counted_not_listed(
+    capsys: pytest.CaptureFixture,
+) -> None:
+    """At most MOST_NAMED machines below are named, by index and by place, in the terminal;
+    one more and the line gives the count alone."""
+    from crank.console import print_heldout
+    from replay.placement import MOST_NAMED
+
+    place = {
+        "range_position": {"motor_damping": 0.04},
+        "start_s": 1.0,
+        "start_share": 0.1,
+        "force_mean_N": 0.1,
+        "force_mean_z": 0.1,
+    }
+    for count in (MOST_NAMED, MOST_NAMED + 1):
+        below = list(range(100, 100 + count))
+        print_heldout(
+            {
+                "runs": 1000,
+                "feedback": "lqr",
+                "target_rate": TARGET_RATE,
+                "holds": {},
+                "profiles": {
+                    "robust": {
+                        "open": {
+                            "violating_runs": count,
+                            "rate": count / 1000,
+                            "rate_upper_95": rate_upper(count, 1000),
+                            "violating_machines": below,
+                            "violating_placements": [place] * count,
+                        }
+                    }
+                },
+            }
+        )
+        out = capsys.readouterr().out
+        listed = "; machines " + ", ".join(map(str, below)) in out
+        placed = out.count("motor_damping at 4 % of its range")
+        assert (listed, placed) == ((True, count) if count == MOST_NAMED else (False, 0))
