@@ -15,7 +15,13 @@ bit: the sums run in another order and the tanh are not the same function.
 Session 34 made the kernel 1.65x faster on one thread (20 000 trajectories of a trained model to
 sample 100: 127 -> 77 ms; bench/bench_solve.py): the speed networks' tanh had called glibc's
 vector expf and divided (45 % of the time), and the features' sin and cos, in one loop, had
-become one scalar sincos per sample (16 %). Within the kernel, equal states give bit-equal results
+become one scalar sincos per sample (16 %). A caller may keep only some states (`at`): the
+tail check keeps its constraint samples, and its first call in a process took twice its later
+ones (80 against 41 ms) in page faults of the 32 MB it wrote. Found then: under -ffast-math, an
+edit anywhere in the C can move GCC's FMA contraction and with it the numbers at float32
+rounding (θ within 3e-6 rad over 149 steps): the tests bound the paths' agreement, not bits,
+and an edit of the C is checked on decided torques and held-out machines like a change of
+method (bench/kernel_tanh_seeds.md). Within the kernel, equal states give bit-equal results
 wherever they sit among the samples (every sample runs through the vector code, none through a
 scalar remainder loop).
 
@@ -130,13 +136,15 @@ def rollout(
     per_step: bool,
     lever_eps: np.ndarray | None = None,
     key: int | None = None,
+    at: np.ndarray | None = None,
 ) -> np.ndarray | None:
-    """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or None when the kernel is
-    not available (the caller then runs NumPy's); `per_step`: eps (and `lever_eps`, the slider
-    force's normals) has a row per step (else one row for the whole run), as the caller
-    decided. `key` (with eps and lever_eps None): the white normals (and the slider force's,
-    for a model with the channel) generated here, ppann/counter.py's `counter_normals(key)`,
-    per step or per trajectory as `per_step` says."""
+    """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or with `at` (indices into
+    the T + 1 states, increasing, as the caller checked) only those states, (n_samples,
+    len(at), 2); None when the kernel is not available (the caller then runs NumPy's);
+    `per_step`: eps (and `lever_eps`, the slider force's normals) has a row per step (else one
+    row for the whole run), as the caller decided. `key` (with eps and lever_eps None): the
+    white normals (and the slider force's, for a model with the channel) generated here,
+    ppann/counter.py's `counter_normals(key)`, per step or per trajectory as `per_step` says."""
     if key is not None and (eps is not None or lever_eps is not None):
         raise ValueError("rollout: give the white normals as arrays or as a key, not both")
     library = load()
@@ -153,7 +161,10 @@ def rollout(
     def ints(values: list[int]) -> np.ndarray:
         return np.ascontiguousarray(values, dtype=np.intc)
 
-    samples = np.empty((n_samples, steps + 1, 2))
+    kept = np.arange(steps + 1) if at is None else np.asarray(at, dtype=int)
+    slot = np.full(steps + 1, -1, dtype=np.intc)
+    slot[kept] = np.arange(kept.size)
+    samples = np.empty((n_samples, kept.size, 2))
     x0 = c64(np.asarray(x0, dtype=float)[:2])
     tau, eps, factors = c64(tau), c64(eps), c64(factors)
     if plan is not None:
@@ -217,6 +228,8 @@ def rollout(
             ctypes.c_int(int(key is not None)),
             ctypes.c_uint64(0 if key is None else key),
             ctypes.c_int64(a),
+            _ptr(slot),
+            ctypes.c_int(kept.size),
             _ptr(samples[part]),
         )
 

@@ -66,6 +66,7 @@ int crank_rollout(
     const int *row_end, const float *w_out, const double *b_out,
     const double *lever_eps, const double *lever_table, /* the slider force's channel, or NULL */
     int use_key, uint64_t key, int64_t offset, /* counter normals in place of eps (below) */
+    const int *slot, int n_slots, /* state r (0..steps) is row slot[r] of a sample, or not kept */
     double *samples)
 {
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
@@ -78,15 +79,25 @@ int crank_rollout(
     double *out = malloc(sizeof(double) * np * 6);
     double *w = use_key ? malloc(sizeof(double) * np * 5) : NULL, *ws = w ? w + 4 * np : NULL;
     uint64_t *seed = use_key ? malloc(sizeof(uint64_t) * np) : NULL;
-    if (!th || !g || !out || (use_key && (!w || !seed))) {
-        free(th); free(g); free(out); free(w); free(seed); return 1;
+    unsigned char *bad = calloc(n, 1);
+    if (!th || !g || !out || !bad || (use_key && (!w || !seed))) {
+        free(th); free(g); free(out); free(w); free(seed); free(bad); return 1;
     }
     if (use_key)  /* each sample's own stream, seeded from the key (ppann/counter.py) */
         EACH(s) seed[s] = splitmix(key + GOLDEN * (uint64_t)(offset + (s < n ? s : n - 1) + 1));
     float *g0 = g, *g1 = g + np, *g2 = g + 2 * np, *acc = g + 3 * np;
-    const size_t stride = (size_t)(steps + 1) * 2;
+    const size_t stride = (size_t)n_slots * 2;
     EACH(s) { th[s] = x0[0]; om[s] = x0[1]; }
-    for (int s = 0; s < n; ++s) { samples[s * stride] = x0[0]; samples[s * stride + 1] = x0[1]; }
+    /* a diverged sample is NaN from its first non-finite state on (fast-math does not keep
+       inf and NaN arithmetic to IEEE rules, so what came after it is not trusted); only the
+       kept states are written (the tail check keeps 2 of 100: 32 MB of page faults less) */
+    for (int s = 0, r = slot[0]; s < n; ++s) {
+        bad[s] = !finite_bits(th[s]) || !finite_bits(om[s]);
+        if (r >= 0) {
+            samples[s * stride + 2 * r] = bad[s] ? NAN : th[s];
+            samples[s * stride + 2 * r + 1] = bad[s] ? NAN : om[s];
+        }
+    }
     for (int k = 0; k < steps; ++k) {
         EACH(s) {
             double a = th[s] - two_pi * floor(th[s] / two_pi);  /* theta mod 2 pi */
@@ -196,23 +207,15 @@ int crank_rollout(
             om[s] = om[s] + dt * (u - damping - stiffness) / inertia;
             th[s] = next;
         }
-        for (int s = 0; s < n; ++s) {
-            samples[s * stride + 2 * (k + 1)] = th[s];
-            samples[s * stride + 2 * (k + 1) + 1] = om[s];
-        }
-    }
-    /* a diverged sample is NaN from its first non-finite state on (fast-math does not keep
-       inf and NaN arithmetic to IEEE rules, so what came after it is not trusted) */
-    for (int s = 0; s < n; ++s) {
-        double *row = samples + s * stride;
-        for (int r = 0; r <= steps; ++r) {
-            if (!finite_bits(row[2 * r]) || !finite_bits(row[2 * r + 1])) {
-                for (; r <= steps; ++r) { row[2 * r] = NAN; row[2 * r + 1] = NAN; }
-                break;
+        for (int s = 0, r = slot[k + 1]; s < n; ++s) {
+            bad[s] |= !finite_bits(th[s]) || !finite_bits(om[s]);
+            if (r >= 0) {
+                samples[s * stride + 2 * r] = bad[s] ? NAN : th[s];
+                samples[s * stride + 2 * r + 1] = bad[s] ? NAN : om[s];
             }
         }
     }
-    free(th); free(g); free(out); free(w); free(seed);
+    free(th); free(g); free(out); free(w); free(seed); free(bad);
     return 0;
 }
 """

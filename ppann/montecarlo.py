@@ -92,6 +92,7 @@ def monte_carlo(
     feedback: Feedback | None = None,
     compiled: bool = True,
     normals: str = "stream",
+    at: npt.ArrayLike | None = None,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
@@ -104,6 +105,9 @@ def monte_carlo(
     (cached per seed, the common random numbers of the robust loop); "counter", ppann/counter.py's
     counter-based normals under the white child's key, generated inside the kernel (the tail
     check's 20 000 trajectories; the same numbers on the NumPy path).
+    at: keep only these states (indices into the T + 1, increasing): the samples are then
+    (n_samples, len(at), 2), the same numbers as the full run's at those indices (the tail
+    check keeps its constraint samples: 32 MB written and faulted in less at 20 000).
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -155,6 +159,7 @@ def monte_carlo(
         lever_eps=lever_eps,
         key=key,
         per_trajectory=draw.white == "held",
+        at=at,
     )
     return Bands(samples)
 
@@ -185,6 +190,7 @@ def rollout(
     lever_eps: np.ndarray | None = None,
     key: int | None = None,
     per_trajectory: bool = False,
+    at: npt.ArrayLike | None = None,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
@@ -193,8 +199,13 @@ def rollout(
     with eps, for a model that has the channel. `compiled`: by the C kernel of ppann/kernel.py
     where it builds (the same numbers to float32 rounding), else by the NumPy loop below.
     `key` (eps and lever_eps None): ppann/counter.py's normals under it in their place, drawn
-    per step, or per trajectory with `per_trajectory`."""
+    per step, or per trajectory with `per_trajectory`. `at`: only these states (indices into
+    the T + 1, increasing), (n_samples, len(at), 2)."""
     steps = tau.shape[0]
+    if at is not None:
+        at = np.asarray(at, dtype=int)
+        if at.ndim != 1 or at.size == 0 or at[0] < 0 or at[-1] > steps or np.any(np.diff(at) <= 0):
+            raise ValueError(f"at: increasing state indices within 0..{steps}, got {at.tolist()}")
     if key is not None:
         per_step = not per_trajectory and steps > 1
     else:
@@ -213,6 +224,7 @@ def rollout(
             per_step=per_step,
             lever_eps=lever_eps,
             key=key,
+            at=at,
         )
         if samples is not None:
             return samples
@@ -240,4 +252,4 @@ def rollout(
             alpha = heads.acceleration(theta, omega, u, z, factors=factors)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
-    return samples
+    return samples if at is None else samples[:, at]

@@ -147,6 +147,51 @@ def test_a_diverging_draw_is_nan_from_where_it_diverges_on_both_paths() -> None:
     np.testing.assert_allclose(fast[1:], slow[1:], rtol=0, atol=1e-6)
 
 
+def test_keeping_some_states_gives_the_full_runs_bits_there() -> None:
+    """`at` (the tail check's constraint samples) keeps the states at those indices only: on
+    either path the full run's numbers there bit for bit, a diverged draw NaN where its full
+    run is; indices that are not increasing within 0..T are refused."""
+    heads = FusedHeads(_trained_like(PPANNConfig()))
+    tau = np.linspace(0.5, 1.5, 120)
+    at = np.array([0, 1, 49, 99, 120])
+    for compiled in (True, False):
+        full = monte_carlo(
+            heads,
+            [0.2, 3.0],
+            tau,
+            n_samples=700,
+            mode="mixed",
+            seed=3,
+            compiled=compiled,
+            normals="counter",
+        ).samples
+        kept = monte_carlo(
+            heads,
+            [0.2, 3.0],
+            tau,
+            n_samples=700,
+            mode="mixed",
+            seed=3,
+            compiled=compiled,
+            normals="counter",
+            at=at,
+        ).samples
+        assert kept.shape == (700, at.size, 2)
+        assert np.array_equal(kept, full[:, at])
+    runaway = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.6, 0.01))
+    eps = np.zeros((1, 4, 3))
+    eps[0, 0, 1] = -5.0  # runs away (the test above): non-finite long before state 8000
+    long = np.full(8000, 1.0)
+    ends = np.array([10, 7999, 8000])
+    full = rollout(FusedHeads(runaway), [0.5, 1.0], long, n_samples=4, eps=eps)
+    kept = rollout(FusedHeads(runaway), [0.5, 1.0], long, n_samples=4, eps=eps, at=ends)
+    assert np.isnan(kept[0, 1:]).all() and np.isfinite(kept[1:]).all()
+    np.testing.assert_array_equal(kept, full[:, ends])
+    for bad in ([5, 5], [3, 1], [-1, 4], [0, 121], []):
+        with pytest.raises(ValueError, match="at: increasing state indices"):
+            monte_carlo(heads, [0.2, 3.0], tau, n_samples=4, at=bad)
+
+
 def test_without_the_kernel_the_numpy_path_runs(monkeypatch: pytest.MonkeyPatch) -> None:
     """CRANK_KERNEL=0 (or no compiler) gives NumPy's numbers exactly."""
     heads = FusedHeads(_trained_like(PPANNConfig()))
