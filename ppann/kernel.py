@@ -18,12 +18,12 @@ vector expf and divided (45 % of the time), and the features' sin and cos, in on
 become one scalar sincos per sample (16 %). A caller may keep only some states (`at`): the
 tail check keeps its constraint samples, and its first call in a process took twice its later
 ones (80 against 41 ms) in page faults of the 32 MB it wrote. Found then: under -ffast-math, an
-edit anywhere in the C can move GCC's FMA contraction and with it the numbers at float32
-rounding (θ within 3e-6 rad over 149 steps): the tests bound the paths' agreement, not bits,
-and an edit of the C is checked on decided torques and held-out machines like a change of
-method (bench/kernel_tanh_seeds.md). Within the kernel, equal states give bit-equal results
-wherever they sit among the samples (every sample runs through the vector code, none through a
-scalar remainder loop).
+edit anywhere in the C can change how GCC contracts and orders the float arithmetic, and with it
+the numbers at float32 rounding (θ within 3e-6 rad over 149 steps): the tests bound the paths'
+agreement, not bits, and an edit of the C is checked on decided torques and held-out machines
+like a change of method (bench/kernel_tanh_seeds.md). Within the kernel, equal states give
+bit-equal results wherever they sit among the samples (every sample runs through the vector
+code, none through a scalar remainder loop).
 
 The build: `cc -O3 -march=native -ffast-math -c` (fast-math lets GCC call glibc's vector sin,
 cos, exp, log and log1p; finiteness is tested on the bits, which fast-math cannot assume away,
