@@ -155,27 +155,9 @@ def test_keeping_some_states_gives_the_full_runs_bits_there() -> None:
     tau = np.linspace(0.5, 1.5, 120)
     at = np.array([0, 1, 49, 99, 120])
     for compiled in (True, False):
-        full = monte_carlo(
-            heads,
-            [0.2, 3.0],
-            tau,
-            n_samples=700,
-            mode="mixed",
-            seed=3,
-            compiled=compiled,
-            normals="counter",
-        ).samples
-        kept = monte_carlo(
-            heads,
-            [0.2, 3.0],
-            tau,
-            n_samples=700,
-            mode="mixed",
-            seed=3,
-            compiled=compiled,
-            normals="counter",
-            at=at,
-        ).samples
+        draws = {"n_samples": 700, "mode": "mixed", "seed": 3, "normals": "counter"}
+        full = monte_carlo(heads, [0.2, 3.0], tau, compiled=compiled, **draws).samples
+        kept = monte_carlo(heads, [0.2, 3.0], tau, compiled=compiled, at=at, **draws).samples
         assert kept.shape == (700, at.size, 2)
         assert np.array_equal(kept, full[:, at])
     runaway = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.6, 0.01))
