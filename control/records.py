@@ -97,7 +97,8 @@ class RobustResult:
     failed_proposals: tuple[np.ndarray, ...]
     """Margins IPOPT could not meet, and which halved the damping."""
     wall_time: float
-    """The robust loop: every solve and Monte-Carlo after the nominal solve, s."""
+    """The robust loop: every solve and Monte-Carlo after the nominal solve, the nominal plan's
+    own Monte-Carlo included (since session 34), s."""
     nominal_gains: np.ndarray
     """Gains (N-1, 2) of the profile's law (control/config.py law_of) along the nominal plan,
     whatever the loop: its LQR (control/lqr.py), or for robust-pd the fixed PD."""

@@ -102,7 +102,8 @@ def solve_robust(
     `start`: the robust result of the same task solved before (at another k: control/profiles.py's
     raise), whose torque the aware scheme starts from, with its Monte-Carlo under `config`, in
     place of the nominal plan (where the aware scheme hands over, the bracket starts from the
-    nominal). Where that torque is the aware scheme's own, its first solve is a full one from
+    nominal; the nominal plan's gains and spreads are the start's, which k does not move).
+    Where that torque is the aware scheme's own, its first solve is a full one from
     its multipliers too (they belong to the same NLP): on the ten raised pairs of session 33
     (five models, Monte-Carlo seeds 3 and 4) 1-2 full solves where three (two drafts and a full
     one) were made from its primal point, the same margins to 0.07 mm.
@@ -133,19 +134,26 @@ def solve_robust(
         return gains_of(solution) if loop == "closed" else None
 
     nominal = nominal if nominal is not None else ocp.solve()
+    scheme = "aware" if loop == "open" and config.margin_scheme == "aware" else "bracket"
+    if scheme == "aware":  # its NLP is built once per task, like the nominal's: not the loop's
+        aware.aware_ocp(model, ocp, samples=config.mc_samples)
+    # the loop's time from here: the nominal plan's own Monte-Carlo is the loop's first (before
+    # session 34 the clock started after it, ~0.1 nominal solves left out of every figure)
+    started = time.perf_counter()
     nominal_gains = tube(nominal)
     nominal_unc = slider_uncertainty(heads, nominal, config, gains=nominal_gains)
+    # a raise (start: the same task at another k, from the same nominal plan): the nominal's
+    # gains and spreads do not depend on k (the same draws), so they are the start's
+    known = start is not None and _same_plan(start.nominal, nominal)
 
     def nominal_feedback() -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The nominal plan's gains (the tube's, if already computed) and its open- and
         closed-loop spread, for the result or a failed solve's partial one."""
+        if known and start is not None:
+            return start.nominal_gains, start.nominal_loops
         gains = gains_of(nominal) if nominal_gains is None else nominal_gains
         return gains, _loops(heads, nominal, config, gains, nominal_unc, sized=loop)
 
-    scheme = "aware" if loop == "open" and config.margin_scheme == "aware" else "bracket"
-    if scheme == "aware":  # its NLP is built once per task, like the nominal's: not the loop's
-        aware.aware_ocp(model, ocp, samples=config.mc_samples)
-    started = time.perf_counter()
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
 
@@ -315,6 +323,11 @@ def _beyond_stroke(
         available=float(available),
         line=float(unc.population[k]),
     )
+
+
+def _same_plan(one: Solution, other: Solution) -> bool:
+    """Whether two solutions are the same plan (torque and states, bit for bit)."""
+    return np.array_equal(one.tau, other.tau) and np.array_equal(one.states, other.states)
 
 
 def _loops(

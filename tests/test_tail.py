@@ -144,7 +144,8 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     draws, is within the target; both checks recorded, the target the configured k's. Decided
     at that k from the nominal plan instead, the torque keeps the same margins to the loop's
     tolerance, in more solves; its first solve a full one (from the aware torque before it,
-    multipliers included)."""
+    multipliers included). The raise takes the nominal plan's gains and spreads from the torque
+    before (k does not move them): the cold decision's bit for bit."""
     ocp, nominal, alone = centred
     monkeypatch.setattr(tail, "target", lambda config: 0.002)
     result = profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
@@ -165,6 +166,12 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     assert len(result.iterations) < len(cold.iterations)
     assert alone.iterations[-1].scheme == result.iterations[0].scheme == "aware"
     assert not result.iterations[0].draft and cold.iterations[0].draft
+    assert by_hand.nominal_gains is alone.nominal_gains  # taken, not computed again
+    assert by_hand.nominal_loops is alone.nominal_loops
+    np.testing.assert_array_equal(result.nominal_gains, cold.nominal_gains)
+    assert set(result.nominal_loops) == set(cold.nominal_loops) == {"open", "closed"}
+    for loop, spread in cold.nominal_loops.items():
+        np.testing.assert_array_equal(result.nominal_loops[loop], spread)
 
 
 def _check(lowered: np.ndarray, *, target: float) -> tail.TailCheck:
