@@ -144,13 +144,15 @@ def solve_robust(
     nominal_unc = slider_uncertainty(heads, nominal, config, gains=nominal_gains)
     # a raise (start: the same task at another k, from the same nominal plan): the nominal's
     # gains and spreads do not depend on k (the same draws), so they are the start's
-    known = start is not None and _same_plan(start.nominal, nominal)
+    reused = None
+    if start is not None and _same_plan(start.nominal, nominal):
+        reused = start.nominal_gains, start.nominal_loops
 
     def nominal_feedback() -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The nominal plan's gains (the tube's, if already computed) and its open- and
         closed-loop spread, for the result or a failed solve's partial one."""
-        if known and start is not None:
-            return start.nominal_gains, start.nominal_loops
+        if reused is not None:
+            return reused
         gains = gains_of(nominal) if nominal_gains is None else nominal_gains
         return gains, _loops(heads, nominal, config, gains, nominal_unc, sized=loop)
 
