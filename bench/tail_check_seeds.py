@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from common.errors import ConfigError
 from control.config import OCPConfig
 from control.ocp import NominalOCP
 from control.profiles import decide, own_tail
@@ -27,8 +28,11 @@ def main() -> None:
     parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds of the loop")
     parser.add_argument("--check-seeds", default="0-9", help="seeds of the check's draws")
     args = parser.parse_args()
-    mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
-    check_seeds = parse_seeds(args.check_seeds, option="--check-seeds")
+    try:
+        mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
+        check_seeds = parse_seeds(args.check_seeds, option="--check-seeds")
+    except ConfigError as exc:
+        raise SystemExit(f"tail_check_seeds: {exc}") from None
     rows = []
     for path in args.models:
         model, _ = load(path)
