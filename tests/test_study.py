@@ -73,6 +73,22 @@ def test_parse_seeds(text: str, seeds: tuple[int, ...]) -> None:
     assert parse_seeds(text) == seeds
 
 
+def _study(rows: list[dict], *, tightening: str, heldout_seed: int) -> dict:
+    """A study.json of the paper line's robust open loop (1000 mixed trajectories, confidence
+    0.95) over `rows`' seeds, for `markdown`."""
+    ocp = {"mc_mode": "mixed", "mc_samples": 1000, "tightening": tightening}
+    return {
+        "seeds": [r["seed"] for r in rows],
+        "rows": rows,
+        "target_heldout_rate": 0.005,
+        "config": {
+            "generation": {"variability": {"name": "paper"}},
+            "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
+            "heldout_seed": heldout_seed,
+        },
+    }
+
+
 def test_the_verdict_names_seeds_whose_bound_cannot_confirm_the_target() -> None:
     """A worst seed at 0.2 % meets 0.5 %; a seed at 2 of 1000 (bound 0.63 %) is named as too
     few machines to confirm it, one at 0 of 1000 (0.30 %) is not."""
@@ -89,17 +105,7 @@ def test_the_verdict_names_seeds_whose_bound_cannot_confirm_the_target() -> None
             "robust_heldout_upper_95": rate_upper(below, 1000),
         }
 
-    ocp = {"mc_mode": "mixed", "mc_samples": 1000, "tightening": "gaussian"}
-    study = {
-        "seeds": [0, 1],
-        "rows": [row(0, 0), row(1, 2)],
-        "target_heldout_rate": 0.005,
-        "config": {
-            "generation": {"variability": {"name": "paper"}},
-            "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
-            "heldout_seed": 7,
-        },
-    }
+    study = _study([row(0, 0), row(1, 2)], tightening="gaussian", heldout_seed=7)
     text = markdown(study)
     assert (
         "- robust open loop on held-out machines: worst seed 0.20 % (target <= 0.5 %): **met**"
@@ -126,17 +132,8 @@ def test_machines_below_under_several_seeds_are_named() -> None:
             "robust_heldout_machines": machines,
         }
 
-    ocp = {"mc_mode": "mixed", "mc_samples": 1000, "tightening": "centred"}
-    study = {
-        "seeds": [5, 6, 7],
-        "rows": [row(5, [3106, 3128]), row(6, [3128, 3229, 3106]), row(7, [3128, 12])],
-        "target_heldout_rate": 0.005,
-        "config": {
-            "generation": {"variability": {"name": "paper"}},
-            "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
-            "heldout_seed": 20261167,
-        },
-    }
+    rows = [row(5, [3106, 3128]), row(6, [3128, 3229, 3106]), row(7, [3128, 12])]
+    study = _study(rows, tightening="centred", heldout_seed=20261167)
     text = markdown(study)
     assert (
         "  - the same held-out machines below under several seeds' torques: 3128 (3 of 3 "
