@@ -6,7 +6,7 @@ Monte-Carlo modes that stand for each: `mixed` for the line, `step` for the whit
 machines for each part).
 
     python bench/calibration_parts.py --ocp OCP.json --model MODEL.pt --heldout-seed ROOT \
-        [--profile robust] [--runs 1000] [--trajectories 4000] [--variability paper] \
+        [--profile robust] [--runs 1000] [--trajectories 4000] [--variability NAME|FILE] \
         [--out parts.json]
 
 The parts add in quadrature where they are independent: the line's observed σ against
@@ -27,7 +27,9 @@ from common.errors import CrankError
 from common.jsonio import write_json
 from common.streams import HELDOUT_STREAMS, describe
 from ppann.checkpoint import load
+from replay.files import ocp_variability
 from replay.heldout import heldout_check
+from twin import MODEL_PATH
 from twin.physics import SliderCrank, load_model
 from twin.variability import Variability
 
@@ -58,7 +60,7 @@ def measure(
 ) -> dict[str, Any]:
     """The observed and predicted σ of θ and of the slider per part and constraint sample."""
     model, _ = load(model_path)
-    physics = SliderCrank(load_model("models/slider_crank.xml")[0])
+    physics = SliderCrank(load_model(MODEL_PATH)[0])
     out: dict[str, Any] = {}
     for part, line in parts_of(variability).items():
         checked = heldout_check(
@@ -96,13 +98,19 @@ def main() -> None:
     parser.add_argument("--profile", default="robust")
     parser.add_argument("--runs", type=int, default=1000, help="held-out machines per part")
     parser.add_argument("--trajectories", type=int, default=4000, help="per Monte-Carlo mode")
-    parser.add_argument("--variability", default="paper", help="scenario name or range file")
+    parser.add_argument(
+        "--variability", help="scenario name or range file (default: the one the ocp.json records)"
+    )
     parser.add_argument("--out", help="a JSON of the figures, with the settings")
     args = parser.parse_args()
     try:
         if args.runs < 2 or args.trajectories < 2:
             raise CrankError("--runs and --trajectories must be at least 2")
-        variability = Variability.resolve(args.variability)
+        variability = (
+            ocp_variability(args.ocp)
+            if args.variability is None
+            else Variability.resolve(args.variability)
+        )
         settings = {k: v for k, v in vars(args).items() if k != "out"}
         samples = measure(
             ocp=args.ocp,
