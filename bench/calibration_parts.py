@@ -26,6 +26,7 @@ from typing import Any
 from common.errors import CrankError
 from common.jsonio import write_json
 from common.streams import HELDOUT_STREAMS, describe
+from control.ocp_file import read_ocp
 from ppann.checkpoint import load
 from replay.files import ocp_variability
 from replay.heldout import heldout_check
@@ -59,6 +60,8 @@ def measure(
     variability: Variability,
 ) -> dict[str, Any]:
     """The observed and predicted σ of θ and of the slider per part and constraint sample."""
+    if profile not in read_ocp(ocp).names:  # before the first held-out run, not after it
+        raise CrankError(f"{ocp} has no profile {profile!r}")
     model, _ = load(model_path)
     physics = SliderCrank(load_model(MODEL_PATH)[0])
     out: dict[str, Any] = {}
@@ -73,8 +76,6 @@ def measure(
             mc_samples=trajectories,
             tail_draws=100,  # the model's own rate is not read here
         )
-        if profile not in checked["profiles"]:
-            raise CrankError(f"{ocp} has no profile {profile!r}")
         mode = PARTS[part]
         for k, entry in checked["profiles"][profile]["open"]["samples"].items():
             theta = entry["theta"]
