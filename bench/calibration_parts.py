@@ -16,19 +16,19 @@ nominal drop (the line's mean angle with it; without drift the mean crank runs ~
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from heldout_options import checked_line, heldout_parser
+
 from common.errors import CrankError
 from common.jsonio import write_json
 from common.streams import HELDOUT_STREAMS, describe
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
-from replay.files import ocp_variability
 from replay.heldout import heldout_check
 from twin import MODEL_PATH
 from twin.physics import SliderCrank, load_model
@@ -92,26 +92,14 @@ def measure(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ocp", required=True, help="ocp.json (crank solve)")
-    parser.add_argument("--model", required=True, help="the PPANN it was solved on")
-    parser.add_argument("--heldout-seed", type=int, required=True, help="held-out root seed")
-    parser.add_argument("--profile", default="robust")
-    parser.add_argument("--runs", type=int, default=1000, help="held-out machines per part")
-    parser.add_argument("--trajectories", type=int, default=4000, help="per Monte-Carlo mode")
-    parser.add_argument(
-        "--variability", help="scenario name or range file (default: the one the ocp.json records)"
+    parser = heldout_parser(
+        __doc__.splitlines()[0],
+        runs_help="held-out machines per part",
+        trajectories_help="per Monte-Carlo mode",
     )
-    parser.add_argument("--out", help="a JSON of the figures, with the settings")
     args = parser.parse_args()
     try:
-        if args.runs < 2 or args.trajectories < 2:
-            raise CrankError("--runs and --trajectories must be at least 2")
-        variability = (
-            ocp_variability(args.ocp)
-            if args.variability is None
-            else Variability.resolve(args.variability)
-        )
+        variability = checked_line(args)
         settings = {k: v for k, v in vars(args).items() if k != "out"}
         samples = measure(
             ocp=args.ocp,

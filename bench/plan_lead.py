@@ -28,7 +28,6 @@ direction of motion), the lead in the regime it was trained on; the windows from
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -36,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from heldout_options import checked_line, heldout_parser
 
 from common import streams
 from common.errors import CrankError
@@ -45,7 +45,6 @@ from ppann.checkpoint import load
 from ppann.model import PPANN, FusedHeads, rollout
 from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
-from replay.files import ocp_variability
 from replay.heldout import heldout_check
 from twin import MODEL_PATH, OPERATING_SECONDS
 from twin.mcap_dataset import read_dataset
@@ -209,30 +208,20 @@ def measure(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ocp", required=True, help="ocp.json (crank solve)")
-    parser.add_argument("--model", required=True, help="the PPANN it was solved on")
-    parser.add_argument("--heldout-seed", type=int, required=True, help="held-out root seed")
-    parser.add_argument("--profile", default="robust")
-    parser.add_argument("--runs", type=int, default=1000, help="held-out machines")
-    parser.add_argument("--trajectories", type=int, default=4000, help="mixed Monte-Carlo")
-    parser.add_argument(
-        "--variability", help="scenario name or range file (default: the one the ocp.json records)"
+    parser = heldout_parser(
+        __doc__.splitlines()[0],
+        runs_help="held-out machines",
+        trajectories_help="mixed Monte-Carlo",
     )
     parser.add_argument("--data", help="the model's training dataset, for its drift there")
     parser.add_argument("--windows", type=int, default=3000, help="dataset windows (--data)")
     parser.add_argument("--window-seed", type=int, default=0, help="draws the windows (--data)")
-    parser.add_argument("--out", help="a JSON of the figures, with the settings")
     args = parser.parse_args()
     torch.set_num_threads(1)
     try:
-        if args.runs < 2 or args.trajectories < 2 or args.windows < 2:
-            raise CrankError("--runs, --trajectories and --windows must be at least 2")
-        variability = (
-            ocp_variability(args.ocp)
-            if args.variability is None
-            else Variability.resolve(args.variability)
-        )
+        variability = checked_line(args)
+        if args.windows < 2:
+            raise CrankError("--windows must be at least 2")
         out = measure(
             ocp_path=args.ocp,
             model_path=args.model,
