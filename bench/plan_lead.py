@@ -110,9 +110,15 @@ def dataset_drift(
     model: PPANN, data: str, *, steps: int, windows: int, seed: int
 ) -> dict[str, float]:
     """The mean model's θ after `steps` steps less the data's, on `windows` windows of single
-    episodes, signed by the direction of motion: mean, its standard error and the spread, rad."""
+    episodes, signed by the direction of motion: mean, its standard error and the spread, rad.
+
+    Raises:
+      CrankError: no episode holds a window of `steps` steps.
+    """
     dataset = read_dataset(data)
     episode = dataset.episode
+    if np.bincount(episode - episode.min()).max() <= steps:
+        raise CrankError(f"{data}: no episode is longer than {steps} samples")
     rng = np.random.default_rng(seed)
     starts: list[int] = []
     while len(starts) < windows:
