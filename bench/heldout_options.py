@@ -39,6 +39,17 @@ def checked_line(args: argparse.Namespace) -> Variability:
     """
     if args.runs < 2 or args.trajectories < 2:
         raise CrankError("--runs and --trajectories must be at least 2")
-    if args.variability is None:
-        return ocp_variability(args.ocp)
-    return Variability.resolve(args.variability)
+    return line_of(args.ocp, args.variability)
+
+
+def line_of(ocp: str, variability: str | None) -> Variability:
+    """The line `variability` names (a scenario or a range file), or the ocp.json's if None: what
+    a diagnosis ran on, read back from its settings (bench/plan_lead_figure.py) as it resolved it.
+
+    Raises:
+      CrankError: an unknown line; an unreadable ocp.json, or one whose model was trained on rig
+        data (no line of the twin recorded).
+    """
+    if variability is None:
+        return ocp_variability(ocp)
+    return Variability.resolve(variability)

@@ -143,7 +143,7 @@ def dataset_drift(
 def measure(
     *,
     ocp_path: str,
-    model_path: str,
+    model: PPANN,
     profile: str,
     runs: int,
     seed: int,
@@ -154,8 +154,6 @@ def measure(
     ocp = read_ocp(ocp_path)
     if profile not in ocp.names:  # before the held-out run, not after it
         raise CrankError(f"{ocp_path} has no profile {profile!r}")
-    model, _ = load(model_path)
-    model.eval()
     physics = SliderCrank(load_model(MODEL_PATH)[0])
     chosen = ocp.profiles[profile]
     c = ocp.config
@@ -193,10 +191,11 @@ def measure(
             moved = ocp.geometry.slider_position(theta_mc - mc_lead + delta)
             sigma_moved = float(np.std(moved, ddof=1))
         observed = entry["observed_sigma"]
+        nominal = float(twin["theta"][:, k - 1].mean())
         samples[str(k)] = {
             "plan_theta": float(chosen.theta[k - 1]),
-            "twin_nominal_theta": float(twin["theta"][:, k - 1].mean()),
-            "lead": float(chosen.theta[k - 1] - twin["theta"][:, k - 1].mean()),
+            "twin_nominal_theta": nominal,
+            "lead": float(chosen.theta[k - 1]) - nominal,
             "mc_lead": mc_lead,
             "theta_ratio": entry["theta"]["predicted"]["mixed"]["sigma"]
             / entry["theta"]["observed_sigma"],
@@ -228,9 +227,10 @@ def main() -> None:
         variability = checked_line(args)
         if args.windows < 2:
             raise CrankError("--windows must be at least 2")
+        model, _ = load(args.model)  # eval mode
         out = measure(
             ocp_path=args.ocp,
-            model_path=args.model,
+            model=model,
             profile=args.profile,
             runs=args.runs,
             seed=args.heldout_seed,
@@ -238,7 +238,6 @@ def main() -> None:
             variability=variability,
         )
         if args.data:
-            model, _ = load(args.model)
             out["dataset_drift"] = dataset_drift(
                 model,
                 args.data,

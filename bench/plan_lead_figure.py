@@ -20,12 +20,12 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from heldout_options import line_of
 from matplotlib.lines import Line2D
 from plan_lead import nominal_runs
 
 from common.figures import save_figure
 from control.ocp_file import read_ocp
-from replay.files import ocp_variability
 from twin import MODEL_PATH
 from twin.physics import SliderCrank, load_model
 
@@ -51,9 +51,10 @@ def main() -> None:
         path = data["settings"]["ocp"]
         ocp = read_ocp(path)
         x0 = physics.initial_state(ocp.config.theta_start, ocp.config.omega_start)
+        line = line_of(path, data["settings"]["variability"])  # the line plan_lead ran on
         for name, style in (("robust", "-"), ("nominal", ":")):
             profile = ocp.profiles[name]
-            twin = nominal_runs(physics, ocp_variability(path), profile, x0)["theta"].mean(axis=0)
+            twin = nominal_runs(physics, line, profile, x0)["theta"].mean(axis=0)
             lead = 1e3 * (profile.theta - twin)
             left.plot(
                 np.arange(1, len(lead) + 1),
