@@ -62,7 +62,11 @@ def main() -> None:
     skew.axhline(0.0, color="black", lw=0.8)
     skew.set_ylabel("skew of θ (open: twin, filled: model)")
     skew.set_title(f"the crank angle's skew at sample {k}, per part")
-    skew.legend(fontsize=8)
+    low = min(
+        min(f[p]["model_theta"]["skew"], f[p]["twin_theta"]["skew"]) for _, f in runs for p in PARTS
+    )
+    skew.set_ylim(bottom=low - 0.25)  # room for the legend below the points
+    skew.legend(fontsize=8, loc="lower left", ncol=3)
     for i, (_, f) in enumerate(runs):
         line = f["line"]
         observed = line["twin"]["sigma"]
