@@ -32,7 +32,7 @@ import torch
 from common.errors import CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
-from control.ocp_file import read_ocp
+from control.ocp_file import OCPFile, read_ocp
 from ppann.checkpoint import load
 from ppann.model import FusedHeads
 from ppann.montecarlo import monte_carlo
@@ -46,9 +46,8 @@ B = 1
 """The damping factor's index in the model's (J, B, K)."""
 
 
-def twin_theta(ocp: str, profile: str, etas: np.ndarray, start: float) -> np.ndarray:
+def twin_theta(plan: OCPFile, profile: str, etas: np.ndarray, start: float) -> np.ndarray:
     """The twin's θ, (len(etas), horizon), one machine per η (module docstring)."""
-    plan = read_ocp(ocp)
     base = Variability()
     line = replace(
         base, **{p.name: p.fixed() for p in base.parameters()}, disturbance_amplitude=0.0
@@ -74,9 +73,8 @@ def twin_theta(ocp: str, profile: str, etas: np.ndarray, start: float) -> np.nda
     return replay.theta
 
 
-def model_theta(ocp: str, model_path: str, profile: str, etas: np.ndarray) -> np.ndarray:
+def model_theta(plan: OCPFile, model_path: str, profile: str, etas: np.ndarray) -> np.ndarray:
     """The model's mean θ, (len(etas), horizon), its damping factor scaled by e^η."""
-    plan = read_ocp(ocp)
     planned = plan.profiles[profile]
     model, _ = load(model_path)
     if model.config.machine_terms != "augmented":
@@ -107,8 +105,8 @@ def measure(*, ocp: str, model_path: str, profile: str, etas: np.ndarray, start:
     plan = read_ocp(ocp)
     if profile not in plan.names:
         raise CrankError(f"{ocp} has no profile {profile!r}")
-    twin = twin_theta(ocp, profile, etas, start)
-    model = model_theta(ocp, model_path, profile, etas)
+    twin = twin_theta(plan, profile, etas, start)
+    model = model_theta(plan, model_path, profile, etas)
     middle = len(etas) // 2
     samples: dict[str, Any] = {}
     for k in plan.config.constraint_samples:

@@ -26,11 +26,9 @@ from plan_lead import nominal_runs
 
 from common.figures import save_figure
 from control.ocp_file import read_ocp
+from ppann.figures import CALIBRATION_BAND
 from twin import MODEL_PATH
 from twin.physics import SliderCrank, load_model
-
-BOUNDS = (0.8, 1.25)
-"""The calibration target of issue 11 (predicted / observed)."""
 
 
 def main() -> None:
@@ -77,8 +75,8 @@ def main() -> None:
     left.set_ylabel("plan θ − twin's nominal machine θ, mrad")
     left.set_title("the mean model's lead along the torque (solid robust, dotted nominal)")
     left.legend(fontsize=7, ncol=2)
-    right.axhspan(*BOUNDS, color="green", alpha=0.08)
-    for bound in BOUNDS:
+    right.axhspan(*CALIBRATION_BAND, color="green", alpha=0.08)
+    for bound in CALIBRATION_BAND:
         right.axhline(bound, color="green", lw=0.8)
     right.set_xticks(range(len(samples)), [f"sample {k}" for k in samples])
     right.set_ylabel("predicted / observed σ (mixed), held-out machines")

@@ -39,6 +39,7 @@ from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig
+from replay.placement import placements
 from twin import MODEL_PATH, OPERATING_SECONDS
 from twin.physics import SliderCrank, load_model
 
@@ -61,16 +62,15 @@ def shape(x: np.ndarray, height: float) -> dict[str, Any]:
     }
 
 
-def placement_of(machines: Any, below: np.ndarray, line: Any) -> dict[str, float]:
+def placement_of(machines: Any, below: np.ndarray, line: Any, *, until: int) -> dict[str, float]:
     """Each varied parameter's mean place in its range over the machines `below` (0 low end,
-    1 high end), and their mean start time in s."""
-    out: dict[str, float] = {}
-    for p in line.parameters():
-        if p.high <= p.low:
-            continue
-        values = np.array([getattr(m, p.name) for m in machines.draws])
-        out[p.name] = float(((values[below] - p.low) / (p.high - p.low)).mean())
-    out["start_time_s"] = float(machines.start_times[below].mean())
+    1 high end; replay/placement.py's `range_position`), and their mean start time in s."""
+    placed = placements(
+        machines, np.flatnonzero(below).tolist(), line, until=until, max_start_s=OPERATING_SECONDS
+    )
+    names = [p.name for p in line.parameters() if p.high > p.low]
+    out = {n: float(np.mean([m["range_position"][n] for m in placed])) for n in names}
+    out["start_time_s"] = float(np.mean([m["start_s"] for m in placed]))
     return out
 
 
@@ -126,7 +126,9 @@ def measure(
         if part == "line" and below_any.any():
             out["line_below"] = {
                 "machines": int(below_any.sum()),
-                "placement": placement_of(machines, below_any, variability),
+                "placement": placement_of(
+                    machines, below_any, variability, until=max(c.constraint_samples)
+                ),
             }
     return out
 

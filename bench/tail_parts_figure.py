@@ -20,17 +20,16 @@ import matplotlib.pyplot as plt
 from scipy import stats as scistats
 
 from common.figures import save_figure
+from ppann.figures import CALIBRATION_BAND
+from replay.rates import rate_upper
 
-BOUNDS = (0.8, 1.25)
-"""The calibration target of issue 11 (predicted / observed)."""
 PARTS = ("line", "white", "machines")
 
 
 def interval(below: int, n: int) -> tuple[float, float]:
     """The exact (Clopper–Pearson) 95 % interval of a rate of `below` in `n`."""
     low = scistats.beta.ppf(0.025, below, n - below + 1) if below else 0.0
-    high = scistats.beta.ppf(0.975, below + 1, n - below) if below < n else 1.0
-    return float(low), float(high)
+    return float(low), rate_upper(below, n, confidence=0.975)
 
 
 def main() -> None:
@@ -84,7 +83,7 @@ def main() -> None:
         )
         rate.plot(i, 100 * line["model"]["rate"], "s", color="C0")
         rate.plot(i + 0.12, 100 * line["model_moved"]["rate"], "^", color="C3")
-    ratio.axhspan(*BOUNDS, color="green", alpha=0.08)
+    ratio.axhspan(*CALIBRATION_BAND, color="green", alpha=0.08)
     ratio.axhline(1.0, color="black", lw=0.8)
     ratio.set_ylabel("slider σ, model / twin (line)")
     ratio.set_title("■ the model's Monte-Carlo, ▲ moved back by its lead")
