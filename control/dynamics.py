@@ -107,8 +107,13 @@ class CasadiPPANN:
         )
         turn = ca.SX.sym("turn")
 
+        drive = tau
+        if c.coulomb:  # the prior's Coulomb torque (PPANNConfig.coulomb)
+            coulomb = float(model.coulomb.detach())
+            drive = tau - coulomb * ca.tanh(omega / c.coulomb_speed)
+
         def alpha_at(angle: ca.SX) -> ca.SX:
-            return (tau - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (
+            return (drive - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (
                 j * (1 + mean[0])
             )
 

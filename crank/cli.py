@@ -211,6 +211,10 @@ def train_command(
             "prior (the motor's physical terms alone)."
         ),
     ] = TrainConfig.machine_terms,
+    coulomb: Annotated[
+        bool,
+        typer.Option(help="Give the PPANN's prior a Coulomb friction torque, fitted in phase 1."),
+    ] = TrainConfig.coulomb,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -226,6 +230,7 @@ def train_command(
         sigma_lever=sigma_lever,
         residual_mean=residual_mean,
         machine_terms=machine_terms,
+        coulomb=coulomb,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

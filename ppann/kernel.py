@@ -182,6 +182,8 @@ def rollout(
                 heads.cell,
                 float(heads.use_networks),
                 float(heads.machine_prior),
+                heads.coulomb,
+                heads.coulomb_speed,
             ]
         )
     )

@@ -60,7 +60,7 @@ int crank_rollout(
     const double *x0, const double *tau, const double *eps, const double *factors,
     const double *plan, const double *gains, double limit,
     const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets,
-                          machine_prior */
+                          machine_prior, coulomb, coulomb_speed */
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
@@ -72,6 +72,7 @@ int crank_rollout(
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
     const double sfloor = prm[5], ifloor = prm[6], cellscale = prm[7];
     const int use_nets = prm[8] != 0.0, machine_prior = prm[9] != 0.0;
+    const double coulomb = prm[10], cspeed = prm[11];
     const double two_pi = 6.283185307179586;
     const int np = (n + LANES - 1) / LANES * LANES;
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
@@ -191,6 +192,7 @@ int crank_rollout(
                     * (use_key ? w[3 * np + s]
                                : lever_eps[(size_t)(eps_per_step ? k : 0) * n + src]);
             }
+            if (coulomb != 0.0) u -= coulomb * tanh(om[s] / cspeed);  /* the prior's Coulomb */
             double f0 = 1 + z0, f1 = 1 + z1, f2 = 1 + z2;
             if (factors && machine_prior) {  /* the machine scales the prior's term alone */
                 f0 += factors[3 * src] - 1; f1 += factors[3 * src + 1] - 1;

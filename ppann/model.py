@@ -8,9 +8,11 @@ and the augmented acceleration (eq. 14) is
 
     alpha = (tau - B_m (1 + z_B) omega - K_m (1 + z_K) theta_mod) / (J_m (1 + z_J)),
 
-with z_J(sin, cos), z_B(sin, cos, omega / omega_scale), z_K(sin, cos). Each z is a normal variable
-whose mean comes from a network of one hidden layer (100 tanh neurons, linear output) and whose
-standard deviation comes from a network of 10 tanh neurons with a softplus output plus a floor.
+with z_J(sin, cos), z_B(sin, cos, omega / omega_scale), z_K(sin, cos) (with
+`PPANNConfig.coulomb` the numerator also loses C tanh(omega / coulomb_speed), `friction`).
+Each z is a normal variable whose mean comes from a network of one hidden layer (100 tanh
+neurons, linear output) and whose standard deviation comes from a network of 10 tanh neurons
+with a softplus output plus a floor.
 Forward Euler at dt (eq. 4) with theta' = omega exactly (eq. 12).
 """
 
@@ -90,6 +92,8 @@ class PPANN(nn.Module):
         self.register_buffer(
             "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)
         )
+        if c.coulomb:  # log of C / coulomb_m, fitted in phase 1 (PPANNConfig.coulomb)
+            self.coulomb_log = nn.Parameter(torch.zeros(1, dtype=torch.float64))
         if c.sigma_lever:  # the slider force's standard deviation, N (ppann/lever.py); 0: none
             self.register_buffer("lever_sigma", torch.zeros(1, dtype=torch.float64))
         self.double()
@@ -98,6 +102,19 @@ class PPANN(nn.Module):
     def physical(self) -> torch.Tensor:
         """[J_m, B_m, K_m] in use, (3,)."""
         return self.prior * self.physical_factor
+
+    @property
+    def coulomb(self) -> torch.Tensor:
+        """The Coulomb friction torque's level C, N·m (0 without `PPANNConfig.coulomb`)."""
+        if not self.config.coulomb:
+            return torch.zeros((), dtype=torch.float64)
+        return self.config.coulomb_m * self.coulomb_log[0].exp()
+
+    def friction(self, omega: torch.Tensor) -> torch.Tensor | float:
+        """The Coulomb torque C tanh(omega / coulomb_speed) at omega (0.0 without)."""
+        if not self.config.coulomb:
+            return 0.0
+        return self.coulomb * torch.tanh(omega / self.config.coulomb_speed)
 
     def _features(
         self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False, wrap: bool = True
@@ -136,7 +153,8 @@ class PPANN(nn.Module):
     ) -> torch.Tensor:
         """alpha of eq. 14 for given z (..., 3); with z = 0 it is the prior of eq. 13."""
         j, b, k = self.physical
-        return (tau - b * (1 + z[..., 1]) * omega - k * (1 + z[..., 2]) * theta_mod(theta)) / (
+        drive = tau - self.friction(omega) if self.config.coulomb else tau
+        return (drive - b * (1 + z[..., 1]) * omega - k * (1 + z[..., 2]) * theta_mod(theta)) / (
             j * (1 + z[..., 0])
         )
 
@@ -242,6 +260,7 @@ class FusedHeads:
         self.use_networks = c.use_networks
         self.machine_prior = c.machine_terms == "prior"
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
+        self.coulomb, self.coulomb_speed = float(model.coulomb.detach()), c.coulomb_speed
         self.dt = c.dt
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         self.common_covariance = model.common_covariance.detach().numpy().copy()
@@ -342,6 +361,8 @@ class FusedHeads:
         "prior" the prior's part of them (f - 1 added to 1 + z); None means 1.
         """
         angle = np.remainder(theta, 2 * math.pi)
+        if self.coulomb:
+            tau = tau - self.coulomb * np.tanh(omega / self.coulomb_speed)
         scale = 1 + z
         if factors is not None and self.machine_prior:
             scale = scale + factors - 1

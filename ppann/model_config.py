@@ -58,8 +58,21 @@ class PPANNConfig:
     vary from machine to machine, the networks' corrections (the slider's inertia, the velocity
     products the B network absorbs) do not. A checkpoint without this key is "augmented"."""
 
+    coulomb: bool = False
+    """A Coulomb friction torque in the prior (beyond the paper): eq. 13's torque balance gets
+    C tanh(omega / coulomb_speed), C = coulomb_m e^c with c fitted in phase 1 beside the mean
+    networks. Eq. 14's B term, B_m (1 + z_B(sin, cos, omega)) omega, cannot form it: it would
+    need z_B ~ C / (B_m omega) at crawl speeds. The same on every machine (the machine-level
+    factors scale eq. 14's three terms). A checkpoint without this key has none."""
+    coulomb_m: float = 0.05
+    """Prior Coulomb friction torque C_m, N·m (a motor datasheet's order; fitted from it)."""
+    coulomb_speed: float = 0.1
+    """Speed over which the Coulomb torque's tanh turns, rad/s: smooth for the OCP, and with
+    forward Euler at dt stable for C / (coulomb_speed J) dt < 1."""
+
     def __post_init__(self) -> None:
-        for name in ("j_m", "b_m", "omega_scale", "dt", "sigma_floor"):
+        positive = ("j_m", "b_m", "omega_scale", "dt", "sigma_floor", "coulomb_m", "coulomb_speed")
+        for name in positive:
             check_finite(name, getattr(self, name), positive=True, error=ModelConfigError)
         check_finite("k_m", self.k_m, error=ModelConfigError)
         for name in ("mean_hidden", "sigma_hidden"):

@@ -85,6 +85,9 @@ class TrainConfig:
     on the four untuned tasks every robust torque held (at most 3 of 1000, root 20261148),
     bench/residual_mean_sweep.toml and bench/residual_mean_tasks_sweep.toml's rule. False: the
     paper's eq. 9 on the whole residual."""
+    coulomb: bool = False
+    """The PPANN's prior gets a Coulomb friction torque, its level fitted in phase 1
+    (`PPANNConfig.coulomb`, beyond the paper)."""
     machine_terms: str = "augmented"
     """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
     eq. 14's whole terms; "prior", the prior's physical motor terms alone."""

@@ -32,6 +32,7 @@ def _trained_like(seed: int, **config) -> PPANN:
         {"use_networks": False},
         {"sigma_speed": True},
         {"sigma_wrap": True},
+        {"coulomb": True},
     ],
 )
 def test_networks_and_dynamics_equal_torch(config: dict, splines: bool) -> None:

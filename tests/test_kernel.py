@@ -35,6 +35,7 @@ CASES = {
     "sigma_speed": PPANNConfig(sigma_speed=True),
     "physics": PPANNConfig(use_networks=False),
     "machine_prior": PPANNConfig(machine_terms="prior"),
+    "coulomb": PPANNConfig(coulomb=True, sigma_wrap=True),
 }
 
 
