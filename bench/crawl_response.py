@@ -74,12 +74,14 @@ def twin_theta(plan: OCPFile, profile: str, etas: np.ndarray, start: float) -> n
 
 
 def model_theta(plan: OCPFile, model_path: str, profile: str, etas: np.ndarray) -> np.ndarray:
-    """The model's mean θ, (len(etas), horizon), its damping factor scaled by e^η."""
+    """The model's mean θ, (len(etas), horizon), its damping factor scaled by e^η (and with
+    `PPANNConfig.coulomb` its Coulomb torque, as a machine's factor scales it)."""
     planned = plan.profiles[profile]
     model, _ = load(model_path)
     if model.config.machine_terms != "augmented":
         raise CrankError(f"{model_path}: machine_terms {model.config.machine_terms!r}")
     factor = model.physical_factor.detach().clone()
+    coulomb = model.coulomb_log.detach().clone() if model.config.coulomb else None
     model.machine_sigma.zero_()
     out = []
     for e in etas:
@@ -87,6 +89,8 @@ def model_theta(plan: OCPFile, model_path: str, profile: str, etas: np.ndarray) 
         scaled[B] *= float(np.exp(e))
         with torch.no_grad():
             model.physical_factor.copy_(scaled)
+            if coulomb is not None:  # the damping factor scales the prior's Coulomb torque too
+                model.coulomb_log.copy_(coulomb + float(e))
         bands = monte_carlo(
             FusedHeads(model),
             [planned.theta[0], planned.omega[0]],

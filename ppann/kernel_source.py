@@ -192,7 +192,8 @@ int crank_rollout(
                     * (use_key ? w[3 * np + s]
                                : lever_eps[(size_t)(eps_per_step ? k : 0) * n + src]);
             }
-            if (coulomb != 0.0) u -= coulomb * tanh(om[s] / cspeed);  /* the prior's Coulomb */
+            if (coulomb != 0.0)  /* the prior's Coulomb torque, times the damping factor */
+                u -= coulomb * tanh(om[s] / cspeed) * (factors ? factors[3 * src + 1] : 1.0);
             double f0 = 1 + z0, f1 = 1 + z1, f2 = 1 + z2;
             if (factors && machine_prior) {  /* the machine scales the prior's term alone */
                 f0 += factors[3 * src] - 1; f1 += factors[3 * src + 1] - 1;

@@ -358,11 +358,13 @@ class FusedHeads:
 
         factors: per-sample machine factors (n, 3) multiplying the inertia, damping and stiffness
         terms (ppann/montecarlo.py, modes "machine" and "mixed"), or with `machine_terms`
-        "prior" the prior's part of them (f - 1 added to 1 + z); None means 1.
+        "prior" the prior's part of them (f - 1 added to 1 + z); the damping factor multiplies
+        the prior's Coulomb torque in either case; None means 1.
         """
         angle = np.remainder(theta, 2 * math.pi)
-        if self.coulomb:
-            tau = tau - self.coulomb * np.tanh(omega / self.coulomb_speed)
+        if self.coulomb:  # the machine's damping factor scales its whole motor friction
+            friction = self.coulomb * np.tanh(omega / self.coulomb_speed)
+            tau = tau - (friction if factors is None else friction * factors[:, 1])
         scale = 1 + z
         if factors is not None and self.machine_prior:
             scale = scale + factors - 1

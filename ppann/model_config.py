@@ -62,8 +62,9 @@ class PPANNConfig:
     """A Coulomb friction torque in the prior (beyond the paper): eq. 13's torque balance gets
     C tanh(omega / coulomb_speed), C = coulomb_m e^c with c fitted in phase 1 beside the mean
     networks. Eq. 14's B term, B_m (1 + z_B(sin, cos, omega)) omega, cannot form it: it would
-    need z_B ~ C / (B_m omega) at crawl speeds. The same on every machine (the machine-level
-    factors scale eq. 14's three terms). A checkpoint without this key has none."""
+    need z_B ~ C / (B_m omega) at crawl speeds. A machine's damping factor e^eta_B
+    (ppann/machine.py) scales it with the damping term: the motor's whole friction. A checkpoint
+    without this key has none."""
     coulomb_m: float = 0.05
     """Prior Coulomb friction torque C_m, N·m (a motor datasheet's order; fitted from it)."""
     coulomb_speed: float = 0.1

@@ -14,6 +14,7 @@ from control.dynamics import CasadiPPANN
 from ppann import kernel
 from ppann.checkpoint import load, save
 from ppann.losses import propagated_terms
+from ppann.machine import machine_design
 from ppann.model import PPANN, FusedHeads, PPANNConfig
 from ppann.montecarlo import rollout
 from ppann.train import History, TrainConfig, make_splits, train_mean
@@ -52,6 +53,32 @@ def test_the_torque_balance_by_hand() -> None:
         alpha = model.step(torch.stack([theta, omega], -1), tau)[:, 1].sub(omega).div(DT)
         residual, _ = propagated_terms(model, theta, omega, tau, alpha)
     assert residual.abs().max() < 1e-12
+
+
+@pytest.mark.parametrize("terms", ["augmented", "prior"])
+def test_a_machines_damping_factor_scales_its_whole_friction(terms: str) -> None:
+    """A machine with damping factor f: f C tanh(omega / speed) beside its damping term, in
+    FusedHeads' acceleration and in phase 2's design (the residual's derivative in eta_B at 0:
+    the damping column plus C tanh)."""
+    model = _model(0.03, machine_terms=terms)
+    heads = FusedHeads(model)
+    theta, omega = np.array([0.3, 4.0]), np.array([0.2, -3.0])
+    z = np.array([[0.1, -0.2, 0.05], [0.0, 0.3, -0.1]])
+    f = 1.1
+    friction = 0.03 * np.tanh(omega / 0.1)
+    j, b, k = heads.j, heads.b, heads.k
+    damping = b * ((1 + z[:, 1]) * f if terms == "augmented" else z[:, 1] + f) * omega
+    expected = (0.5 - f * friction - damping - k * (1 + z[:, 2]) * theta) / (j * (1 + z[:, 0]))
+    factors = np.array([[1.0, f, 1.0]] * 2)
+    got = heads.acceleration(theta, omega, 0.5, z, factors=factors)
+    np.testing.assert_allclose(got, expected, rtol=1e-13, atol=0)
+    t, w = torch.from_numpy(theta), torch.from_numpy(omega)
+    derivative = torch.stack([j * t, b * w, k * t], -1)  # any dr/dz will do
+    with torch.no_grad():
+        design = machine_design(model, t, w, derivative).numpy()
+        zb = model.z_mean(t, w)[:, 1].numpy()
+    column = b * omega * (1 + zb if terms == "augmented" else 1) + friction
+    np.testing.assert_allclose(design[:, 1], column, rtol=1e-13, atol=0)
 
 
 def test_numpy_kernel_and_casadi_equal_torch() -> None:
