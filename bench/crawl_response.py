@@ -75,7 +75,7 @@ def twin_theta(plan: OCPFile, profile: str, etas: np.ndarray, start: float) -> n
 
 def model_theta(plan: OCPFile, model_path: str, profile: str, etas: np.ndarray) -> np.ndarray:
     """The model's mean θ, (len(etas), horizon), its damping factor scaled by e^η (and with
-    `PPANNConfig.coulomb` its Coulomb torque, as a machine's factor scales it)."""
+    `PPANNConfig.coulomb` its Coulomb friction, as a machine's factor scales it)."""
     planned = plan.profiles[profile]
     model, _ = load(model_path)
     if model.config.machine_terms != "augmented":
@@ -89,7 +89,7 @@ def model_theta(plan: OCPFile, model_path: str, profile: str, etas: np.ndarray) 
         scaled[B] *= float(np.exp(e))
         with torch.no_grad():
             model.physical_factor.copy_(scaled)
-            if coulomb is not None:  # the damping factor scales the prior's Coulomb torque too
+            if coulomb is not None:  # the damping factor scales the prior's Coulomb friction too
                 model.coulomb_log.copy_(coulomb + float(e))
         bands = monte_carlo(
             FusedHeads(model),

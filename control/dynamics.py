@@ -31,6 +31,7 @@ import casadi as ca
 import numpy as np
 from torch import nn
 
+from ppann.friction import coulomb_friction
 from ppann.model import OUTPUTS, PPANN, Z_NAMES, sees_angle_alone, tabulate
 
 ANGLE_KNOTS = 4096
@@ -108,9 +109,17 @@ class CasadiPPANN:
         turn = ca.SX.sym("turn")
 
         drive = tau
-        if c.coulomb:  # the prior's Coulomb torque (PPANNConfig.coulomb)
-            coulomb = float(model.coulomb.detach())
-            drive = tau - coulomb * ca.tanh(omega / c.coulomb_speed)
+        if c.coulomb:  # the prior's Coulomb friction (ppann/friction.py)
+            motor, load = (float(v) for v in model.coulomb.detach())
+            drive = tau - coulomb_friction(
+                theta,
+                omega,
+                motor=motor,
+                load=load,
+                speed=c.coulomb_speed,
+                geometry=model.geometry,
+                lib=ca,
+            )
 
         def alpha_at(angle: ca.SX) -> ca.SX:
             return (drive - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (

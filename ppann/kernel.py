@@ -182,8 +182,10 @@ def rollout(
                 heads.cell,
                 float(heads.use_networks),
                 float(heads.machine_prior),
-                heads.coulomb,
+                *(heads.coulomb or (0.0, 0.0)),
                 heads.coulomb_speed,
+                heads.geometry.crank_length,
+                heads.geometry.rod_length,
             ]
         )
     )

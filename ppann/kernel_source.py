@@ -60,7 +60,7 @@ int crank_rollout(
     const double *x0, const double *tau, const double *eps, const double *factors,
     const double *plan, const double *gains, double limit,
     const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets,
-                          machine_prior, coulomb, coulomb_speed */
+                          machine_prior, coulomb motor, coulomb load, coulomb_speed, l1, l2 */
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
@@ -72,7 +72,9 @@ int crank_rollout(
     const double dt = prm[0], jm = prm[1], bm = prm[2], km = prm[3], oscale = prm[4];
     const double sfloor = prm[5], ifloor = prm[6], cellscale = prm[7];
     const int use_nets = prm[8] != 0.0, machine_prior = prm[9] != 0.0;
-    const double coulomb = prm[10], cspeed = prm[11];
+    /* the prior's Coulomb friction (ppann/friction.py): motor torque, slider force */
+    const double cmotor = prm[10], cload = prm[11], cspeed = prm[12], l1 = prm[13], l2 = prm[14];
+    const int coulomb = cmotor != 0.0 || cload != 0.0;
     const double two_pi = 6.283185307179586;
     const int np = (n + LANES - 1) / LANES * LANES;
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
@@ -192,8 +194,13 @@ int crank_rollout(
                     * (use_key ? w[3 * np + s]
                                : lever_eps[(size_t)(eps_per_step ? k : 0) * n + src]);
             }
-            if (coulomb != 0.0)  /* the prior's Coulomb torque, times the damping factor */
-                u -= coulomb * tanh(om[s] / cspeed) * (factors ? factors[3 * src + 1] : 1.0);
+            if (coulomb) {  /* the prior's Coulomb friction, times the damping factor */
+                const double sn = sin(ang[s]), cs = cos(ang[s]);
+                const double slope = -l1 * sn * (1 + l1 * cs / sqrt(l2 * l2 - l1 * l1 * sn * sn));
+                const double fr = cmotor * tanh(om[s] / cspeed)
+                    + cload * slope * tanh(slope * om[s] / (cspeed * l1));
+                u -= fr * (factors ? factors[3 * src + 1] : 1.0);
+            }
             double f0 = 1 + z0, f1 = 1 + z1, f2 = 1 + z2;
             if (factors && machine_prior) {  /* the machine scales the prior's term alone */
                 f0 += factors[3 * src] - 1; f1 += factors[3 * src + 1] - 1;

@@ -5,9 +5,9 @@ Eq. 9 for three PNNs. With the implicit (torque-balance) form of eq. 14,
     r = J_m (1 + z_J) alpha + B_m (1 + z_B) omega + K_m (1 + z_K) theta_mod - tau,
 
 evaluated at the mean z, its derivatives are closed-form: dr/dz_J = J_m alpha,
-dr/dz_B = B_m omega, dr/dz_K = K_m theta_mod (with `PPANNConfig.coulomb` r also has
-C tanh(omega / coulomb_speed), which no z scales). Independent z_i give the residual variance
-s^2 = sum_i (dr/dz_i sigma_i)^2 and the loss (1 / 2N) sum_k (r_k^2 / s_k^2 + log s_k^2).
+dr/dz_B = B_m omega, dr/dz_K = K_m theta_mod (with `PPANNConfig.coulomb` r also has the
+Coulomb friction of ppann/friction.py, which no z scales). Independent z_i give the residual
+variance s^2 = sum_i (dr/dz_i sigma_i)^2 and the loss (1 / 2N) sum_k (r_k^2 / s_k^2 + log s_k^2).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def propagated_terms(
         j * (1 + z[:, 0]) * alpha + b * (1 + z[:, 1]) * omega + k * (1 + z[:, 2]) * angle - tau
     )
     if model.config.coulomb:  # the prior's Coulomb torque (PPANNConfig.coulomb): no z of its own
-        residual = residual + model.friction(omega)
+        residual = residual + model.friction(theta, omega)
     derivative = torch.stack([j * alpha, b * omega, k * angle], dim=-1)
     return residual, derivative
 

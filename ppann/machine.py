@@ -11,8 +11,8 @@ model is
 
 (with `PPANNConfig.machine_terms` "prior" the factors scale the prior's physical terms alone,
 J_m (1 + z_J + e^eta_J - 1) and so on, and D_k = dr/dz_k: `machine_design`; with
-`PPANNConfig.coulomb` the damping factor scales the prior's Coulomb torque too, the machine's
-whole motor friction, and D_k's damping column gains C tanh(omega / coulomb_speed))
+`PPANNConfig.coulomb` the damping factor scales the prior's Coulomb friction too, the
+machine's whole friction, and D_k's damping column gains it: ppann/friction.py)
 
 so an episode's residual vector is Gaussian with covariance diag(s^2) + D diag(machine_sigma^2)
 D^T. Its negative log-likelihood, with eta integrated out (Woodbury and the determinant lemma,
@@ -72,14 +72,14 @@ def machine_design(
     the torque residual's derivative in a machine's log-factors at eta = 0. (1 + z_mu) dr/dz
     when they scale eq. 14's whole terms (`PPANNConfig.machine_terms` "augmented"), dr/dz when
     they scale the prior's physical terms alone ("prior"); the damping column gains the prior's
-    Coulomb torque, which the damping factor scales in either case (`PPANNConfig.coulomb`)."""
+    Coulomb friction, which the damping factor scales in either case (`PPANNConfig.coulomb`)."""
     if model.config.machine_terms == "prior":
         design = derivative
     else:
         design = (1 + model.z_mean(theta, omega)) * derivative
     if model.config.coulomb:
         design = design.clone()
-        design[:, 1] = design[:, 1] + model.friction(omega)
+        design[:, 1] = design[:, 1] + model.friction(theta, omega)
     return design
 
 

@@ -9,7 +9,7 @@ and the augmented acceleration (eq. 14) is
     alpha = (tau - B_m (1 + z_B) omega - K_m (1 + z_K) theta_mod) / (J_m (1 + z_J)),
 
 with z_J(sin, cos), z_B(sin, cos, omega / omega_scale), z_K(sin, cos) (with
-`PPANNConfig.coulomb` the numerator also loses C tanh(omega / coulomb_speed), `friction`).
+`PPANNConfig.coulomb` the numerator also loses the Coulomb friction of ppann/friction.py).
 Each z is a normal variable whose mean comes from a network of one hidden layer (100 tanh
 neurons, linear output) and whose standard deviation comes from a network of 10 tanh neurons
 with a softplus output plus a floor.
@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ppann.friction import coulomb_friction
 from ppann.lever import lever_arm
 from ppann.model_config import ModelConfigError, PPANNConfig
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
@@ -92,8 +93,8 @@ class PPANN(nn.Module):
         self.register_buffer(
             "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)
         )
-        if c.coulomb:  # log of C / coulomb_m, fitted in phase 1 (PPANNConfig.coulomb)
-            self.coulomb_log = nn.Parameter(torch.zeros(1, dtype=torch.float64))
+        if c.coulomb:  # logs of C / coulomb_m, F / coulomb_load, fitted in phase 1
+            self.coulomb_log = nn.Parameter(torch.zeros(2, dtype=torch.float64))
         if c.sigma_lever:  # the slider force's standard deviation, N (ppann/lever.py); 0: none
             self.register_buffer("lever_sigma", torch.zeros(1, dtype=torch.float64))
         self.double()
@@ -105,16 +106,28 @@ class PPANN(nn.Module):
 
     @property
     def coulomb(self) -> torch.Tensor:
-        """The Coulomb friction torque's level C, N·m (0 without `PPANNConfig.coulomb`)."""
+        """[C, F]: the motor's Coulomb torque (N·m) and the slider's Coulomb force (N) of
+        ppann/friction.py, (2,); zeros without `PPANNConfig.coulomb`."""
         if not self.config.coulomb:
-            return torch.zeros((), dtype=torch.float64)
-        return self.config.coulomb_m * self.coulomb_log[0].exp()
+            return torch.zeros(2, dtype=torch.float64)
+        c = self.config
+        prior = torch.tensor([c.coulomb_m, c.coulomb_load], dtype=torch.float64)
+        return prior * self.coulomb_log.exp()
 
-    def friction(self, omega: torch.Tensor) -> torch.Tensor | float:
-        """The Coulomb torque C tanh(omega / coulomb_speed) at omega (0.0 without)."""
+    def friction(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor | float:
+        """The Coulomb friction torque at (theta, omega) (ppann/friction.py; 0.0 without)."""
         if not self.config.coulomb:
             return 0.0
-        return self.coulomb * torch.tanh(omega / self.config.coulomb_speed)
+        motor, load = self.coulomb
+        return coulomb_friction(
+            theta,
+            omega,
+            motor=motor,
+            load=load,
+            speed=self.config.coulomb_speed,
+            geometry=self.geometry,
+            lib=torch,
+        )
 
     def _features(
         self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False, wrap: bool = True
@@ -153,7 +166,7 @@ class PPANN(nn.Module):
     ) -> torch.Tensor:
         """alpha of eq. 14 for given z (..., 3); with z = 0 it is the prior of eq. 13."""
         j, b, k = self.physical
-        drive = tau - self.friction(omega) if self.config.coulomb else tau
+        drive = tau - self.friction(theta, omega) if self.config.coulomb else tau
         return (drive - b * (1 + z[..., 1]) * omega - k * (1 + z[..., 2]) * theta_mod(theta)) / (
             j * (1 + z[..., 0])
         )
@@ -260,7 +273,8 @@ class FusedHeads:
         self.use_networks = c.use_networks
         self.machine_prior = c.machine_terms == "prior"
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
-        self.coulomb, self.coulomb_speed = float(model.coulomb.detach()), c.coulomb_speed
+        self.coulomb = [float(v) for v in model.coulomb.detach()] if c.coulomb else None
+        self.coulomb_speed = c.coulomb_speed
         self.dt = c.dt
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         self.common_covariance = model.common_covariance.detach().numpy().copy()
@@ -359,11 +373,19 @@ class FusedHeads:
         factors: per-sample machine factors (n, 3) multiplying the inertia, damping and stiffness
         terms (ppann/montecarlo.py, modes "machine" and "mixed"), or with `machine_terms`
         "prior" the prior's part of them (f - 1 added to 1 + z); the damping factor multiplies
-        the prior's Coulomb torque in either case; None means 1.
+        the prior's Coulomb friction in either case; None means 1.
         """
         angle = np.remainder(theta, 2 * math.pi)
-        if self.coulomb:  # the machine's damping factor scales its whole motor friction
-            friction = self.coulomb * np.tanh(omega / self.coulomb_speed)
+        if self.coulomb is not None:  # a machine's damping factor scales its whole friction
+            friction = coulomb_friction(
+                theta,
+                omega,
+                motor=self.coulomb[0],
+                load=self.coulomb[1],
+                speed=self.coulomb_speed,
+                geometry=self.geometry,
+                lib=np,
+            )
             tau = tau - (friction if factors is None else friction * factors[:, 1])
         scale = 1 + z
         if factors is not None and self.machine_prior:

@@ -59,20 +59,24 @@ class PPANNConfig:
     products the B network absorbs) do not. A checkpoint without this key is "augmented"."""
 
     coulomb: bool = False
-    """A Coulomb friction torque in the prior (beyond the paper): eq. 13's torque balance gets
-    C tanh(omega / coulomb_speed), C = coulomb_m e^c with c fitted in phase 1 beside the mean
-    networks. Eq. 14's B term, B_m (1 + z_B(sin, cos, omega)) omega, cannot form it: it would
-    need z_B ~ C / (B_m omega) at crawl speeds. A machine's damping factor e^eta_B
-    (ppann/machine.py) scales it with the damping term: the motor's whole friction. A checkpoint
-    without this key has none."""
+    """Coulomb friction in the prior (beyond the paper; ppann/friction.py): eq. 13's torque
+    balance loses C tanh(omega / coulomb_speed), the motor's, and F x'(theta) tanh(x'(theta)
+    omega / (coulomb_speed l1)), the slider's through the kinematics; C = coulomb_m e^c0 and
+    F = coulomb_load e^c1 with c fitted in phase 1 beside the mean networks. Eq. 14's B term,
+    B_m (1 + z_B) omega, cannot form either: it vanishes with omega. A machine's damping factor
+    e^eta_B (ppann/machine.py) scales both with the damping term: its whole friction. A
+    checkpoint without this key has none."""
     coulomb_m: float = 0.05
-    """Prior Coulomb friction torque C_m, N·m (a motor datasheet's order; fitted from it)."""
+    """Prior Coulomb torque of the motor C_m, N·m (a motor datasheet's order; fitted from it)."""
+    coulomb_load: float = 1.0
+    """Prior Coulomb force of the slider F_m, N (fitted from it)."""
     coulomb_speed: float = 0.1
-    """Speed over which the Coulomb torque's tanh turns, rad/s: smooth for the OCP, and with
-    forward Euler at dt stable for C / (coulomb_speed J) dt < 1."""
+    """Motor speed over which the Coulomb torques' tanh turns, rad/s: smooth for the OCP, and
+    with forward Euler at dt stable for C / (coulomb_speed J) dt < 1."""
 
     def __post_init__(self) -> None:
-        positive = ("j_m", "b_m", "omega_scale", "dt", "sigma_floor", "coulomb_m", "coulomb_speed")
+        positive = ("j_m", "b_m", "omega_scale", "dt", "sigma_floor")
+        positive += ("coulomb_m", "coulomb_load", "coulomb_speed")
         for name in positive:
             check_finite(name, getattr(self, name), positive=True, error=ModelConfigError)
         check_finite("k_m", self.k_m, error=ModelConfigError)

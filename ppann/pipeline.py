@@ -155,8 +155,9 @@ def train_and_report(
         if kind != "blackbox":
             j, b, k = (float(v) for v in f.model.physical.detach())
             entry["physical"] = {"J_m": j, "B_m": b, "K_m": k}
-            if f.model.config.coulomb:  # the prior's Coulomb torque, N·m
-                entry["physical"]["C_m"] = float(f.model.coulomb.detach())
+            if f.model.config.coulomb:  # the Coulomb friction: motor N·m, slider N
+                motor, load = (float(v) for v in f.model.coulomb.detach())
+                entry["physical"] |= {"C_m": motor, "F_m": load}
         if kind == "ppann":
             entry["machine_sigma"] = dict(zip(Z_NAMES, f.model.machine_sigma.tolist(), strict=True))
             entry["machine_offsets"] = f.history.machine_offsets

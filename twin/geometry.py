@@ -61,6 +61,13 @@ class Geometry:
         l1, l2 = self.crank_length, self.rod_length
         return l1 * lib.cos(theta) + lib.sqrt(l2**2 - (l1 * lib.sin(theta)) ** 2) + l1 - l2
 
+    def slider_slope(self, theta: Any, lib: ModuleType = np) -> Any:
+        """dx/dtheta of `slider_position`, m/rad, written out; `lib` is numpy, torch or casadi:
+        -l1 sin(theta) (1 + l1 cos(theta) / sqrt(l2^2 - l1^2 sin^2(theta)))."""
+        l1, l2 = self.crank_length, self.rod_length
+        s, c = lib.sin(theta), lib.cos(theta)
+        return -l1 * s * (1 + l1 * c / lib.sqrt(l2**2 - (l1 * s) ** 2))
+
     def rod_angle(self, theta: npt.ArrayLike) -> np.ndarray:
         """phi = asin(l1/l2 sin(theta)), the rod's angle from the slide axis (rad)."""
         return np.arcsin(self.crank_length / self.rod_length * np.sin(np.asarray(theta, float)))
