@@ -83,18 +83,30 @@ class CasadiPPANN:
             "K": ca.vertcat(s, co),
         }
         wrapped = theta - 2 * math.pi * ca.floor(theta / (2 * math.pi))
+        turn = ca.SX.sym("turn")
         tables = angle_splines(model) if splines else {}
-        if c.use_networks:
-            mean = ca.vertcat(
+
+        def mean_at(angle: ca.SX) -> ca.SX:
+            """The mean networks with the angle tables at `angle` in [0, 2 pi) (the wrapped
+            theta, or theta on a given turn) and, with `mean_wrap`, z_K seeing angle / 2 pi."""
+            if not c.use_networks:
+                return ca.SX.zeros(3)
+            own = dict(features)
+            if c.mean_wrap:
+                own["K"] = ca.vertcat(s, co, angle / (2 * math.pi))
+            return ca.vertcat(
                 *(
-                    tables[f"mean {n}"](wrapped)
+                    tables[f"mean {n}"](angle)
                     if f"mean {n}" in tables
-                    else mlp(model.mean_nets[n], features[n])
+                    else mlp(model.mean_nets[n], own[n])
                     for n in Z_NAMES
                 )
             )
-        else:
-            mean = ca.SX.zeros(3)
+
+        mean = mean_at(wrapped)
+        # on a given turn the angle networks see theta there: with `mean_wrap` z_K jumps where
+        # theta_mod does, and a step on a fixed turn must not see the one without the other
+        mean_turn = mean_at(theta - 2 * math.pi * turn) if c.mean_wrap else mean
         sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else dict(features)
         if c.sigma_wrap:
             sigma_features["K"] = ca.vertcat(s, co, wrapped / (2 * math.pi))
@@ -106,8 +118,6 @@ class CasadiPPANN:
                 for n in Z_NAMES
             )
         )
-        turn = ca.SX.sym("turn")
-
         drive = tau
         if c.coulomb:  # the prior's Coulomb friction (ppann/friction.py)
             motor, load = (float(v) for v in model.coulomb.detach())
@@ -121,13 +131,11 @@ class CasadiPPANN:
                 lib=ca,
             )
 
-        def alpha_at(angle: ca.SX) -> ca.SX:
-            return (drive - b * (1 + mean[1]) * omega - k * (1 + mean[2]) * angle) / (
-                j * (1 + mean[0])
-            )
+        def alpha_at(angle: ca.SX, z: ca.SX) -> ca.SX:
+            return (drive - b * (1 + z[1]) * omega - k * (1 + z[2]) * angle) / (j * (1 + z[0]))
 
-        alpha = alpha_at(wrapped)
-        alpha_turn = alpha_at(theta - 2 * math.pi * turn)
+        alpha = alpha_at(wrapped, mean)
+        alpha_turn = alpha_at(theta - 2 * math.pi * turn, mean_turn)
         x = ca.vertcat(theta, omega)
         self._rollouts: dict[int, ca.Function] = {}
         self.z_mean = ca.Function("z_mean", [theta, omega], [mean], ["theta", "omega"], ["z"])

@@ -211,6 +211,10 @@ def train_command(
             "prior (the motor's physical terms alone)."
         ),
     ] = TrainConfig.machine_terms,
+    mean_wrap: Annotated[
+        bool,
+        typer.Option(help="Let z_K's mean network see theta mod 2 pi (a load continuous at TDC)."),
+    ] = TrainConfig.mean_wrap,
     coulomb: Annotated[
         bool,
         typer.Option(help="Give the PPANN's prior a Coulomb friction torque, fitted in phase 1."),
@@ -231,6 +235,7 @@ def train_command(
         residual_mean=residual_mean,
         machine_terms=machine_terms,
         coulomb=coulomb,
+        mean_wrap=mean_wrap,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

@@ -125,6 +125,8 @@ def new_model(
         ppann_config = replace(ppann_config or PPANNConfig(), sigma_wrap=True)
     if kind == "ppann" and config.sigma_lever:
         ppann_config = replace(ppann_config or PPANNConfig(), sigma_lever=True)
+    if kind == "ppann" and config.mean_wrap:
+        ppann_config = replace(ppann_config or PPANNConfig(), mean_wrap=True)
     if kind == "ppann" and config.coulomb:
         ppann_config = replace(ppann_config or PPANNConfig(), coulomb=True)
     if kind == "ppann" and config.machine_terms != PPANNConfig.machine_terms:

@@ -70,7 +70,11 @@ class PPANN(nn.Module):
         else:
             self.register_buffer("physical_factor", factor)
         self.mean_nets = nn.ModuleDict(
-            {"J": _mlp(2, c.mean_hidden), "B": _mlp(3, c.mean_hidden), "K": _mlp(2, c.mean_hidden)}
+            {
+                "J": _mlp(2, c.mean_hidden),
+                "B": _mlp(3, c.mean_hidden),
+                "K": _mlp(2 + c.mean_wrap, c.mean_hidden),
+            }
         )
         angle_inputs = 3 if c.sigma_speed else 2
         self.sigma_nets = nn.ModuleDict(
@@ -133,24 +137,28 @@ class PPANN(nn.Module):
         self, theta: torch.Tensor, omega: torch.Tensor, *, sigma: bool = False, wrap: bool = True
     ) -> dict[str, torch.Tensor]:
         """Each network's input: (sin, cos) or (sin, cos, omega / omega_scale); with
-        `sigma_wrap` the sigma network of z_K's (sin, cos, theta_mod / 2 pi), or with `wrap`
-        False (sin, cos, theta / 2 pi), for tables that must not wrap at their ends."""
+        `sigma_wrap` the sigma network of z_K's (sin, cos, theta_mod / 2 pi), with `mean_wrap`
+        its mean network's, or with `wrap` False (sin, cos, theta / 2 pi), for tables that must
+        not wrap at their ends."""
         s, c = torch.sin(theta), torch.cos(theta)
         angle = torch.stack([s, c], dim=-1)
         speed = torch.stack([s, c, omega / self.config.omega_scale], dim=-1)
         if sigma and self.config.sigma_speed:
             angle = speed
         stiffness = angle
-        if sigma and self.config.sigma_wrap:
+        if self.config.sigma_wrap if sigma else self.config.mean_wrap:
             turn = (theta_mod(theta) if wrap else theta) / (2 * math.pi)
             stiffness = torch.cat([angle, turn.unsqueeze(-1)], dim=-1)
         return {"J": angle, "B": speed, "K": stiffness}
 
-    def z_mean(self, theta: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
-        """Mean network outputs, shape (..., 3) in the order J, B, K (zero without networks)."""
+    def z_mean(
+        self, theta: torch.Tensor, omega: torch.Tensor, *, wrap: bool = True
+    ) -> torch.Tensor:
+        """Mean network outputs, shape (..., 3) in the order J, B, K (zero without networks;
+        `wrap`: `_features`)."""
         if not self.config.use_networks:
             return torch.zeros((*theta.shape, 3), dtype=theta.dtype)
-        g = self._features(theta, omega)
+        g = self._features(theta, omega, wrap=wrap)
         return torch.cat([self.mean_nets[n](g[n]) for n in Z_NAMES], dim=-1)
 
     def z_sigma(
@@ -222,12 +230,13 @@ def sees_angle_alone(config: PPANNConfig) -> tuple[tuple[str, str], ...]:
 
 def tabulate(model: PPANN, theta: np.ndarray) -> np.ndarray:
     """The six outputs (OUTPUTS order) at angles `theta` (n,) and omega 0, (n, 6); theta is not
-    wrapped (`sigma_wrap`'s feature theta / 2 pi), so a table running past either end of a turn
-    continues each function there."""
+    wrapped (`sigma_wrap`'s and `mean_wrap`'s feature theta / 2 pi), so a table running past
+    either end of a turn continues each function there."""
     angle = torch.from_numpy(np.asarray(theta, dtype=np.float64))
     zero = torch.zeros_like(angle)
     with torch.no_grad():
-        both = torch.cat([model.z_mean(angle, zero), model.z_sigma(angle, zero, wrap=False)], 1)
+        mean = model.z_mean(angle, zero, wrap=False)
+        both = torch.cat([mean, model.z_sigma(angle, zero, wrap=False)], 1)
     return both.numpy()
 
 
@@ -288,7 +297,8 @@ class FusedHeads:
         self.angle_outputs = [i for i, out in enumerate(OUTPUTS) if out in angle_alone]
         self.speed_outputs = [i for i, out in enumerate(OUTPUTS) if out not in angle_alone]
         grid = np.arange(ANGLE_TABLE + 1) * (2 * math.pi / ANGLE_TABLE)
-        # row ANGLE_TABLE is 2 pi: row 0 again, or with `sigma_wrap` the limit from below
+        # row ANGLE_TABLE is 2 pi: row 0 again, or with `sigma_wrap` / `mean_wrap` the limit
+        # from below
         self.table = tabulate(model, grid)[:, self.angle_outputs].copy()
         self.cell = ANGLE_TABLE / (2 * math.pi)
         self.lever_table = self.lever_sigma * lever_arm(self.geometry, grid)  # N·m per unit eps

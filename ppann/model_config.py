@@ -47,6 +47,14 @@ class PPANNConfig:
     centre), and a network of (sin, cos) alone must give it one σ on both sides; with the
     wrapped angle it can make the noise small just before the wrap. Not with `sigma_speed`.
     A checkpoint without this key is of the paper's architecture (False)."""
+    mean_wrap: bool = False
+    """The mean network of z_K also sees theta_mod / 2 pi (beyond the paper): eq. 14's stiffness
+    term K_m (1 + z_K) theta_mod jumps with theta_mod from ~2 pi K_m to 0 at the wrap (top dead
+    centre), and a network of (sin, cos) alone is continuous there, so the term cannot carry a
+    load torque that is continuous across it (the slider's weight through the kinematics): on
+    the twin, z_K's mean sits near -1 on both sides and the static torque is off by up to
+    0.15 N·m beside top dead centre. With the wrapped angle 1 + z_K can jump where theta_mod
+    does. A checkpoint without this key is of the paper's architecture (False)."""
     sigma_lever: bool = False
     """A white force on the slider beside the sigma networks (beyond the paper; ppann/lever.py):
     eq. 14's torque balance gets x'(theta) F, F ~ N(0, lever_sigma^2), which vanishes at the

@@ -85,6 +85,10 @@ class TrainConfig:
     on the four untuned tasks every robust torque held (at most 3 of 1000, root 20261148),
     bench/residual_mean_sweep.toml and bench/residual_mean_tasks_sweep.toml's rule. False: the
     paper's eq. 9 on the whole residual."""
+    mean_wrap: bool = False
+    """The PPANN's mean network of z_K also sees theta_mod / 2 pi (`PPANNConfig.mean_wrap`,
+    beyond the paper): eq. 14's stiffness term can then carry a load torque continuous across
+    top dead centre."""
     coulomb: bool = False
     """The PPANN's prior gets a Coulomb friction torque, its level fitted in phase 1
     (`PPANNConfig.coulomb`, beyond the paper)."""

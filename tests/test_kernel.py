@@ -36,6 +36,7 @@ CASES = {
     "physics": PPANNConfig(use_networks=False),
     "machine_prior": PPANNConfig(machine_terms="prior"),
     "coulomb": PPANNConfig(coulomb=True, sigma_wrap=True),
+    "mean_wrap": PPANNConfig(mean_wrap=True, sigma_wrap=True),
 }
 
 

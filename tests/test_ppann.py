@@ -149,7 +149,9 @@ def test_monte_carlo_collapses_to_the_mean_at_the_sigma_floor() -> None:
         np.testing.assert_allclose(bands.mean, mean, rtol=0, atol=1e-5)
 
 
-@pytest.mark.parametrize("config", [{}, {"sigma_speed": True}, {"sigma_wrap": True}])
+@pytest.mark.parametrize(
+    "config", [{}, {"sigma_speed": True}, {"sigma_wrap": True}, {"mean_wrap": True}]
+)
 def test_fused_heads_equal_the_networks(config: dict) -> None:
     torch.manual_seed(2)
     model = PPANN(PPANNConfig(**config))
