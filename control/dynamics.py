@@ -86,9 +86,11 @@ class CasadiPPANN:
         turn = ca.SX.sym("turn")
         tables = angle_splines(model) if splines else {}
 
-        def mean_at(angle: ca.SX) -> ca.SX:
-            """The mean networks with the angle tables at `angle` in [0, 2 pi) (the wrapped
-            theta, or theta on a given turn) and, with `mean_wrap`, z_K seeing angle / 2 pi."""
+        def mean_at(angle: ca.SX, *, on_turn: bool = False) -> ca.SX:
+            """The mean networks, the angle tables at the wrapped theta; with `mean_wrap` z_K
+            sees `angle` / 2 pi (theta_mod, or theta on a given turn). On a turn z_K is its
+            network, not its table: the OCP's iterates may leave the turn, where a B-spline
+            is 0 beyond its pads and the network goes on smoothly."""
             if not c.use_networks:
                 return ca.SX.zeros(3)
             own = dict(features)
@@ -96,17 +98,17 @@ class CasadiPPANN:
                 own["K"] = ca.vertcat(s, co, angle / (2 * math.pi))
             return ca.vertcat(
                 *(
-                    tables[f"mean {n}"](angle)
-                    if f"mean {n}" in tables
+                    tables[f"mean {n}"](wrapped)
+                    if f"mean {n}" in tables and not (on_turn and n == "K")
                     else mlp(model.mean_nets[n], own[n])
                     for n in Z_NAMES
                 )
             )
 
         mean = mean_at(wrapped)
-        # on a given turn the angle networks see theta there: with `mean_wrap` z_K jumps where
-        # theta_mod does, and a step on a fixed turn must not see the one without the other
-        mean_turn = mean_at(theta - 2 * math.pi * turn) if c.mean_wrap else mean
+        # on a given turn z_K sees theta there: with `mean_wrap` it jumps where theta_mod does,
+        # and a step on a fixed turn must not see the one without the other
+        mean_turn = mean_at(theta - 2 * math.pi * turn, on_turn=True) if c.mean_wrap else mean
         sigma_features = {n: features["B"] for n in Z_NAMES} if c.sigma_speed else dict(features)
         if c.sigma_wrap:
             sigma_features["K"] = ca.vertcat(s, co, wrapped / (2 * math.pi))

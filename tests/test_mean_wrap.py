@@ -64,6 +64,16 @@ def test_the_step_on_a_turn_equals_the_step_within_that_turn() -> None:
         step = dynamics.step([theta, 0.3], 0.2).full().ravel()
         on_turn = dynamics.step_on_turn([theta, 0.3], 0.2, turn).full().ravel()
         np.testing.assert_allclose(on_turn, step, rtol=0, atol=1e-9)
+    # off its turn (an OCP iterate), z_K is the network at theta - 2 pi turn, where a B-spline
+    # table would be 0 beyond its pads: theta = 6.0 on turn 1 is -0.28 rad
+    theta, local = torch.tensor([6.0], dtype=torch.float64), 6.0 - 2 * math.pi
+    with torch.no_grad():
+        z = model.z_mean(theta, torch.tensor([0.3], dtype=torch.float64))[0]
+        z_k = model.z_mean(torch.tensor([local], dtype=torch.float64), theta * 0, wrap=False)
+        j, b, k = model.physical
+        alpha = (0.2 - b * (1 + z[1]) * 0.3 - k * (1 + z_k[0, 2]) * local) / (j * (1 + z[0]))
+    away = dynamics.step_on_turn([6.0, 0.3], 0.2, 1).full().ravel()
+    np.testing.assert_allclose(away[1], 0.3 + model.config.dt * float(alpha), rtol=1e-12)
     # just below the wrap the two sides differ: the tables do jump there
     below = dynamics.z_mean(2 * math.pi - 1e-6, 0.0).full().ravel()
     above = dynamics.z_mean(2 * math.pi + 1e-6, 0.0).full().ravel()
