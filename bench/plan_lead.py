@@ -18,7 +18,8 @@ Per constraint sample:
 
 Along the torque, up to the last constraint sample: the mean model's one-step velocity error on
 the twin's own noise-free trajectories (the same nominal machine), summed (rad/s) and split by
-where the twin's backlash is: in transit across its gap, or against a stop.
+where the twin's backlash is: in transit across its gap, or against a stop; and per step
+(`per_step`, printed in blocks of SERIES_BLOCK samples): where along the torque it is made.
 
 With --data (the model's training dataset): the mean model's drift over as many steps as the
 last constraint sample on `--windows` windows of the dataset's own episodes (signed by the
@@ -54,6 +55,8 @@ from twin.variability import Variability
 
 STARTS = 13
 """Start times of the nominal machine's noise-free runs, evenly over the operating range."""
+SERIES_BLOCK = 10
+"""Samples per block of the printed one-step velocity error along the torque."""
 IN_TRANSIT = 0.9
 """The backlash is in transit where it is within this share of its half-width from centre."""
 
@@ -99,6 +102,7 @@ def velocity_error(
         error = model.step(x, u)[..., 1].numpy() - twin["omega"][:, 1:last]
     transit = np.abs(twin["backlash"][:, : last - 1]) < IN_TRANSIT * half_gap
     return {
+        "per_step": error.mean(axis=0).tolist(),  # step k -> k + 1 (k = 1..last - 1), over runs
         "total": float(error.sum(axis=1).mean()),
         "backlash_in_transit": float((error * transit).sum(axis=1).mean()),
         "backlash_at_a_stop": float((error * ~transit).sum(axis=1).mean()),
@@ -260,6 +264,12 @@ def main() -> None:
         f"({e['backlash_in_transit']:+.2f} over the {e['steps_in_transit']:.1f} steps the "
         f"backlash is in transit, {e['backlash_at_a_stop']:+.2f} against a stop)"
     )
+    per_step = np.asarray(e["per_step"])
+    starts = range(0, len(per_step), SERIES_BLOCK)
+    sums = [per_step[a : a + SERIES_BLOCK].sum() for a in starts]
+    ends = [min(a + SERIES_BLOCK, len(per_step)) for a in starts]
+    blocks = [f"{a + 1}-{b} {v:+.2f}" for a, b, v in zip(starts, ends, sums, strict=True)]
+    print(f"  by samples (rad/s): {', '.join(blocks)}")
     if "dataset_drift" in out:
         d = out["dataset_drift"]
         print(
