@@ -21,6 +21,7 @@ from ppann.model import PPANN, FusedHeads, PPANNConfig
 from ppann.montecarlo import rollout
 from ppann.train import History, TrainConfig, make_splits, train_mean
 from ppann.transmission import slope
+from tests.test_ppann import synthetic
 from twin.dataset import Dataset
 from twin.geometry import PAPER
 
@@ -157,29 +158,15 @@ def _viscous(theta: np.ndarray | float, omega: np.ndarray | float) -> np.ndarray
 
 
 def _known_system(seconds: float) -> Dataset:
-    """J(θ) = 3e-3 (1 + 0.5 sin² θ), the twin's viscous motor and slider damping, its Coulomb
-    motor torque and slider force (`_friction`), load 0.3 sin θ, Euler at 2 ms, under slow
-    random torque levels that stop and reverse the motor."""
-    rng = np.random.default_rng(0)
-    n = int(seconds / DT)
-    levels = np.repeat(rng.uniform(-0.6, 0.6, n // 200 + 1), 200)[:n]
-    tau = np.convolve(levels, np.ones(50) / 50, mode="same")
-    theta, omega = np.empty(n), np.empty(n)
-    theta[0], omega[0] = 1.0, 0.0
-    for k in range(n - 1):
-        inertia = 3e-3 * (1 + 0.5 * np.sin(theta[k]) ** 2)
-        friction = _friction(theta[k : k + 1], omega[k : k + 1], MOTOR, LOAD)[0]
-        load = _viscous(theta[k], omega[k]) + friction + 0.3 * np.sin(theta[k])
-        theta[k + 1] = theta[k] + DT * omega[k]
-        omega[k + 1] = omega[k] + DT * (tau[k] - load) / inertia
-    return Dataset(
-        t=np.arange(n) * DT,
-        episode=np.zeros(n, dtype=np.int64),
-        theta=theta,
-        omega=omega,
-        tau=tau,
-        slider_position=np.zeros(n),
-    )
+    """tests/test_ppann.py's known ODE with the twin's viscous motor and slider damping and its
+    Coulomb motor torque and slider force (`_friction`) for friction, under slow torque levels
+    (±0.6 N·m, 200 samples) that stop and reverse the motor."""
+
+    def friction(theta: float, omega: float) -> float:
+        coulomb = _friction(np.array([theta]), np.array([omega]), MOTOR, LOAD)[0]
+        return _viscous(theta, omega) + coulomb
+
+    return synthetic(seconds, amplitude=0.6, hold=200, friction=friction)
 
 
 def _friction_ratio(model: PPANN, theta: float, speed: float) -> float:

@@ -4,6 +4,7 @@ Monte-Carlo collapse, and bad inputs."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -28,17 +29,26 @@ from twin.dataset import Dataset
 DT = 0.002
 
 
-def synthetic(seconds: float = 10.0, seed: int = 0) -> Dataset:
-    """A known ODE: J(θ) = 3e-3 (1 + 0.5 sin²θ), viscous 0.1, load 0.3 sin θ; Euler at 2 ms."""
+def synthetic(
+    seconds: float = 10.0,
+    seed: int = 0,
+    *,
+    amplitude: float = 3.0,
+    hold: int = 100,
+    friction: Callable[[float, float], float] = lambda theta, omega: 0.1 * omega,
+) -> Dataset:
+    """A known ODE: J(θ) = 3e-3 (1 + 0.5 sin²θ), `friction` (viscous 0.1), load 0.3 sin θ;
+    Euler at 2 ms, under random torque levels of ±`amplitude` held `hold` samples and smoothed
+    over a quarter of that."""
     rng = np.random.default_rng(seed)
     n = int(seconds / DT)
-    levels = np.repeat(rng.uniform(-3, 3, n // 100 + 1), 100)[:n]
-    tau = np.convolve(levels, np.ones(25) / 25, mode="same")
+    levels = np.repeat(rng.uniform(-amplitude, amplitude, n // hold + 1), hold)[:n]
+    tau = np.convolve(levels, np.ones(hold // 4) / (hold // 4), mode="same")
     theta, omega = np.empty(n), np.empty(n)
     theta[0], omega[0] = 1.0, 0.0
     for k in range(n - 1):
         inertia = 3e-3 * (1 + 0.5 * np.sin(theta[k]) ** 2)
-        alpha = (tau[k] - 0.1 * omega[k] - 0.3 * np.sin(theta[k])) / inertia
+        alpha = (tau[k] - friction(theta[k], omega[k]) - 0.3 * np.sin(theta[k])) / inertia
         theta[k + 1] = theta[k] + DT * omega[k]
         omega[k + 1] = omega[k] + DT * alpha
     return Dataset(
