@@ -29,10 +29,9 @@ SLOPE_SHARE = 0.5
 """Samples used: |dx/dtheta| >= this share of its largest value (~ the crank length)."""
 
 
-def slope(geometry: Geometry, theta: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    """dx/dtheta of `geometry`'s kinematics, by central differences."""
-    x = geometry.slider_position
-    return (x(theta + h) - x(theta - h)) / (2 * h)
+def slope(geometry: Geometry, theta: np.ndarray) -> np.ndarray:
+    """dx/dtheta of `geometry`'s kinematics (`Geometry.slider_slope`, in closed form)."""
+    return geometry.slider_slope(np.asarray(theta, dtype=float))
 
 
 def transmission_angles(

@@ -47,14 +47,15 @@ def _model(motor: float, load: float, **config) -> PPANN:
 
 
 def _friction(theta: np.ndarray, omega: np.ndarray, motor: float, load: float) -> np.ndarray:
-    """C tanh(omega / 0.1) + F x' tanh(x' omega / (0.1 l1)), x' by central differences."""
+    """C tanh(omega / 0.1) + F x' tanh(x' omega / (0.1 l1)), x' ppann/transmission.py's."""
     xp = slope(PAPER, theta)
     return motor * np.tanh(omega / 0.1) + load * xp * np.tanh(xp * omega / (0.1 * 0.05))
 
 
 def test_the_slider_slope_is_the_kinematics_derivative_in_every_library() -> None:
     theta = np.linspace(-7, 7, 301)
-    want = slope(PAPER, theta)
+    h = 1e-6  # central differences of the slider's position
+    want = (PAPER.slider_position(theta + h) - PAPER.slider_position(theta - h)) / (2 * h)
     np.testing.assert_allclose(PAPER.slider_slope(theta), want, rtol=0, atol=1e-9)
     with torch.no_grad():
         got = PAPER.slider_slope(torch.from_numpy(theta), torch).numpy()
@@ -81,7 +82,7 @@ def test_the_torque_balance_by_hand() -> None:
     )
     with torch.no_grad():
         got = model.acceleration(t, w, tau, z)
-        assert torch.allclose(got, expected, rtol=1e-8, atol=0)  # x' by differences: ~1e-10
+        assert torch.allclose(got, expected, rtol=1e-12, atol=0)
         alpha = model.step(torch.stack([t, w], -1), tau)[:, 1].sub(w).div(DT)
         residual, _ = propagated_terms(model, t, w, tau, alpha)
     assert residual.abs().max() < 1e-12
@@ -103,14 +104,14 @@ def test_a_machines_damping_factor_scales_its_whole_friction(terms: str) -> None
     expected = (0.5 - f * friction - damping - k * (1 + z[:, 2]) * theta) / (j * (1 + z[:, 0]))
     factors = np.array([[1.0, f, 1.0]] * 2)
     got = heads.acceleration(theta, omega, 0.5, z, factors=factors)
-    np.testing.assert_allclose(got, expected, rtol=1e-8, atol=0)
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0)
     t, w = torch.from_numpy(theta), torch.from_numpy(omega)
     derivative = torch.stack([j * t, b * w, k * t], -1)  # any dr/dz will do
     with torch.no_grad():
         design = machine_design(model, t, w, derivative).numpy()
         zb = model.z_mean(t, w)[:, 1].numpy()
     column = b * omega * (1 + zb if terms == "augmented" else 1) + friction
-    np.testing.assert_allclose(design[:, 1], column, rtol=1e-8, atol=0)
+    np.testing.assert_allclose(design[:, 1], column, rtol=1e-12, atol=0)
 
 
 def test_numpy_kernel_and_casadi_equal_torch() -> None:
