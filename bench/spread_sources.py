@@ -52,7 +52,7 @@ from ppann.model import PPANN, FusedHeads
 from ppann.montecarlo import machine_factors, monte_carlo, rollout
 from ppann.train import History, make_splits, sigma_data, train_sigma
 from ppann.train_config import TrainConfig
-from ppann.transmission import draw, slope
+from ppann.transmission import draw
 from replay.heldout import heldout_check
 from twin.dataset import Dataset, GenerationConfig, generate
 from twin.excitation import Excitation
@@ -102,7 +102,7 @@ def plan_variances(model: PPANN, ocp, profile: str, force_variance: float):
         for v in (plan.theta[:n], plan.omega[:n], plan.tau[:n], np.diff(plan.omega) / ocp.dt)
     ]
     white = _white_variance(model, *tensors)
-    return plan, white, force_variance * slope(model.geometry, plan.theta[:n]) ** 2
+    return plan, white, force_variance * model.geometry.slider_slope(plan.theta[:n]) ** 2
 
 
 def along_profile(
@@ -171,7 +171,9 @@ def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
                 residual, derivative, derivative, episode, block_length=block, lever=model_lever
             )
             fitted = terms.white_variance(model.z_sigma(theta, omega), model_force).numpy()
-        twin_lever = torch.from_numpy(force_variance * slope(model.geometry, theta.numpy()) ** 2)
+        twin_lever = torch.from_numpy(
+            force_variance * model.geometry.slider_slope(theta.numpy()) ** 2
+        )
         force = torch.zeros_like(terms.residual).index_add(0, terms.block, twin_lever).numpy()
         power = terms.residual.numpy() ** 2
         edges = np.quantile(force, [0, 0.05, 0.15, 0.3, 0.5, 0.75, 1.0])

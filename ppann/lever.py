@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ppann.transmission import slope
 from twin.geometry import Geometry
 
 LEVER_START = 5.0
@@ -35,7 +34,7 @@ LEVER_START = 5.0
 
 def lever_arm(geometry: Geometry, theta: np.ndarray) -> np.ndarray:
     """x'(theta) = dx/dtheta of `geometry`'s kinematics, m/rad, (n,)."""
-    return slope(geometry, np.asarray(theta, dtype=float))
+    return geometry.slider_slope(np.asarray(theta, dtype=float))
 
 
 def lever_squared(geometry: Geometry, theta: torch.Tensor) -> torch.Tensor:

@@ -29,23 +29,18 @@ SLOPE_SHARE = 0.5
 """Samples used: |dx/dtheta| >= this share of its largest value (~ the crank length)."""
 
 
-def slope(geometry: Geometry, theta: np.ndarray) -> np.ndarray:
-    """dx/dtheta of `geometry`'s kinematics (`Geometry.slider_slope`, in closed form)."""
-    return geometry.slider_slope(np.asarray(theta, dtype=float))
-
-
 def transmission_angles(
     theta: npt.ArrayLike, slider: npt.ArrayLike, *, geometry: Geometry
 ) -> np.ndarray:
     """delta (rad) of the samples away from the dead centres, from motor angle and measured
     slider position (module docstring)."""
     theta, slider = np.asarray(theta, dtype=float), np.asarray(slider, dtype=float)
-    usable = np.abs(slope(geometry, theta)) >= SLOPE_SHARE * geometry.crank_length
+    usable = np.abs(geometry.slider_slope(theta)) >= SLOPE_SHARE * geometry.crank_length
     theta, slider = theta[usable], slider[usable]
     delta = np.zeros_like(theta)
     for _ in range(NEWTON_STEPS):
         crank = theta + delta
-        delta = delta + (slider - geometry.slider_position(crank)) / slope(geometry, crank)
+        delta = delta + (slider - geometry.slider_position(crank)) / geometry.slider_slope(crank)
     return delta
 
 

@@ -20,7 +20,6 @@ from ppann.machine import machine_design
 from ppann.model import PPANN, FusedHeads, PPANNConfig
 from ppann.montecarlo import rollout
 from ppann.train import History, TrainConfig, make_splits, train_mean
-from ppann.transmission import slope
 from tests.test_ppann import synthetic
 from twin.dataset import Dataset
 from twin.geometry import PAPER
@@ -47,8 +46,8 @@ def _model(motor: float, load: float, **config) -> PPANN:
 
 
 def _friction(theta: np.ndarray, omega: np.ndarray, motor: float, load: float) -> np.ndarray:
-    """C tanh(omega / 0.1) + F x' tanh(x' omega / (0.1 l1)), x' ppann/transmission.py's."""
-    xp = slope(PAPER, theta)
+    """C tanh(omega / 0.1) + F x' tanh(x' omega / (0.1 l1)), x' `Geometry.slider_slope`."""
+    xp = PAPER.slider_slope(theta)
     return motor * np.tanh(omega / 0.1) + load * xp * np.tanh(xp * omega / (0.1 * 0.05))
 
 
@@ -155,7 +154,7 @@ MOTOR, LOAD = 0.03, 1.5
 
 
 def _viscous(theta: np.ndarray | float, omega: np.ndarray | float) -> np.ndarray | float:
-    return 0.08 * omega + 8.0 * slope(PAPER, np.asarray(theta, float)) ** 2 * omega
+    return 0.08 * omega + 8.0 * PAPER.slider_slope(np.asarray(theta, float)) ** 2 * omega
 
 
 def _known_system(seconds: float) -> Dataset:
