@@ -288,7 +288,9 @@ def run_chain(
     solved = stage_result(
         "solve",
         "solving the nominal and robust OCP",
-        lambda: stages.solve(config, first / stages.MODEL, first, hooks=hooks),
+        lambda: (stages.solve_first_round if rounds else stages.solve)(
+            config, first / stages.MODEL, first, hooks=hooks
+        ),
     )
     round_record = None
     if rounds:

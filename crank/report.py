@@ -367,6 +367,11 @@ def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
         f"dither {plan['dither']:g} N·m, on {plan['episodes']} fresh machines",
         "samples added": f"{plan['samples_added']} (dataset after the round: {plan['samples']})",
     }
+    if plan_round.get("first_tail_refused"):
+        played["first solve's own-tail check"] = (
+            f"refused ({plan_round['first_tail_refused']}); the round played the loop's torque "
+            "without the check (it is never returned)"
+        )
     first = {f"first solve: {k}": v for k, v in plan_round["first_solve"].items()}
     return _rows("Plan round (the model and OCP above are its second round)", played | first)
 

@@ -155,7 +155,7 @@ def _solve_with_plan(
     `here`/round-0/, its torque played on fresh machines (plan.mcap), a model trained on those
     episodes and the dataset, and solved; its summary carries the round's under "plan_round"."""
     first = here / stages.FIRST_ROUND
-    solved = stages.solve(config, made["model"] / stages.MODEL, first, hooks=hooks)
+    solved = stages.solve_first_round(config, made["model"] / stages.MODEL, first, hooks=hooks)
     planned = stages.plan(config, made["data"] / stages.DATASET, first / stages.OCP, here)
     trained = stages.train(config, here / stages.PLAN_DATASET, here, hooks=hooks)
     final = stages.solve(config, here / stages.MODEL, here, hooks=hooks)

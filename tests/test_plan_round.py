@@ -15,6 +15,8 @@ import pytest
 from common.errors import ConfigError
 from common.jsonio import without_wall_clock
 from control.ocp_file import read_ocp
+from control.records import RobustError
+from crank import stages
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import run_time
 from crank.sweep import run_sweep
@@ -212,3 +214,36 @@ def test_a_sweep_leaf_with_the_round_is_the_chain(planned_run, tmp_path: Path) -
     assert checked[0] == checked[1]
     assert ours["plan_round"]["plan"] == theirs["plan_round"]["plan"]  # paths inside the folder
     assert ours["ppann"]["dataset"]["n_samples"] == theirs["ppann"]["dataset"]["n_samples"]
+
+
+def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """stages.solve_first_round: a refusal with the own-tail check on is solved again without it
+    (only the check differs), the refusal kept in the summary; a refusal without the check, or
+    with the check already off, is the solve's own error."""
+
+    calls: list[bool] = []
+
+    def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict:
+        calls.append(config.ocp.tail_check)
+        if config.ocp.tail_check:
+            raise RobustError("own Monte-Carlo went below the height on 1.31 %")
+        if fail_unchecked:
+            raise RobustError("beyond the stroke")
+        return {"refused": {}, "k": config.ocp.k_sigma}
+
+    monkeypatch.setattr(stages, "solve", solve)
+    checked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=True))
+    fail_unchecked = False
+    solved = stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    assert calls == [True, False]
+    assert solved["tail_refused"] == "own Monte-Carlo went below the height on 1.31 %"
+    assert solved["k"] == PLANNED.ocp.k_sigma  # nothing but the check changed
+    fail_unchecked = True
+    with pytest.raises(RobustError, match=r"1\.31 %"):  # the first error, not the retry's
+        stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    calls.clear()
+    with pytest.raises(RobustError, match="beyond the stroke"):  # the check was off: no retry
+        stages.solve_first_round(PLANNED, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    assert calls == [False]
