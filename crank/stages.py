@@ -8,6 +8,7 @@ records; the inputs are read from the paths given, so a stage does not care whic
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from common.jsonio import write_json
 from control.ocp_file import read_ocp
 from control.records import RobustError
-from control.solve import solve_file
+from control.solve import failed_path, solve_file
 from crank.report import solve_summary, write_markdown
 from ppann.pipeline import train_and_report
 from replay.files import output_paths, replay_file
@@ -34,6 +35,8 @@ OCP = "ocp.json"
 REPLAY = "replay.mcap"
 HELDOUT = "heldout.json"
 PLAN_DATASET = "plan.mcap"
+TAIL_REFUSED = "ocp.tail_refused.json"
+"""In round-0/: what a first solve refused by its own-tail check kept (stages.solve_first_round)."""
 FIRST_ROUND = "round-0"
 """The folder of the first model and solve of a chain with a plan round."""
 
@@ -73,10 +76,10 @@ def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[st
 def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
     """The plan round's first solve into `out` (round-0). Its torque is only played on fresh
     machines to collect data, never returned, so where every robust profile is refused with the
-    own-tail check on (control/tail.py), the loop's torque without the check is played instead and
-    the summary keeps the refusal under "tail_refused" (bench/refused_k3.md: such refusals were
-    the first round's over-predicted spread, which the round corrects). The second round's solve
-    checks its own torque as always.
+    own-tail check on (control/tail.py), the loop's torque without the check is played instead;
+    the summary keeps the refusal under "tail_refused", its files as `out`/ocp.tail_refused.json
+    (bench/refused_k3.md: such refusals were the first round's over-predicted spread, which the
+    round corrected on the paper task). The second round's solve checks its own torque as always.
 
     Raises:
       RobustError: the first solve refused even without the check (its own error).
@@ -86,12 +89,21 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
     except RobustError as exc:
         if not config.ocp.tail_check:
             raise
+        # what the refused solve kept (its nominal plan and margin history), out of the way of
+        # the retry, which removes a stale ocp.failed.json when it succeeds
+        failed, why = failed_path(out / OCP), str(exc)
+        kept = failed.with_name(TAIL_REFUSED)
+        if failed.is_file():
+            os.replace(failed, kept)
+            why = why.replace(str(failed), f"{out.name}/{kept.name}")
         unchecked = replace(config, ocp=replace(config.ocp, tail_check=False))
         try:
             solved = solve(unchecked, model, out, hooks=hooks)
         except RobustError:
+            if kept.is_file():  # the first refusal's error names its own files
+                os.replace(kept, failed)
             raise exc from None
-        return solved | {"tail_refused": str(exc)}
+        return solved | {"tail_refused": why}
 
 
 def plan(config: RunConfig, dataset: Path, ocp: Path, out: Path) -> dict[str, Any]:

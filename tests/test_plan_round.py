@@ -227,10 +227,13 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
 
     def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict:
         calls.append(config.ocp.tail_check)
+        failed = out / "ocp.failed.json"  # as control/solve.py's solve_file keeps a refusal
         if config.ocp.tail_check:
-            raise RobustError("own Monte-Carlo went below the height on 1.31 %")
+            failed.write_text('{"margins": "checked"}')
+            raise RobustError(f"below the height on 1.31 %; the margin history is in {failed}")
         if fail_unchecked:
             raise RobustError("beyond the stroke")
+        failed.unlink(missing_ok=True)
         return {"refused": {}, "k": config.ocp.k_sigma}
 
     monkeypatch.setattr(stages, "solve", solve)
@@ -238,11 +241,18 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
     fail_unchecked = False
     solved = stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
     assert calls == [True, False]
-    assert solved["tail_refused"] == "own Monte-Carlo went below the height on 1.31 %"
+    kept = tmp_path / stages.TAIL_REFUSED  # the refusal's files survive the retry, named
+    assert kept.read_text() == '{"margins": "checked"}'
+    assert not (tmp_path / "ocp.failed.json").exists()
+    assert solved["tail_refused"] == (
+        f"below the height on 1.31 %; the margin history is in {tmp_path.name}/{kept.name}"
+    )
     assert solved["k"] == PLANNED.ocp.k_sigma  # nothing but the check changed
     fail_unchecked = True
     with pytest.raises(RobustError, match=r"1\.31 %"):  # the first error, not the retry's
         stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    assert (tmp_path / "ocp.failed.json").read_text() == '{"margins": "checked"}'  # as it names
+    assert not kept.exists()
     calls.clear()
     with pytest.raises(RobustError, match="beyond the stroke"):  # the check was off: no retry
         stages.solve_first_round(PLANNED, tmp_path / "m.pt", tmp_path, hooks=Hooks())
