@@ -96,6 +96,11 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
         if failed.is_file():
             os.replace(failed, kept)
             why = why.replace(str(failed), f"{out.name}/{kept.name}")
+        if hooks.on_stage is not None:
+            hooks.on_stage(
+                "the first solve's own-tail check refused it; solving again without the check, "
+                "a torque only to play in the round"
+            )
         unchecked = replace(config, ocp=replace(config.ocp, tail_check=False))
         try:
             solved = solve(unchecked, model, out, hooks=hooks)

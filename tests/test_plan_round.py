@@ -239,8 +239,12 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
     monkeypatch.setattr(stages, "solve", solve)
     checked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=True))
     fail_unchecked = False
-    solved = stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    told: list[str] = []
+    solved = stages.solve_first_round(
+        checked, tmp_path / "m.pt", tmp_path, hooks=Hooks(on_stage=told.append)
+    )
     assert calls == [True, False]
+    assert len(told) == 1 and "without the check" in told[0]  # the user sees the retry
     kept = tmp_path / stages.TAIL_REFUSED  # the refusal's files survive the retry, named
     assert kept.read_text() == '{"margins": "checked"}'
     assert not (tmp_path / "ocp.failed.json").exists()
