@@ -147,7 +147,8 @@ def solve_decided(
             model, replace(config, tightening="quantile", mc_samples=0), **arguments
         )
     except RobustError as exc:
-        exc.args = (f"{why}; and with the quantile tightening: {exc}",)
+        bare = _bare(heads, result, checks[-1], config, profile=profile)
+        exc.args = (f"{why}{bare}; and with the quantile tightening: {exc}",)
         raise
     return replace(
         quantile,
@@ -172,11 +173,12 @@ def own_tail(
     config: OCPConfig,
     *,
     profile: str,
+    allowances: bool = True,
 ) -> TailCheck:
     """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
-    tightening used, open loop or, for a tube, under the profile's law along it, at the k it
-    was solved with, judged by the configured k's target (`config`'s: a raised k does not
-    move it)."""
+    tightening used (or, without `allowances`, the model's own), open loop or, for a tube,
+    under the profile's law along it, at the k it was solved with, judged by the configured k's
+    target (`config`'s: a raised k does not move it)."""
     return tail_check(
         heads,
         result.robust,
@@ -185,6 +187,25 @@ def own_tail(
         population=result.robust_uncertainty.population,
         gains=result.robust_gains if loop_of(profile) == "closed" else None,
         goal=tail.target(config),
+        allowances=allowances,
+    )
+
+
+def _bare(
+    heads: FusedHeads, result: RobustResult, last: TailCheck, config: OCPConfig, *, profile: str
+) -> str:
+    """What a refusal adds about its last checked torque (`result`, checked by `last`): its
+    rate on the same draws without the allowances for config.confidence, i.e. what the model
+    alone predicts (bench/refused_h200.md: two refusals whose torques held on the twin, 11 of
+    4000, where the model alone said 0.37-0.40 % and the check 0.57-0.61 %). Nothing at a
+    confidence of 0 (no allowances)."""
+    if config.confidence <= 0:
+        return ""
+    bare = own_tail(heads, result, config, profile=profile, allowances=False)
+    return (
+        f"; the last torque checked (k {last.k_sigma:g}) {100 * bare.rate:.2f} % without the "
+        f"allowances for confidence {config.confidence:g} (the model's own machine spread and "
+        f"mean), {100 * last.rate:.2f} % with them"
     )
 
 

@@ -114,14 +114,19 @@ def tail_check(
     gains: np.ndarray | None = None,
     draws: int = TAIL_DRAWS,
     goal: float | None = None,
+    allowances: bool = True,
 ) -> TailCheck:
     """The torque's own violation rate (module docstring): `draws` trajectories under
     `solution`'s torque (solved with `tightening` at config.k_sigma), open loop or (with
     `gains`, (N-1, 2)) under the tracking law along it, each slider lowered by `population` (per
     constraint sample, m). `goal`: the target it is judged by (default `target(config)`; a
-    torque whose k the check raised keeps the configured k's)."""
+    torque whose k the check raised keeps the configured k's). Without `allowances`, the same
+    draws with the model's own machine spread and no population drop: the rate the model alone
+    predicts, which a refusal reports beside the check's (what the confidence adds)."""
     started = time.perf_counter()
-    spread, _ = line_allowance(heads, config)
+    spread, _ = line_allowance(heads, config) if allowances else (None, 0.0)
+    if not allowances:
+        population = np.zeros(len(config.constraint_samples))
     feedback = None
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)

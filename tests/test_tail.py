@@ -4,6 +4,7 @@ the target: at the k the check predicts (`raised_k`), then with the quantile tig
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -20,6 +21,7 @@ from control.tightening import line_allowance
 from ppann.model import FusedHeads, constant_ppann
 from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
+from tests.test_tightening import _line_model
 
 NARROW = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
 CONFIG = OCPConfig(mc_samples=100, confidence=0.0)
@@ -135,6 +137,54 @@ def test_a_quantile_refusal_says_why_it_was_tried(centred, monkeypatch) -> None:
         r"the stroke; and with the quantile tightening: the quantile asks 21 mm",
     ):
         profiles.solve_decided(NARROW, CONFIG, profile="robust", ocp=ocp, nominal=nominal)
+
+
+def test_a_refusal_says_its_last_torques_rate_without_the_allowances(centred, monkeypatch) -> None:
+    """At a confidence above 0 the refusal adds the last checked torque's rate on the same draws
+    without the allowances (what the model alone predicts) beside the check's; NARROW carries no
+    line summaries, so there the two are the same number. At confidence 0 nothing is added
+    (`test_a_quantile_refusal_says_why_it_was_tried`)."""
+    ocp, nominal, _ = centred
+    monkeypatch.setattr(tail, "target", lambda config: 0.0)
+    decide = profiles.decide
+    config = replace(CONFIG, confidence=0.95)
+
+    def refusing(model, config, **kwargs):
+        if config.tightening == "quantile" or config.k_sigma != CONFIG.k_sigma:
+            raise BeyondStrokeError(
+                "the quantile asks 21 mm", sample=100, tightening=0.021, available=0.019, line=0
+            )
+        return decide(model, config, **kwargs)
+
+    monkeypatch.setattr(profiles, "decide", refusing)
+    with pytest.raises(BeyondStrokeError) as refused:
+        profiles.solve_decided(NARROW, config, profile="robust", ocp=ocp, nominal=nominal)
+    found = re.search(
+        r"; the last torque checked \(k 3\) ([0-9.]+) % without the allowances for confidence "
+        r"0.95 \(the model's own machine spread and mean\), ([0-9.]+) % with them; and with the "
+        r"quantile tightening: the quantile asks 21 mm$",
+        str(refused.value),
+    )
+    assert found is not None, str(refused.value)
+    assert found[1] == found[2] and float(found[1]) > 0
+
+
+def test_without_allowances_the_check_is_the_model_alone(centred) -> None:
+    """`allowances=False`: the machine spread the model's own and no population drop, on the
+    check's same draws: equal to the check at confidence 0 to the bit; with a line model's
+    allowances (its spread's upper bound, a drop of a millimetre) the check's rate is higher."""
+    _, _, result = centred
+    heads = FusedHeads(_line_model())
+    config = replace(CONFIG, confidence=0.95)
+    drop = np.array([1e-3, 1e-3])
+    arguments = {"tightening": "centred", "draws": 3000}
+    bare = tail_check(heads, result.robust, config, population=drop, allowances=False, **arguments)
+    zero = replace(config, confidence=0.0)
+    alone = tail_check(heads, result.robust, zero, population=np.zeros(2), **arguments)
+    full = tail_check(heads, result.robust, config, population=drop, **arguments)
+    assert (bare.rate, bare.samples) == (alone.rate, alone.samples)
+    np.testing.assert_array_equal(bare.lowered, alone.lowered)
+    assert 0 < bare.rate < full.rate < 1
 
 
 def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -> None:
