@@ -111,6 +111,8 @@ def _profile_row(
         "wall_s": report["wall_seconds"]["total"],
     }
     row["solved_with"] = f"{row['solved_tightening']} k {row['solved_k']:g}"
+    if report.get("plan_round") is not None:  # its first torque is only played, never returned
+        row["first_round_tail_refused"] = bool(report["plan_round"].get("first_tail_refused"))
     if heldout is not None and loop in heldout["modes"]:
         robust, nominal = heldout["profiles"][name][loop], heldout["profiles"]["nominal"][loop]
         row |= {

@@ -164,8 +164,9 @@ def _own(rows: list[dict[str, Any]]) -> str:
 
 def _solved(rows: list[dict[str, Any]]) -> str:
     """The tightenings and k the group's torques were solved with (their own tail's check may
-    have raised k or changed the tightening), with how many of each; "n/a" where a row has no
-    record of it."""
+    have raised k or changed the tightening), with how many of each, and how many plan rounds
+    played a first torque its own tail's check had refused (crank/stages.py
+    `solve_first_round`); "n/a" where a row has no record of it."""
     if any("solved_k" not in r for r in rows):
         return "n/a"
     parts = []
@@ -173,7 +174,9 @@ def _solved(rows: list[dict[str, Any]]) -> str:
         ks = [r["solved_k"] for r in rows if r["solved_tightening"] == method]
         span = f"{min(ks):g}" if min(ks) == max(ks) else f"{min(ks):g}–{max(ks):g}"
         parts.append(f"{method} k {span} ×{len(ks)}")
-    return ", ".join(parts)
+    refused = sum(bool(r.get("first_round_tail_refused")) for r in rows)
+    tail = f"; first round refused by its tail check ×{refused}" if refused else ""
+    return ", ".join(parts) + tail
 
 
 TICK_WIDTH = 15

@@ -19,6 +19,7 @@ from control.records import RobustError
 from crank import stages
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import run_time
+from crank.study import run_rows
 from crank.sweep import run_sweep
 from crank.sweep_spec import leaves_of, node_key
 from tests.test_chain import SHORT
@@ -104,6 +105,23 @@ def test_chain_trains_and_solves_twice_and_records_the_round(planned_run) -> Non
     text = (run_dir / "report.md").read_text()
     assert "## Plan round (the model and OCP above are its second round)" in text
     assert f"on {EPISODES} fresh machines" in text and "`round-0/`" in text
+
+
+def test_a_rounds_row_says_whether_its_first_torque_was_refused(planned_run, tmp_path) -> None:
+    """crank/study.py run_rows (study.csv, sweep.csv): a chain with the plan round says whether
+    its first solve was refused by its own tail's check (crank/stages.py solve_first_round);
+    the report's record of it decides, nothing else."""
+    run_dir, report, _ = planned_run
+    (row,) = run_rows(run_dir, run_dir / "ocp.json")
+    assert row["first_round_tail_refused"] is (
+        report["plan_round"].get("first_tail_refused") is not None
+    )
+    refused = report | {"plan_round": report["plan_round"] | {"first_tail_refused": "1.31 %"}}
+    (tmp_path / "report.json").write_text(json.dumps(refused))
+    stats = report["replay"]["stats"]
+    (tmp_path / stats).write_bytes((run_dir / stats).read_bytes())
+    (row,) = run_rows(tmp_path, run_dir / "ocp.json")
+    assert row["first_round_tail_refused"] is True
 
 
 def test_plan_data_is_the_dataset_after_the_plan_episodes(planned_run) -> None:

@@ -49,6 +49,12 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
         )
     ]
     assert "| n/a | centred k 3–3.21 ×3, quantile k 3 ×1 | 0 |" in markdown(sweep, solved)
+    # plan rounds whose first torque was refused by its own tail's check (played, not returned)
+    rounds = [r | {"first_round_tail_refused": seed in (1, 3)} for seed, r in enumerate(solved)]
+    expected = "| centred k 3–3.21 ×3, quantile k 3 ×1; first round refused by its tail check ×2 |"
+    assert expected in markdown(sweep, rounds)
+    no_round = [r | {"first_round_tail_refused": False} for r in solved]
+    assert "| n/a | centred k 3–3.21 ×3, quantile k 3 ×1 | 0 |" in markdown(sweep, no_round)
 
 
 def test_sweep_figure_names_each_column_by_its_values() -> None:
