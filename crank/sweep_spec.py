@@ -94,6 +94,11 @@ def read_spec(path: str | Path) -> tuple[str, list[Leaf]]:
         another type, or out of range (naming the leaf); nothing has started.
     """
     path = Path(path)
+    if path.is_dir():  # a sweep folder given where the spec goes
+        raise ConfigError(
+            f"sweep spec {path} is a folder: give its TOML file, or continue a sweep folder with "
+            f"--resume {path}"
+        )
     try:
         text = path.read_text(encoding="utf-8")
         spec = tomllib.loads(text)

@@ -496,6 +496,7 @@ CASES: list[tuple[str, str]] = [
     ("sweep {sw_big.toml} --out S", "10010 leaves, more than 10000"),
     ("sweep {broken.toml} --out S", "is not TOML"),
     ("sweep {dir}/absent.toml --out S", "cannot read sweep spec"),
+    ("sweep {dir} --out S", "is a folder: give its TOML file, or continue a sweep folder with"),
     ("sweep --out S", "give the sweep's spec file"),
     ("sweep {sw_ok.toml} --out S --executor dask", "executor must be one of ray, sequential"),
     ("sweep {sw_ok.toml} --out S --workers 0", "--workers must be >= 1"),
