@@ -124,9 +124,10 @@ def tail_check(
     draws with the model's own machine spread and no population drop: the rate the model alone
     predicts, which a refusal reports beside the check's (what the confidence adds)."""
     started = time.perf_counter()
-    spread, _ = line_allowance(heads, config) if allowances else (None, 0.0)
-    if not allowances:
-        population = np.zeros(len(config.constraint_samples))
+    if allowances:
+        spread, _ = line_allowance(heads, config)
+    else:
+        spread, population = None, np.zeros(len(config.constraint_samples))
     feedback = None
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
