@@ -50,8 +50,9 @@ control/robust.py; 0 at confidence 0); a robust profile also `tightening_method`
 tightening its torque was solved with: config.tightening, or "quantile" where its own tail sent
 it there), `k_sigma` (the k it was solved with: config.k_sigma, or raised by its own tail's
 check) and `tail_checks` (control/tail.py: each check of a torque's own Monte-Carlo, {draws,
-rate, samples, target, tightening, k_sigma, passed, wall_time_s}; empty without
-config.tail_check; absent in files written before session 30, `k_sigma` before session 31);
+stages, rate, samples, target, tightening, k_sigma, passed, wall_time_s}: `draws` the stage
+that decided, `stages` every one drawn; empty without config.tail_check; absent in files
+written before session 30, `k_sigma` before session 31, `stages` before session 43);
 and `gain_theta`, `gain_omega`
 (N - 1 each), the gains of the profile's law (control/config.py law_of: the LQR along the plan,
 control/lqr.py, or robust-pd's fixed PD at every sample; N·m/rad and N·m·s/rad) that the twin's

@@ -174,11 +174,12 @@ def own_tail(
     *,
     profile: str,
     allowances: bool = True,
+    draws: int | None = None,
 ) -> TailCheck:
     """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
     tightening used (or, without `allowances`, the model's own), open loop or, for a tube,
     under the profile's law along it, at the k it was solved with, judged by the configured k's
-    target (`config`'s: a raised k does not move it)."""
+    target (`config`'s: a raised k does not move it); sequential, or exactly `draws`."""
     return tail_check(
         heads,
         result.robust,
@@ -188,6 +189,7 @@ def own_tail(
         gains=result.robust_gains if loop_of(profile) == "closed" else None,
         goal=tail.target(config),
         allowances=allowances,
+        draws=draws,
     )
 
 
@@ -201,7 +203,7 @@ def _bare(
     confidence of 0 (no allowances)."""
     if config.confidence <= 0:
         return ""
-    bare = own_tail(heads, result, config, profile=profile, allowances=False)
+    bare = own_tail(heads, result, config, profile=profile, allowances=False, draws=last.draws)
     return (
         f"; the last torque checked (k {last.k_sigma:g}) {100 * bare.rate:.2f} % without the "
         f"allowances for confidence {config.confidence:g} (the model's own machine spread and "

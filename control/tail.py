@@ -32,6 +32,18 @@ solved again (control/profiles.py, OCPConfig.tail_remedy):
 The check costs one Monte-Carlo of TAIL_DRAWS, its white normals generated inside the kernel
 (ppann/counter.py): 0.07 s idle on the paper's task, ~0.7 nominal solves (0.28-0.45 s with
 NumPy's generator before session 32).
+
+Sequential (session 43, bench/sequential_tail_check.md): the rate is a Monte-Carlo estimate,
+standard error sqrt(t (1 - t) / n) at the target t (0.05 points at 20 000 draws and 0.5 %), so
+a torque whose own rate sits within a few of them of the target passes or not by the draws.
+The check therefore draws in TAIL_STAGES, each stage's trajectories the first ones of the next
+(the same streams: counter-based white normals, the machines and angles filled in order), and
+stops at the first stage whose rate is TAIL_BAND standard errors from the target: at the first
+(a quarter of TAIL_DRAWS) only on a pass, since a refused torque's trajectories size its raise
+(`raised_k`, which wants the tail resolved); at TAIL_DRAWS on either side; the last stage
+decides by its rate alone. A clear pass costs a quarter of the check; a rate within 0.40-0.60 %
+at TAIL_DRAWS is decided again on four times the trajectories (se 0.025 points), which narrows
+the band where the draws decide, and cannot remove it.
 """
 
 from __future__ import annotations
@@ -55,8 +67,14 @@ from ppann.transmission import draw
 MAX_RAISE = 10.0
 """The largest raise of k `raised_k` looks for."""
 TAIL_DRAWS = 20_000
-"""Trajectories of the check: 100 expected below at the target rate, a relative standard error
-of 10 % (replay/heldout.py's model_rate draws as many)."""
+"""Trajectories of the check's decision stage: 100 expected below at the target rate, a relative
+standard error of 10 % (replay/heldout.py's model_rate draws as many); a raise is sized for its
+standard error (`aim`)."""
+TAIL_STAGES = (TAIL_DRAWS // 4, TAIL_DRAWS, 4 * TAIL_DRAWS)
+"""The check's sequential stages (module docstring), each nested in the next."""
+TAIL_BAND = 2.0
+"""A stage decides where its rate is this many standard errors (at the target) from it
+(control/profiles.py DECISION_BAND's convention)."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +83,7 @@ class TailCheck:
     height: at any constraint sample (`rate`) and at each."""
 
     draws: int
+    """Trajectories of the stage that decided (the last one drawn)."""
     rate: float
     samples: dict[int, float]
     """Per 1-based constraint sample."""
@@ -75,6 +94,8 @@ class TailCheck:
     """The k the checked torque was solved with (the configured one, or raised by the check:
     `raised_k`)."""
     wall_time: float
+    stages: tuple[int, ...] = ()
+    """Every stage drawn, in order (`stages[-1] == draws`); one for a fixed count."""
     lowered: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
     """Each trajectory's slider at each constraint sample, lowered by the population margin,
     (draws, constraint samples), m (NaN where a draw diverged): what `raised_k` reads."""
@@ -86,6 +107,7 @@ class TailCheck:
     def as_dict(self) -> dict[str, Any]:
         return {
             "draws": self.draws,
+            "stages": list(self.stages),
             "rate": self.rate,
             "samples": {str(k): v for k, v in self.samples.items()},
             "target": self.target,
@@ -112,18 +134,20 @@ def tail_check(
     tightening: str,
     population: np.ndarray,
     gains: np.ndarray | None = None,
-    draws: int = TAIL_DRAWS,
+    draws: int | None = None,
     goal: float | None = None,
     allowances: bool = True,
 ) -> TailCheck:
-    """The torque's own violation rate (module docstring): `draws` trajectories under
-    `solution`'s torque (solved with `tightening` at config.k_sigma), open loop or (with
-    `gains`, (N-1, 2)) under the tracking law along it, each slider lowered by `population` (per
-    constraint sample, m). `goal`: the target it is judged by (default `target(config)`; a
-    torque whose k the check raised keeps the configured k's). Without `allowances`, the same
-    draws with the model's own machine spread and no population drop: the rate the model alone
-    predicts, which a refusal reports beside the check's (what the confidence adds)."""
+    """The torque's own violation rate (module docstring): trajectories under `solution`'s
+    torque (solved with `tightening` at config.k_sigma), open loop or (with `gains`, (N-1, 2))
+    under the tracking law along it, each slider lowered by `population` (per constraint sample,
+    m), drawn in TAIL_STAGES until one decides (`decides`), or exactly `draws` of them. `goal`:
+    the target it is judged by (default `target(config)`; a torque whose k the check raised
+    keeps the configured k's). Without `allowances`, the same draws with the model's own machine
+    spread and no population drop: the rate the model alone predicts, which a refusal reports
+    beside the check's (what the confidence adds)."""
     started = time.perf_counter()
+    goal = target(config) if goal is None else goal
     if allowances:
         spread, _ = line_allowance(heads, config)
     else:
@@ -131,31 +155,46 @@ def tail_check(
     feedback = None
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
-    paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
-    lowered = lowered_sliders(
-        heads,
-        solution.states[0],
-        solution.tau,
-        config,
-        draws=draws,
-        paths=paths,
-        angles=angles,
-        machine_sigma=spread,
-        feedback=feedback,
-        population=population,
-        normals="counter",
-    )
-    rate, samples = share_below(lowered, config)
+    stages = TAIL_STAGES if draws is None else (draws,)
+    for count in stages:
+        # fresh each stage: a SeedSequence's spawn() counts its children
+        paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
+        lowered = lowered_sliders(
+            heads,
+            solution.states[0],
+            solution.tau,
+            config,
+            draws=count,
+            paths=paths,
+            angles=angles,
+            machine_sigma=spread,
+            feedback=feedback,
+            population=population,
+            normals="counter",
+        )
+        rate, samples = share_below(lowered, config)
+        if count == stages[-1] or decides(rate, goal, count):
+            break
     return TailCheck(
-        draws=draws,
+        draws=count,
         rate=rate,
         samples=samples,
-        target=target(config) if goal is None else goal,
+        target=goal,
         tightening=tightening,
         k_sigma=config.k_sigma,
         wall_time=time.perf_counter() - started,
+        stages=stages[: stages.index(count) + 1],
         lowered=lowered,
     )
+
+
+def decides(rate: float, goal: float, draws: int) -> bool:
+    """Whether a stage of the sequential check (module docstring) of `draws` trajectories at
+    `rate` stops: TAIL_BAND standard errors (at the target) below the target, or, from
+    TAIL_DRAWS on, as far above it. At a target of 0 or 1 (no error) any gap decides."""
+    gap, se = rate - goal, math.sqrt(goal * (1 - goal) / draws)
+    distance = gap / se if se > 0 else math.copysign(math.inf, gap) if gap else 0.0
+    return distance <= -TAIL_BAND or (draws >= TAIL_DRAWS and distance >= TAIL_BAND)
 
 
 def lowered_sliders(
@@ -247,7 +286,7 @@ def raised_k(
 
 
 def aim(check: TailCheck) -> float:
-    """The own rate a raised k is sized for: the target less two of the check's standard
-    errors at the target, so that the check of the torque it gives passes unless the
-    prediction was wrong (at 20 000 draws and 0.5 %: 0.40 %)."""
-    return check.target - 2 * math.sqrt(check.target * (1 - check.target) / check.draws)
+    """The own rate a raised k is sized for: the target less TAIL_BAND standard errors of the
+    decision stage (TAIL_DRAWS) at the target, so that the check of the torque it gives decides
+    there, a pass, unless the prediction was wrong (at 0.5 %: 0.40 %)."""
+    return check.target - TAIL_BAND * math.sqrt(check.target * (1 - check.target) / TAIL_DRAWS)

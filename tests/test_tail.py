@@ -71,6 +71,48 @@ def test_the_rate_is_the_share_of_its_draws_below_the_height(centred) -> None:
     assert none.passed and not every.passed
 
 
+def test_the_check_is_sequential_on_nested_draws(centred) -> None:
+    """Each stage's trajectories are the first ones of the next, to the bit; a stage decides at
+    two standard errors from the target (a quarter of the draws only on a pass), the last by its
+    rate alone. On the centred torque, lowered by 0.5 and 1.5 mm (own rate 1.4 % at 20 000
+    draws): a target of 5 % stops at 5000 draws; one of 0 (any draw below is a failure, with no
+    error) at 20 000; one set at its own 20 000-draw rate, undecided there, draws 80 000 and is
+    the fixed 80 000-draw check."""
+    _, _, result = centred
+    heads = FusedHeads(NARROW)
+    arguments = {"tightening": "centred", "population": np.array([0.5e-3, 1.5e-3])}
+    fixed = {
+        n: tail_check(heads, result.robust, CONFIG, draws=n, **arguments) for n in tail.TAIL_STAGES
+    }
+    small, middle, large = (fixed[n].lowered for n in tail.TAIL_STAGES)
+    np.testing.assert_array_equal(middle, large[: len(middle)])
+    np.testing.assert_array_equal(small, middle[: len(small)])
+    assert 0 < fixed[20_000].rate < 0.03  # a clear pass of 5 % at 5000, and a gap to 0
+    clear = tail_check(heads, result.robust, CONFIG, goal=0.05, **arguments)
+    assert clear.stages == (5_000,) and clear.passed and clear.rate == fixed[5_000].rate
+    refused = tail_check(heads, result.robust, CONFIG, goal=0.0, **arguments)
+    assert refused.stages == (5_000, 20_000) and not refused.passed
+    np.testing.assert_array_equal(refused.lowered, middle)
+    at = tail_check(heads, result.robust, CONFIG, goal=fixed[20_000].rate, **arguments)
+    assert at.stages == tail.TAIL_STAGES and at.draws == 80_000
+    assert (at.rate, at.samples) == (fixed[80_000].rate, fixed[80_000].samples)
+    assert at.as_dict()["stages"] == [5_000, 20_000, 80_000]
+
+
+def test_a_stage_decides_two_standard_errors_from_the_target() -> None:
+    """At 0.5 %: 5000 draws stop on a pass at most 0.5 - 2 sqrt(0.5 % 99.5 % / 5000) = 0.30 %,
+    never on a failure; 20 000 at 0.40 % and below or 0.60 % and above; 80 000 at 0.45 % and
+    0.55 %."""
+    se = {n: np.sqrt(0.005 * 0.995 / n) for n in tail.TAIL_STAGES}
+    assert not tail.decides(0.005 - 1.99 * se[5_000], 0.005, 5_000)
+    assert tail.decides(0.005 - 2.01 * se[5_000], 0.005, 5_000)
+    assert not tail.decides(0.05, 0.005, 5_000)
+    assert tail.decides(0.0039, 0.005, 20_000) and tail.decides(0.0061, 0.005, 20_000)
+    assert not tail.decides(0.0041, 0.005, 20_000) and not tail.decides(0.0059, 0.005, 20_000)
+    assert tail.decides(0.0044, 0.005, 80_000) and not tail.decides(0.0046, 0.005, 80_000)
+    assert tail.decides(0.0, 1.0, 5_000) and not tail.decides(0.0, 0.0, 80_000)
+
+
 def test_a_tail_within_the_target_keeps_the_torque(centred, monkeypatch) -> None:
     """Checked and within the target: the same torque to the bit, one check recorded."""
     ocp, nominal, alone = centred
@@ -239,22 +281,23 @@ def _check(lowered: np.ndarray, *, target: float) -> tail.TailCheck:
 
 
 def test_raised_k_moves_the_draws_with_the_plan_beyond_its_slack() -> None:
-    """1000 draws, 30 below the height at sample 100 in 1 mm steps; the aim at a 2 % target is
-    2 % - 2 sqrt(2 % 98 % / 1000) = 1.11 %: at most 11 below, so the plan must rise 19 mm.
-    With d tightening / dk of 8 mm and no slack that is dk = 2.375 (k 5.375, rounded up to
-    5.38); with 4 mm of slack the plan rises only after it, dk = 23 / 8 = 2.875 (5.88). Sample
+    """1000 draws, 31 below the height at sample 100 in 1 mm steps; the aim at a 2 % target is
+    2 % less two standard errors of the check's decision stage, whatever it drew:
+    2 % - 2 sqrt(2 % 98 % / 20 000) = 1.80 %: at most 18 below, so the plan must rise 13 mm.
+    With d tightening / dk of 8 mm and no slack that is dk = 1.625 (k 4.625, rounded up to
+    4.63); with 4 mm of slack the plan rises only after it, dk = 17 / 8 = 2.125 (5.13). Sample
     50, far above, plays no part. A draw that diverged (NaN) stays below at any k: with 3 %
     of them no k reaches the aim."""
     config = OCPConfig()
     height = config.height
-    lowered = np.column_stack([np.full(1000, height + 1.0), height + 1e-3 * (np.arange(1000) - 30)])
+    lowered = np.column_stack([np.full(1000, height + 1.0), height + 1e-3 * (np.arange(1000) - 31)])
     check = _check(lowered, target=0.02)
-    assert tail.aim(check) == pytest.approx(0.02 - 2 * np.sqrt(0.02 * 0.98 / 1000))
+    assert tail.aim(check) == pytest.approx(0.02 - 2 * np.sqrt(0.02 * 0.98 / 20_000))
     plan = np.array([height + 1.0, height])
     kwargs = {"plan": plan, "per_k": np.array([0.008, 0.008])}
-    assert tail.raised_k(check, config, tightening=np.zeros(2), **kwargs) == 5.38
+    assert tail.raised_k(check, config, tightening=np.zeros(2), **kwargs) == 4.63
     slack = {"tightening": np.array([0.0, -0.004])}  # plan - height - tightening = 4 mm
-    assert tail.raised_k(check, config, **slack, **kwargs) == 5.88
+    assert tail.raised_k(check, config, **slack, **kwargs) == 5.13
     lowered[:30, 1] = np.nan
     assert (
         tail.raised_k(_check(lowered, target=0.02), config, tightening=np.zeros(2), **kwargs)
