@@ -179,7 +179,7 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
             checked.append(sum(c.wall_time for c in final.tail_checks) / spent)
         decided.append(statistics.median(whole))
         checks = ", ".join(
-            f"k {c.k_sigma:g} {100 * c.rate:.2f} % in {c.wall_time:.2f} s"
+            f"k {c.k_sigma:g} {100 * c.rate:.2f} % of {c.draws} in {c.wall_time:.2f} s"
             for c in final.tail_checks
         )
         print(
