@@ -131,10 +131,11 @@ class OCPConfig:
     max_ipopt_iterations: int = 3000
     tail_check: bool = True
     """After a robust profile's loop, check its torque's own violation rate (its Monte-Carlo,
-    with the tightening's allowances, TAIL_DRAWS trajectories) and solve it again with the
-    `tail_remedy` where that rate is above its target, TARGET_RATE or what k stands for if
-    looser (control/tail.py): k sigma reads a skewed spread as normal. With the quantile
-    tightening the check is recorded and nothing is solved again."""
+    with the tightening's allowances, in stages of 5000 to 80 000 trajectories until one
+    decides) and solve it again with the `tail_remedy` where that rate is above its target,
+    TARGET_RATE or what k stands for if looser (control/tail.py): k sigma reads a skewed spread
+    as normal. With the quantile tightening the check is recorded and nothing is solved
+    again."""
     tail_remedy: str = "raise-k"
     """What the tail check solves such a torque again with (TAIL_REMEDIES)."""
     compiled: bool = False
