@@ -43,7 +43,10 @@ stops at the first stage whose rate is TAIL_BAND standard errors from the target
 (`raised_k`, which wants the tail resolved); at TAIL_DRAWS on either side; the last stage
 decides by its rate alone. A clear pass costs a quarter of the check; a rate within 0.40-0.60 %
 at TAIL_DRAWS is decided again on four times the trajectories (se 0.025 points), which narrows
-the band where the draws decide, and cannot remove it.
+the band where the draws decide, and cannot remove it. Measured (bench/sequential_tail_check.md):
+the pair's horizon-200 refusals were such draws (every model now returns and holds); the
+defaults' own rates sit in the band, so most of their checks draw 80 000 (~0.45 s on the paper
+task, ~3 nominal solves; each stage draws its first trajectories again).
 """
 
 from __future__ import annotations
