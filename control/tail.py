@@ -46,7 +46,7 @@ at TAIL_DRAWS is decided again on four times the trajectories (se 0.025 points),
 the band where the draws decide, and cannot remove it. Measured (bench/sequential_tail_check.md):
 the pair's horizon-200 refusals were such draws (every model now returns and holds); the
 defaults' own rates sit in the band, so most of their checks draw 80 000 (~0.45 s on the paper
-task, ~3 nominal solves; each stage draws its first trajectories again).
+task, ~3 nominal solves; each stage draws only its new trajectories, `first`).
 """
 
 from __future__ import annotations
@@ -159,22 +159,25 @@ def tail_check(
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
     stages = TAIL_STAGES if draws is None else (draws,)
+    lowered = np.zeros((0, len(config.constraint_samples)))
     for count in stages:
         # fresh each stage: a SeedSequence's spawn() counts its children
         paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
-        lowered = lowered_sliders(
+        new = lowered_sliders(
             heads,
             solution.states[0],
             solution.tau,
             config,
-            draws=count,
+            draws=count - len(lowered),  # only the stage's new trajectories
             paths=paths,
             angles=angles,
             machine_sigma=spread,
             feedback=feedback,
             population=population,
             normals="counter",
+            first=len(lowered),
         )
+        lowered = np.concatenate([lowered, new])
         rate, samples = share_below(lowered, config)
         if count == stages[-1] or decides(rate, goal, count):
             break
@@ -213,6 +216,7 @@ def lowered_sliders(
     feedback: Feedback | None = None,
     population: npt.ArrayLike = 0.0,
     normals: str = "stream",
+    first: int = 0,
 ) -> np.ndarray:
     """The slider of `draws` Monte-Carlo trajectories (config.mc_mode, from `paths`; the
     transmission's angles from `angles`) under `tau` from x0, simulated to the last constraint
@@ -221,7 +225,8 @@ def lowered_sliders(
     source of white normals. The check's (counter-based normals); replay/heldout.py's
     model_rate (the model alone, its own streams, the calibration Monte-Carlo's draws). Only
     the constraint samples' states are kept (ppann/montecarlo.py `at`: at 20 000 draws, 32 MB
-    less to write and fault in, ~30 ms of the first check in a process)."""
+    less to write and fault in, ~30 ms of the first check in a process). `first`: trajectories
+    first..first + draws - 1 of the run of first + draws, the same numbers (counter normals)."""
     index = np.array(config.constraint_samples) - 1
     kept = np.unique(index)  # distinct (OCPConfig), in any order
     bands = monte_carlo(
@@ -235,8 +240,9 @@ def lowered_sliders(
         feedback=feedback,
         normals=normals,
         at=kept,
+        first=first,
     )
-    delta = draw(heads.transmission, (draws,), np.random.default_rng(angles))
+    delta = draw(heads.transmission, (first + draws,), np.random.default_rng(angles))[first:]
     theta = bands.samples[:, np.searchsorted(kept, index), 0]
     with np.errstate(over="ignore", invalid="ignore"):
         slider = heads.geometry.slider_position(theta + delta[:, None])

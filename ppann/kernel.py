@@ -137,6 +137,7 @@ def rollout(
     lever_eps: np.ndarray | None = None,
     key: int | None = None,
     at: np.ndarray | None = None,
+    first: int = 0,
 ) -> np.ndarray | None:
     """ppann/montecarlo.py `rollout` in C: (n_samples, T + 1, 2), or with `at` (indices into
     the T + 1 states, increasing, as the caller checked) only those states, (n_samples,
@@ -144,7 +145,8 @@ def rollout(
     `per_step`: eps (and `lever_eps`, the slider force's normals) has a row per step (else one
     row for the whole run), as the caller decided. `key` (with eps and lever_eps None): the
     white normals (and the slider force's, for a model with the channel) generated here,
-    ppann/counter.py's `counter_normals(key)`, per step or per trajectory as `per_step` says."""
+    ppann/counter.py's `counter_normals(key)`, per step or per trajectory as `per_step` says,
+    of trajectories `first`.. of the key's run."""
     if key is not None and (eps is not None or lever_eps is not None):
         raise ValueError("rollout: give the white normals as arrays or as a key, not both")
     library = load()
@@ -231,18 +233,18 @@ def rollout(
             _ptr(lever_table),
             ctypes.c_int(int(key is not None)),
             ctypes.c_uint64(0 if key is None else key),
-            ctypes.c_int64(a),
+            ctypes.c_int64(first + a),
             _ptr(slot),
             ctypes.c_int(kept.size),
             _ptr(samples[part]),
         )
 
     threads = max(1, min(rollout_threads(), n_samples // CHUNK_SAMPLES))
-    first, *rest = itertools.pairwise(n_samples * i // threads for i in range(threads + 1))
+    block, *rest = itertools.pairwise(n_samples * i // threads for i in range(threads + 1))
     if not rest:
-        return None if run(*first) else samples
+        return None if run(*block) else samples
     # ctypes lets go of the GIL during the call: the blocks run side by side
     with ThreadPoolExecutor(len(rest)) as pool:
         others = [pool.submit(run, a, b) for a, b in rest]
-        failed = [run(*first), *(f.result() for f in others)]
+        failed = [run(*block), *(f.result() for f in others)]
     return None if any(failed) else samples

@@ -93,6 +93,7 @@ def monte_carlo(
     compiled: bool = True,
     normals: str = "stream",
     at: npt.ArrayLike | None = None,
+    first: int = 0,
 ) -> Bands:
     """Simulate n_samples trajectories of the PPANN from x0 (2,) under tau (T,).
 
@@ -108,6 +109,8 @@ def monte_carlo(
     at: keep only these states (indices into the T + 1, increasing): the samples are then
     (n_samples, len(at), 2), the same numbers as the full run's at those indices (the tail
     check keeps its constraint samples: 32 MB written and faulted in less at 20 000).
+    first: the trajectories first..first + n_samples - 1 of the run of first + n_samples (the
+    same numbers; with counter normals only): the tail check's stages draw only their new ones.
 
     A draw that diverges (possible with trajectory draws of a model whose σ allows a negative
     effective damping) becomes inf/NaN in its samples, silently: callers report such numbers as
@@ -116,6 +119,8 @@ def monte_carlo(
     check_mode(mode)
     if n_samples < 2:
         raise ValueError(f"n_samples must be >= 2 for a standard deviation, got {n_samples}")
+    if first < 0 or (first and normals != "counter"):
+        raise ValueError(f"first must be >= 0, and 0 unless normals is 'counter', got {first}")
     heads = model if isinstance(model, FusedHeads) else FusedHeads(model)
     tau = np.asarray(tau, dtype=float)
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
@@ -146,7 +151,8 @@ def monte_carlo(
     factors = None
     if draw.machine:
         spread = heads.machine_sigma if machine_sigma is None else machine_sigma
-        factors = machine_factors(spread, n_samples, np.random.default_rng(machine_seq))
+        rng = np.random.default_rng(machine_seq)
+        factors = machine_factors(spread, first + n_samples, rng)[first:]
     samples = rollout(
         heads,
         x0,
@@ -160,6 +166,7 @@ def monte_carlo(
         key=key,
         per_trajectory=draw.white == "held",
         at=at,
+        first=first,
     )
     return Bands(samples)
 
@@ -191,6 +198,7 @@ def rollout(
     key: int | None = None,
     per_trajectory: bool = False,
     at: npt.ArrayLike | None = None,
+    first: int = 0,
 ) -> np.ndarray:
     """Trajectories (n_samples, T + 1, 2) from x0 under tau (T,): z = z_mu + z_sigma eps[k]
     (eps (T, n, 3) for a fresh draw per step, (1, n, 3) for one per trajectory, None for the
@@ -200,7 +208,8 @@ def rollout(
     where it builds (the same numbers to float32 rounding), else by the NumPy loop below.
     `key` (eps and lever_eps None): ppann/counter.py's normals under it in their place, drawn
     per step, or per trajectory with `per_trajectory`. `at`: only these states (indices into
-    the T + 1, increasing), (n_samples, len(at), 2)."""
+    the T + 1, increasing), (n_samples, len(at), 2). `first`: the key's normals of trajectories
+    first.. (`monte_carlo`)."""
     steps = tau.shape[0]
     if at is not None:
         at = np.asarray(at, dtype=int)
@@ -225,11 +234,14 @@ def rollout(
             lever_eps=lever_eps,
             key=key,
             at=at,
+            first=first,
         )
         if samples is not None:
             return samples
     if key is not None:
-        drawn = counter_normals(key, samples=n_samples, steps=steps if per_step else 1)
+        drawn = counter_normals(
+            key, samples=n_samples, steps=steps if per_step else 1, offset=first
+        )
         eps = drawn[..., :3]
         lever_eps = drawn[..., 3] if heads.has_lever else None
     samples = np.empty((n_samples, steps + 1, 2))

@@ -320,3 +320,17 @@ def test_tail_check_is_a_boolean_and_its_remedy_a_known_one() -> None:
         OCPConfig(tail_check="yes")
     with pytest.raises(OCPConfigError, match="tail_remedy must be one of"):
         OCPConfig(tail_remedy="wider")
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_run_from_a_first_trajectory_is_the_tail_of_the_whole_run(compiled) -> None:
+    """monte_carlo's `first`: trajectories 7..19 of a run of 20, to the bit, compiled and in
+    NumPy (counter normals, machine draws); only with counter normals."""
+    heads = FusedHeads(NARROW)
+    x0, tau = np.array([np.pi, 0.0]), np.full(30, 0.1)
+    options = {"mode": "mixed", "seed": 5, "normals": "counter", "compiled": compiled}
+    whole = monte_carlo(heads, x0, tau, n_samples=20, **options).samples
+    tail_part = monte_carlo(heads, x0, tau, n_samples=13, first=7, **options).samples
+    np.testing.assert_array_equal(tail_part, whole[7:])
+    with pytest.raises(ValueError, match="first"):
+        monte_carlo(heads, x0, tau, n_samples=13, first=7, mode="mixed", seed=5)
