@@ -45,8 +45,9 @@ decides by its rate alone. A clear pass costs a quarter of the check; a rate wit
 at TAIL_DRAWS is decided again on four times the trajectories (se 0.025 points), which narrows
 the band where the draws decide, and cannot remove it. Measured (bench/sequential_tail_check.md):
 the pair's horizon-200 refusals were such draws (every model now returns and holds); the
-defaults' own rates sit in the band, so most of their checks draw 80 000 (~0.45 s on the paper
-task, ~3 nominal solves; each stage draws only its new trajectories, `first`).
+defaults' own rates sit in the band, so most of their checks draw 80 000 (their checks took a
+median 2.3 nominal solves per profile on the paper task; each stage draws only its new
+trajectories, `first`).
 """
 
 from __future__ import annotations
