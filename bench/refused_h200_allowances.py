@@ -1,9 +1,10 @@
 """Which of the own-tail check's allowances makes it refuse a torque (bench/refused_h200.md).
 
-The torque's own rate, by control/tail.py's own check (its streams, TAIL_DRAWS trajectories),
-with no allowance, with the line's mean at its drop only (the profile's `population`), with the
-machine spread at its upper confidence bound only (all of J, B, K; J and B only), and with both
-(what the check does).
+The torque's own rate, by control/tail.py's own check (its streams; TAIL_DRAWS trajectories in
+one stage, as when bench/refused_h200.md's figures were taken in session 42), with no allowance,
+with the line's mean at its drop only (the profile's `population`), with the machine spread at
+its upper confidence bound only (all of J, B, K; J and B only), and with both (what the check
+does).
 
 Usage: python bench/refused_h200_allowances.py MODEL.pt OCP.json
 """
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from control.ocp_file import read_ocp
-from control.tail import tail_check
+from control.tail import TAIL_DRAWS, tail_check
 from control.tightening import line_allowance
 from ppann.checkpoint import load
 from ppann.model import FusedHeads
@@ -65,6 +66,7 @@ def main() -> None:
             tightening=config.tightening,
             population=case.get("population", population),
             allowances=case.get("allowances", True),
+            draws=TAIL_DRAWS,
         )
         per_sample = ", ".join(f"{k}: {100 * v:.3f} %" for k, v in check.samples.items())
         print(f"  {name:28s} {100 * check.rate:.3f} %  ({per_sample})")

@@ -1,7 +1,9 @@
 """What decides a raise: each model's torque at each Monte-Carlo seed (k as configured, no tail
 check), checked under several check seeds (control/tail.py's stream follows OCPConfig.mc_seed).
 Prints each torque's own rate per check seed, and the means per torque and per check seed: the
-spread along a row is the check's own noise, down a column the loop's.
+spread along a row is the check's own noise, down a column the loop's. Each check draws
+TAIL_DRAWS trajectories in one stage (the count its figures were taken at, session 33), not
+the stages `crank solve` draws.
 
     python bench/tail_check_seeds.py MODEL.pt [MODEL.pt ...] [--mc-seeds 0-4] [--check-seeds 0-9]
 """
@@ -17,6 +19,7 @@ from common.errors import ConfigError
 from control.config import OCPConfig
 from control.ocp import NominalOCP
 from control.profiles import decide, own_tail
+from control.tail import TAIL_DRAWS
 from crank.study import parse_seeds
 from ppann.checkpoint import load
 from ppann.model import FusedHeads
@@ -42,7 +45,13 @@ def main() -> None:
             ocp = NominalOCP(model, config)
             result = decide(model, config, profile="robust", ocp=ocp, nominal=ocp.solve())
             rates = [
-                own_tail(heads, result, replace(config, mc_seed=c), profile="robust").rate
+                own_tail(
+                    heads,
+                    result,
+                    replace(config, mc_seed=c),
+                    profile="robust",
+                    draws=TAIL_DRAWS,
+                ).rate
                 for c in check_seeds
             ]
             rows.append(rates)

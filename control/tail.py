@@ -9,9 +9,10 @@ own trajectories below the height on the horizon-200 task (samples 70, 130), whe
 went below on up to 0.75 % of 4000 held-out machines; 0.41-0.66 % on the paper's task over
 Monte-Carlo seeds 0-4.
 
-So after the loop, the returned torque's Monte-Carlo is drawn again, TAIL_DRAWS trajectories
-from a stream of its own ("tail_check"; its white normals counter-based, ppann/counter.py,
-generated inside the kernel where they are used), with the same allowances as its tightening:
+So after the loop, the returned torque's Monte-Carlo is drawn again, in stages (below) about
+TAIL_DRAWS trajectories, from a stream of its own ("tail_check"; its white normals
+counter-based, ppann/counter.py, generated inside the kernel where they are used), with the
+same allowances as its tightening:
 the line's spread at its upper confidence bound (`line_allowance`) and the line's mean at its
 drop (`Uncertainty.population`, subtracted from every draw). The share of trajectories below the
 height at any constraint sample is the torque's own violation rate. Above its target (`target`:
@@ -199,9 +200,14 @@ def decides(rate: float, goal: float, draws: int) -> bool:
     """Whether a stage of the sequential check (module docstring) of `draws` trajectories at
     `rate` stops: TAIL_BAND standard errors (at the target) below the target, or, from
     TAIL_DRAWS on, as far above it. At a target of 0 or 1 (no error) any gap decides."""
-    gap, se = rate - goal, math.sqrt(goal * (1 - goal) / draws)
+    gap, se = rate - goal, standard_error(goal, draws)
     distance = gap / se if se > 0 else math.copysign(math.inf, gap) if gap else 0.0
     return distance <= -TAIL_BAND or (draws >= TAIL_DRAWS and distance >= TAIL_BAND)
+
+
+def standard_error(rate: float, draws: int) -> float:
+    """The standard error of a share `rate` estimated from `draws` trajectories (binomial)."""
+    return math.sqrt(rate * (1 - rate) / draws)
 
 
 def lowered_sliders(
@@ -299,4 +305,4 @@ def aim(check: TailCheck) -> float:
     """The own rate a raised k is sized for: the target less TAIL_BAND standard errors of the
     decision stage (TAIL_DRAWS) at the target, so that the check of the torque it gives decides
     there, a pass, unless the prediction was wrong (at 0.5 %: 0.40 %)."""
-    return check.target - TAIL_BAND * math.sqrt(check.target * (1 - check.target) / TAIL_DRAWS)
+    return check.target - TAIL_BAND * standard_error(check.target, TAIL_DRAWS)
