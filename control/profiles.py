@@ -27,12 +27,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from control import tail
 from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
+from control.raise_k import raised_k
 from control.robust import (
     STROKE_SHARE,
     BeyondStrokeError,
@@ -41,7 +43,7 @@ from control.robust import (
     RobustResult,
     solve_robust,
 )
-from control.tail import TailCheck, raised_k, tail_check
+from control.tail import TailCheck, tail_check
 from ppann.model import PPANN, FusedHeads
 
 DECISION_BAND = 2.0
@@ -56,7 +58,7 @@ control/config.py MAX_MC_SAMPLES (the quantile tightening's 14 816 at k = 3 esca
 
 
 TAIL_STEPS = 2
-"""At most this many re-decisions at a raised k (control/tail.py `raised_k`) before the
+"""At most this many re-decisions at a raised k (control/raise_k.py `raised_k`) before the
 quantile tightening."""
 
 
@@ -87,7 +89,7 @@ def solve_decided(
 ) -> RobustResult:
     """`decide`, then (OCPConfig.tail_check) the torque's own tail (`own_tail`): where its own
     violation rate is above the target, the profile is decided again at the k its check's own
-    trajectories predict to bring it to the target (control/tail.py `raised_k`), and checked
+    trajectories predict to bring it to the target (control/raise_k.py `raised_k`), and checked
     again, at most TAIL_STEPS times; where no raised k passes (or none exists, or it is
     refused), with the quantile tightening at the configured k (unless that was the
     tightening). The torque returned is the last one, its checks after the ones before it; the
@@ -115,7 +117,7 @@ def solve_decided(
         return replace(result, tail_checks=(checks[0],), wall_time=spent)
     tried = []
     for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
-        k = raised_k(checks[-1], config, **_slack(result, config))
+        k = raised_k(checks[-1], config, **_raise_inputs(heads, result, config))
         if k is None:
             tried.append("no k reaches the target")
             break
@@ -157,14 +159,21 @@ def solve_decided(
     )
 
 
-def _slack(result: RobustResult, config: OCPConfig) -> dict[str, np.ndarray]:
-    """What control/tail.py `raised_k` predicts from: the torque's mean-model slider, its
-    tightening and that tightening's change with k (sigma, and the Monte-Carlo's allowance,
-    which is proportional to k) at each constraint sample, m."""
+def _raise_inputs(heads: FusedHeads, result: RobustResult, config: OCPConfig) -> dict[str, Any]:
+    """What control/raise_k.py `raised_k` predicts from: the torque's mean-model crank angle and
+    slider, its tightening and that tightening's parts for the Monte-Carlo's finite sample and
+    for the line's mean at each constraint sample, and the mechanism."""
     unc = result.robust_uncertainty
     index = np.array(config.constraint_samples) - 1
-    per_k = unc.std[index] + (unc.sampling / result.k_sigma if result.k_sigma > 0 else 0.0)
-    return {"plan": result.robust.slider[index], "tightening": unc.tightening, "per_k": per_k}
+    return {
+        "geometry": heads.geometry,
+        "plan_angle": result.robust.states[index, 0],
+        "plan": result.robust.slider[index],
+        "tightening": unc.tightening,
+        "sampling": unc.sampling,
+        "population": unc.population,
+        "method": result.tightening,
+    }
 
 
 def own_tail(

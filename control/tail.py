@@ -20,8 +20,9 @@ TARGET_RATE, the rate held-out machines judge a robust torque by, or the rate k 
 for where that is looser: a k of 0.5 asks for no better than 31 % per sample) the profile is
 solved again (control/profiles.py, OCPConfig.tail_remedy):
 - "raise-k" (the default since session 31): with its own tightening at the k that the check's
-  own trajectories predict to bring its rate to the target (`raised_k`: the draws moved up with
-  the plan), then checked again, the same draws; where no raised k passes, as "quantile". A
+  own trajectories predict to bring its rate to the target (control/raise_k.py `raised_k`: the
+  draws moved in crank angle until the tightening's condition holds on them), then checked
+  again, the same draws; where no raised k passes, as "quantile". A
   raise is sized for its need: on development solves (no machines drawn; session 27's seed-3
   model, the horizon-200 task, Monte-Carlo seeds 0-4) k 3.22-3.51, own rates 0.44-0.48 %,
   premiums 1.6-3.5 points above the centred torques' (23.6-24.8 %) in 5-8 s, where the quantile
@@ -69,8 +70,6 @@ from ppann.model import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
 
-MAX_RAISE = 10.0
-"""The largest raise of k `raised_k` looks for."""
 TAIL_DRAWS = 20_000
 """Trajectories of the check's decision stage: 100 expected below at the target rate, a relative
 standard error of 10 % (replay/heldout.py's model_rate draws as many); a raise is sized for its
@@ -103,7 +102,10 @@ class TailCheck:
     """Every stage drawn, in order (`stages[-1] == draws`); one for a fixed count."""
     lowered: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
     """Each trajectory's slider at each constraint sample, lowered by the population margin,
-    (draws, constraint samples), m (NaN where a draw diverged): what `raised_k` reads."""
+    (draws, constraint samples), m (NaN where a draw diverged)."""
+    angles: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
+    """The crank angle (theta + delta) under each of `lowered`'s sliders, rad: what
+    control/raise_k.py moves."""
 
     @property
     def passed(self) -> bool:
@@ -161,25 +163,25 @@ def tail_check(
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
     stages = TAIL_STAGES if draws is None else (draws,)
-    lowered = np.zeros((0, len(config.constraint_samples)))
+    crank = np.zeros((0, len(config.constraint_samples)))
     for count in stages:
         # fresh each stage: a SeedSequence's spawn() counts its children
         paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
-        new = lowered_sliders(
+        new = crank_angles(
             heads,
             solution.states[0],
             solution.tau,
             config,
-            draws=count - len(lowered),  # only the stage's new trajectories
+            draws=count - len(crank),  # only the stage's new trajectories
             paths=paths,
             angles=angles,
             machine_sigma=spread,
             feedback=feedback,
-            population=population,
             normals="counter",
-            first=len(lowered),
+            first=len(crank),
         )
-        lowered = np.concatenate([lowered, new])
+        crank = np.concatenate([crank, new])
+        lowered = lowered_sliders(heads, crank, population)
         rate, samples = share_below(lowered, config)
         if count == stages[-1] or decides(rate, goal, count):
             break
@@ -193,6 +195,7 @@ def tail_check(
         wall_time=time.perf_counter() - started,
         stages=stages[: stages.index(count) + 1],
         lowered=lowered,
+        angles=crank,
     )
 
 
@@ -211,6 +214,17 @@ def standard_error(rate: float, draws: int) -> float:
 
 
 def lowered_sliders(
+    heads: FusedHeads, crank: np.ndarray, population: npt.ArrayLike = 0.0
+) -> np.ndarray:
+    """The slider at `crank_angles`' angles, lowered by `population` (per constraint sample,
+    m), (draws, constraint samples), m; NaN where a draw diverged. The check's, and
+    replay/heldout.py's model_rate (the model alone, its own streams, the calibration
+    Monte-Carlo's draws)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return heads.geometry.slider_position(crank) - np.asarray(population)
+
+
+def crank_angles(
     heads: FusedHeads,
     x0: np.ndarray,
     tau: np.ndarray,
@@ -221,19 +235,16 @@ def lowered_sliders(
     angles: np.random.SeedSequence,
     machine_sigma: np.ndarray | None = None,
     feedback: Feedback | None = None,
-    population: npt.ArrayLike = 0.0,
     normals: str = "stream",
     first: int = 0,
 ) -> np.ndarray:
-    """The slider of `draws` Monte-Carlo trajectories (config.mc_mode, from `paths`; the
-    transmission's angles from `angles`) under `tau` from x0, simulated to the last constraint
-    sample only, at each constraint sample, lowered by `population` (per constraint sample, m),
-    (draws, constraint samples), m; NaN where a draw diverged. `normals`: ppann/montecarlo.py's
-    source of white normals. The check's (counter-based normals); replay/heldout.py's
-    model_rate (the model alone, its own streams, the calibration Monte-Carlo's draws). Only
-    the constraint samples' states are kept (ppann/montecarlo.py `at`: at 20 000 draws, 32 MB
-    less to write and fault in, ~30 ms of the first check in a process). `first`: trajectories
-    first..first + draws - 1 of the run of first + draws, the same numbers (counter normals)."""
+    """The crank angle theta + delta of `draws` Monte-Carlo trajectories (config.mc_mode, from
+    `paths`; the transmission's delta from `angles`) under `tau` from x0, simulated to the last
+    constraint sample only, at each constraint sample, (draws, constraint samples), rad.
+    `normals`: ppann/montecarlo.py's source of white normals. Only the constraint samples'
+    states are kept (ppann/montecarlo.py `at`: at 20 000 draws, 32 MB less to write and fault
+    in, ~30 ms of the first check in a process). `first`: trajectories first..first + draws - 1
+    of the run of first + draws, the same numbers (counter normals)."""
     index = np.array(config.constraint_samples) - 1
     kept = np.unique(index)  # distinct (OCPConfig), in any order
     bands = monte_carlo(
@@ -250,10 +261,7 @@ def lowered_sliders(
         first=first,
     )
     delta = draw(heads.transmission, (first + draws,), np.random.default_rng(angles))[first:]
-    theta = bands.samples[:, np.searchsorted(kept, index), 0]
-    with np.errstate(over="ignore", invalid="ignore"):
-        slider = heads.geometry.slider_position(theta + delta[:, None])
-        return slider - np.asarray(population)
+    return bands.samples[:, np.searchsorted(kept, index), 0] + delta[:, None]
 
 
 def share_below(lowered: np.ndarray, config: OCPConfig) -> tuple[float, dict[int, float]]:
@@ -262,43 +270,6 @@ def share_below(lowered: np.ndarray, config: OCPConfig) -> tuple[float, dict[int
     below = ~(lowered >= config.height)
     samples = {k: float(below[:, j].mean()) for j, k in enumerate(config.constraint_samples)}
     return float(below.any(axis=1).mean()), samples
-
-
-def raised_k(
-    check: TailCheck,
-    config: OCPConfig,
-    *,
-    plan: np.ndarray,
-    tightening: np.ndarray,
-    per_k: np.ndarray,
-) -> float | None:
-    """The k (the check's own, raised) at which the checked torque's own rate is predicted to be
-    `aim(check)`, or None if no k reaches it (more of the draws diverged than that); config
-    gives the height.
-
-    The prediction reads the check's own trajectories: raising k by dk raises the tightening at
-    each constraint sample by about per_k dk (its sigma, and the Monte-Carlo's allowance that
-    scales with k), and the plan there by what that takes beyond its slack (plan - height -
-    tightening, at least 0); the trajectories are taken to move up with the plan, their spread
-    unchanged. The smallest such dk (bisection to 1e-3) is rounded up to the next 0.01 of k.
-    The re-solved torque is checked again: the prediction only says where to look.
-
-    plan, tightening, per_k: the torque's mean-model slider, tightening and d tightening / dk at
-    each constraint sample, m."""
-    slack = np.clip(np.asarray(plan) - config.height - np.asarray(tightening), 0.0, None)
-    goal = aim(check)
-
-    def rate(dk: float) -> float:
-        moved = check.lowered + np.clip(np.asarray(per_k) * dk - slack, 0.0, None)
-        return share_below(moved, config)[0]
-
-    low, high = 0.0, MAX_RAISE
-    if rate(high) > goal:
-        return None
-    while high - low > 1e-3:
-        middle = 0.5 * (low + high)
-        low, high = (middle, high) if rate(middle) > goal else (low, middle)
-    return math.ceil(100 * (check.k_sigma + high)) / 100
 
 
 def aim(check: TailCheck) -> float:

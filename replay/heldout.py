@@ -79,7 +79,7 @@ from common.jsonio import recorded_path, write_json
 from control.config import PD_GAINS, OCPConfig, lower_tail
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import Profile, read_ocp
-from control.tail import lowered_sliders, share_below
+from control.tail import crank_angles, lowered_sliders, share_below
 from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
 from ppann.model import PPANN, FusedHeads
@@ -148,7 +148,7 @@ def model_rate(
     """heldout.json's model_rate for one profile and loop (module docstring): `n_samples`
     trajectories of the model under `planned`'s torque, open loop or under `law`, simulated up
     to the last constraint sample only (every draw a prefix of the whole run's)."""
-    lowered = lowered_sliders(
+    crank = crank_angles(
         heads,
         np.array([planned.theta[0], planned.omega[0]]),
         planned.tau,
@@ -158,6 +158,7 @@ def model_rate(
         angles=streams.stream(c.mc_seed, "transmission"),
         feedback=law,
     )
+    lowered = lowered_sliders(heads, crank)
     rate, samples = share_below(lowered, c)
     return {
         "mode": c.mc_mode,

@@ -1,6 +1,6 @@
 """control/tail.py: a robust torque's own violation rate, counted on its own Monte-Carlo with
 the tightening's allowances; control/profiles.py solves a profile again where that rate is above
-the target: at the k the check predicts (`raised_k`), then with the quantile tightening."""
+the target: at the k the check predicts (control/raise_k.py), then with the quantile tightening."""
 
 from __future__ import annotations
 
@@ -226,6 +226,8 @@ def test_without_allowances_the_check_is_the_model_alone(centred) -> None:
     full = tail_check(heads, result.robust, config, population=drop, **arguments)
     assert (bare.rate, bare.samples) == (alone.rate, alone.samples)
     np.testing.assert_array_equal(bare.lowered, alone.lowered)
+    # each slider is its crank angle's, lowered by the population margin (what raise_k moves)
+    np.testing.assert_array_equal(NARROW.geometry.slider_position(full.angles) - drop, full.lowered)
     assert 0 < bare.rate < full.rate < 1
 
 
@@ -264,45 +266,6 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     assert set(result.nominal_loops) == set(cold.nominal_loops) == {"open", "closed"}
     for loop, spread in cold.nominal_loops.items():
         np.testing.assert_array_equal(result.nominal_loops[loop], spread)
-
-
-def _check(lowered: np.ndarray, *, target: float) -> tail.TailCheck:
-    """A check of the given trajectories (draws, constraint samples) at `target`."""
-    return tail.TailCheck(
-        draws=lowered.shape[0],
-        rate=0.0,
-        samples={},
-        target=target,
-        tightening="centred",
-        k_sigma=3.0,
-        wall_time=0.0,
-        lowered=lowered,
-    )
-
-
-def test_raised_k_moves_the_draws_with_the_plan_beyond_its_slack() -> None:
-    """1000 draws, 31 below the height at sample 100 in 1 mm steps; the aim at a 2 % target is
-    2 % less two standard errors of the check's decision stage, whatever it drew:
-    2 % - 2 sqrt(2 % 98 % / 20 000) = 1.80 %: at most 18 below, so the plan must rise 13 mm.
-    With d tightening / dk of 8 mm and no slack that is dk = 1.625 (k 4.625, rounded up to
-    4.63); with 4 mm of slack the plan rises only after it, dk = 17 / 8 = 2.125 (5.13). Sample
-    50, far above, plays no part. A draw that diverged (NaN) stays below at any k: with 3 %
-    of them no k reaches the aim."""
-    config = OCPConfig()
-    height = config.height
-    lowered = np.column_stack([np.full(1000, height + 1.0), height + 1e-3 * (np.arange(1000) - 31)])
-    check = _check(lowered, target=0.02)
-    assert tail.aim(check) == pytest.approx(0.02 - 2 * np.sqrt(0.02 * 0.98 / 20_000))
-    plan = np.array([height + 1.0, height])
-    kwargs = {"plan": plan, "per_k": np.array([0.008, 0.008])}
-    assert tail.raised_k(check, config, tightening=np.zeros(2), **kwargs) == 4.63
-    slack = {"tightening": np.array([0.0, -0.004])}  # plan - height - tightening = 4 mm
-    assert tail.raised_k(check, config, **slack, **kwargs) == 5.13
-    lowered[:30, 1] = np.nan
-    assert (
-        tail.raised_k(_check(lowered, target=0.02), config, tightening=np.zeros(2), **kwargs)
-        is None
-    )
 
 
 def test_the_target_is_the_products_or_what_k_stands_for() -> None:
