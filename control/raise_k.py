@@ -21,11 +21,12 @@ above the height beyond its tightening) absorbs the change, the draws do not mov
 Before session 44 the draws moved up in the slider by the rise the tightening asked for at the
 old sigma (per_k dk beyond the slack). On a default model (training seed 0, development, no
 machines; bench/raise_k.md) that first raise, aimed at 0.40 %, landed at 0.30-0.56 % (mean
-0.47 %) on 17 raised task-seed pairs and failed its check on 6, which then took a second raise; the plan rose a third to a half of what it predicted (at sample
-100 of the height-0.085 task 0.36 mm against 1.07 mm), its draws' sigma shrinking 4-10 %.
-Moved in angle with the condition re-evaluated, the same 17 landed at 0.24-0.47 % (mean 0.38 %),
-none failed; on 1000 held-out machines per torque the two codes' torques could not be told
-apart (bench/raise_k.md part B: horizon 200, 13 of 5000 against 15).
+0.47 %) on 17 raised task-seed pairs and failed its check on 6, which then took a second raise;
+the plan rose a third to a half of what it predicted (at sample 100 of the height-0.085 task
+0.36 mm against 1.07 mm), its draws' sigma shrinking 4-10 %. Moved in angle with the condition
+re-evaluated, the same 17 landed at 0.24-0.47 % (mean 0.38 %), none failed; on 1000 held-out
+machines per torque the two codes' torques could not be told apart (bench/raise_k.md part B:
+horizon 200, 13 of 5000 against 15).
 """
 
 from __future__ import annotations
