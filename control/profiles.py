@@ -160,15 +160,14 @@ def solve_decided(
 
 
 def _raise_inputs(heads: FusedHeads, result: RobustResult, config: OCPConfig) -> dict[str, Any]:
-    """What control/raise_k.py `raised_k` predicts from: the torque's mean-model crank angle and
-    slider, its tightening and that tightening's parts for the Monte-Carlo's finite sample and
+    """What control/raise_k.py `raised_k` predicts from: the torque's mean-model crank angle, its
+    tightening and that tightening's parts for the Monte-Carlo's finite sample and
     for the line's mean at each constraint sample, and the mechanism."""
     unc = result.robust_uncertainty
     index = np.array(config.constraint_samples) - 1
     return {
         "geometry": heads.geometry,
         "plan_angle": result.robust.states[index, 0],
-        "plan": result.robust.slider[index],
         "tightening": unc.tightening,
         "sampling": unc.sampling,
         "population": unc.population,

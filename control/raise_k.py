@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from control.config import OCPConfig
-from control.tail import TailCheck, aim, share_below
+from control.tail import TailCheck, aim, lowered_sliders, share_below
 from twin.geometry import Geometry
 
 MAX_RAISE = 10.0
@@ -57,7 +57,6 @@ def raised_k(
     *,
     geometry: Geometry,
     plan_angle: npt.ArrayLike,
-    plan: npt.ArrayLike,
     tightening: npt.ArrayLike,
     sampling: npt.ArrayLike,
     population: npt.ArrayLike,
@@ -69,17 +68,18 @@ def raised_k(
     diverged than the aim allows). The re-solved torque is checked again: the prediction only
     says where to look.
 
-    Per constraint sample: plan_angle, the torque's mean-model crank angle, rad; plan, its
-    slider, tightening, its tightening (`method`'s: "centred" or "gaussian"), sampling and
-    population, the parts of it for the Monte-Carlo's finite sample and for the line's mean, m.
-    config gives the height; check.angles and check.lowered the draws."""
+    Per constraint sample: plan_angle, the torque's mean-model crank angle, rad (its slider is
+    `geometry`'s there); tightening, its tightening (`method`'s: "centred" or "gaussian");
+    sampling and population, the parts of it for the Monte-Carlo's finite sample and for the
+    line's mean, m. config gives the height; check.angles and check.lowered the draws."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
     plan_angle = np.asarray(plan_angle, dtype=float)
     population = np.broadcast_to(np.asarray(population, dtype=float), plan_angle.shape)
     sampling = np.broadcast_to(np.asarray(sampling, dtype=float), plan_angle.shape)
-    slack = np.clip(np.asarray(plan) - config.height - np.asarray(tightening), 0.0, None)
+    plan = geometry.slider_position(plan_angle)
+    slack = np.clip(plan - config.height - np.asarray(tightening), 0.0, None)
     tables = [
         _table(geometry, check.angles[:TABLE_DRAWS, j], plan_angle[j], population[j], method)
         for j in range(len(plan_angle))
@@ -92,7 +92,7 @@ def raised_k(
             shift = _shift(table, k=k, raised=k + dk, sampling=sampling[j], slack=slack[j])
             if shift is None:
                 return 1.0
-            moved[:, j] = _slider(geometry, check.angles[:, j] + shift) - population[j]
+            moved[:, j] = lowered_sliders(geometry, check.angles[:, j] + shift, population[j])
         return share_below(moved, config)[0]
 
     low = 0.0
@@ -108,11 +108,6 @@ def raised_k(
     return math.ceil(100 * (k + high)) / 100
 
 
-def _slider(geometry: Geometry, angle: np.ndarray) -> np.ndarray:
-    with np.errstate(over="ignore", invalid="ignore"):
-        return geometry.slider_position(angle)
-
-
 def _table(
     geometry: Geometry, angles: np.ndarray, plan_angle: float, population: float, method: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -122,10 +117,10 @@ def _table(
     phase = math.remainder(plan_angle, 2 * math.pi)  # top dead centre at 0
     direction = -1.0 if phase > 0 else 1.0
     shifts = direction * abs(phase) * np.linspace(0.0, 1.0, SHIFTS) ** 2
-    moved = _slider(geometry, angles[None, :] + shifts[:, None]) - population
+    moved = lowered_sliders(geometry, angles[None, :] + shifts[:, None], population)
     sigma = np.nanstd(moved, axis=1)
     if method == "gaussian":
-        centre = _slider(geometry, plan_angle + shifts)
+        centre = lowered_sliders(geometry, plan_angle + shifts)
     else:
         centre = np.nanmean(moved, axis=1)
     return shifts, centre, sigma

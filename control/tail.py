@@ -69,6 +69,7 @@ from control.tightening import line_allowance
 from ppann.model import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
+from twin.geometry import Geometry
 
 TAIL_DRAWS = 20_000
 """Trajectories of the check's decision stage: 100 expected below at the target rate, a relative
@@ -164,6 +165,7 @@ def tail_check(
         feedback = Feedback(solution.states, gains, config.torque_limit)
     stages = TAIL_STAGES if draws is None else (draws,)
     crank = np.zeros((0, len(config.constraint_samples)))
+    lowered = crank
     for count in stages:
         # fresh each stage: a SeedSequence's spawn() counts its children
         paths, angles = stream(config.mc_seed, "tail_check").spawn(2)
@@ -181,7 +183,7 @@ def tail_check(
             first=len(crank),
         )
         crank = np.concatenate([crank, new])
-        lowered = lowered_sliders(heads, crank, population)
+        lowered = np.concatenate([lowered, lowered_sliders(heads.geometry, new, population)])
         rate, samples = share_below(lowered, config)
         if count == stages[-1] or decides(rate, goal, count):
             break
@@ -214,14 +216,14 @@ def standard_error(rate: float, draws: int) -> float:
 
 
 def lowered_sliders(
-    heads: FusedHeads, crank: np.ndarray, population: npt.ArrayLike = 0.0
+    geometry: Geometry, crank: npt.ArrayLike, population: npt.ArrayLike = 0.0
 ) -> np.ndarray:
-    """The slider at `crank_angles`' angles, lowered by `population` (per constraint sample,
-    m), (draws, constraint samples), m; NaN where a draw diverged. The check's, and
-    replay/heldout.py's model_rate (the model alone, its own streams, the calibration
+    """The slider at crank angles `crank` (`crank_angles`'), lowered by `population` (per
+    constraint sample, m), m; NaN where a draw diverged. The check's, control/raise_k.py's moved
+    draws, and replay/heldout.py's model_rate (the model alone, its own streams, the calibration
     Monte-Carlo's draws)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        return heads.geometry.slider_position(crank) - np.asarray(population)
+        return geometry.slider_position(crank) - np.asarray(population)
 
 
 def crank_angles(

@@ -158,7 +158,7 @@ def model_rate(
         angles=streams.stream(c.mc_seed, "transmission"),
         feedback=law,
     )
-    lowered = lowered_sliders(heads, crank)
+    lowered = lowered_sliders(heads.geometry, crank)
     rate, samples = share_below(lowered, c)
     return {
         "mode": c.mc_mode,

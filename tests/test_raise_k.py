@@ -54,7 +54,6 @@ def _setup(method: str, *, slack: float = 0.0):
     inputs = {
         "geometry": PAPER,
         "plan_angle": plan_angle,
-        "plan": plan,
         "tightening": tightening,
         "sampling": sampling,
         "population": population,
@@ -69,7 +68,8 @@ def _reference(check: tail.TailCheck, inputs: dict, method: str, config: OCPConf
     draws, moved, keep the tightening's condition at that k as they kept it at k 3."""
     first = check.angles[: raise_k.TABLE_DRAWS]
     population, sampling = inputs["population"], inputs["sampling"]
-    slack = np.clip(inputs["plan"] - config.height - inputs["tightening"], 0.0, None)
+    plan = PAPER.slider_position(inputs["plan_angle"])
+    slack = np.clip(plan - config.height - inputs["tightening"], 0.0, None)
 
     def kept(j: int, shift: float, k: float) -> float:
         moved = PAPER.slider_position(first[:, j] + shift) - population[j]

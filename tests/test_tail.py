@@ -227,7 +227,7 @@ def test_without_allowances_the_check_is_the_model_alone(centred) -> None:
     assert (bare.rate, bare.samples) == (alone.rate, alone.samples)
     np.testing.assert_array_equal(bare.lowered, alone.lowered)
     # each slider is its crank angle's, lowered by the population margin (what raise_k moves)
-    np.testing.assert_array_equal(NARROW.geometry.slider_position(full.angles) - drop, full.lowered)
+    np.testing.assert_array_equal(heads.geometry.slider_position(full.angles) - drop, full.lowered)
     assert 0 < bare.rate < full.rate < 1
 
 
@@ -266,6 +266,21 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
     assert set(result.nominal_loops) == set(cold.nominal_loops) == {"open", "closed"}
     for loop, spread in cold.nominal_loops.items():
         np.testing.assert_array_equal(result.nominal_loops[loop], spread)
+
+
+def test_a_raise_aims_two_standard_errors_of_the_decision_stage_below_the_target() -> None:
+    """The aim at a 2 % target is 2 % less two standard errors of the check's decision stage,
+    whatever the check drew: 2 % - 2 sqrt(2 % 98 % / 20 000) = 1.80 %."""
+    check = tail.TailCheck(
+        draws=1000,
+        rate=0.0,
+        samples={},
+        target=0.02,
+        tightening="centred",
+        k_sigma=3.0,
+        wall_time=0.0,
+    )
+    assert tail.aim(check) == pytest.approx(0.02 - 2 * np.sqrt(0.02 * 0.98 / 20_000))
 
 
 def test_the_target_is_the_products_or_what_k_stands_for() -> None:
