@@ -25,6 +25,7 @@ the nominal, in fewer solves), then with the quantile tightening; the last torqu
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -93,8 +94,10 @@ def solve_decided(
     again, at most TAIL_STEPS times; where no raised k passes (or none exists, or it is
     refused), with the quantile tightening at the configured k (unless that was the
     tightening). The torque returned is the last one, its checks after the ones before it; the
-    wall time is all of it, checks included. `heads`: the model's FusedHeads, if already built
-    (every decision and check shares one).
+    wall time is all of it: every decision's loop, every check and every raise's prediction
+    (each decided torque's spreads for the reports, control/robust.py `_loops`, are not the
+    loop's). `heads`: the model's FusedHeads, if already built (every decision and check shares
+    one).
 
     Raises:
       RobustError: no robust torque; or, where the tail sent the profile to the quantile
@@ -117,7 +120,9 @@ def solve_decided(
         return replace(result, tail_checks=(checks[0],), wall_time=spent)
     tried = []
     for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
+        predicting = time.perf_counter()
         k = raised_k(checks[-1], config, **_raise_inputs(heads, result, config))
+        spent += time.perf_counter() - predicting  # the decision's too (before session 45 not)
         if k is None:
             tried.append("no k reaches the target")
             break
