@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from control.config import OCPConfig
-from control.tail import TailCheck, aim, lowered_sliders, share_below
+from control.tail import TailCheck, aim, lowered_sliders
 from twin.geometry import Geometry
 
 MAX_RAISE = 10.0
@@ -85,15 +85,19 @@ def raised_k(
         for j in range(len(plan_angle))
     ]
     goal = aim(check)
+    # a moved draw is at or above the height where its angle is within the reach of top dead
+    # centre (twin/geometry.py): a comparison per draw in place of its slider (~5 times faster)
+    reach = geometry.crank_reach(config.height + population)
 
     def rate(dk: float) -> float:
-        moved = np.empty_like(check.lowered)
+        above = np.ones(len(check.angles), dtype=bool)
         for j, table in enumerate(tables):
             shift = _shift(table, k=k, raised=k + dk, sampling=sampling[j], slack=slack[j])
             if shift is None:
                 return 1.0
-            moved[:, j] = lowered_sliders(geometry, check.angles[:, j] + shift, population[j])
-        return share_below(moved, config)[0]
+            phase = np.remainder(check.angles[:, j] + (shift + math.pi), 2 * math.pi) - math.pi
+            above &= np.abs(phase) <= reach[j]  # a diverged draw (NaN) is below
+        return float((~above).mean())
 
     low = 0.0
     for high in np.arange(STEP, MAX_RAISE + STEP / 2, STEP):

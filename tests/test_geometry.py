@@ -173,3 +173,26 @@ def test_a_plan_asking_more_torque_than_the_models_twin_is_refused(tmp_path: Pat
     with pytest.raises(OCPConfigError, match=r"torque_limit 10 N·m exceeds the actuator limit 8"):
         solve_file(model, tmp_path / "ocp.json", config=OCPConfig())
     assert not (tmp_path / "ocp.json").exists()
+
+
+@pytest.mark.parametrize("geometry", [PAPER, Geometry(0.03, 0.12)])
+def test_the_crank_reach_inverts_the_slider_position(geometry) -> None:
+    """crank_reach(x) is the angle at which the slider is at x (to 1e-12 m), with the slider at
+    or above x just inside it and below just outside, on either side of top dead centre; a
+    quarter turn where x is the slider's position at a quarter turn, sqrt(l2^2 - l1^2) + l1 -
+    l2; pi at and below the stroke's bottom, 0 at its top, -inf above it."""
+    x = np.linspace(1e-4, geometry.stroke_top - 1e-4, 101)
+    reach = geometry.crank_reach(x)
+    np.testing.assert_allclose(geometry.slider_position(reach), x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(geometry.slider_position(-reach), x, rtol=0, atol=1e-12)
+    assert np.all(np.diff(reach) < 0)
+    for side in (1.0, -1.0):
+        assert np.all(geometry.slider_position(side * (reach - 1e-7)) > x)
+        assert np.all(geometry.slider_position(side * (reach + 1e-7)) < x)
+    l1, l2 = geometry.crank_length, geometry.rod_length
+    quarter = float(geometry.crank_reach(np.sqrt(l2**2 - l1**2) + l1 - l2))
+    assert quarter == pytest.approx(np.pi / 2, abs=1e-12)
+    top = geometry.stroke_top
+    edges = geometry.crank_reach([-1e-3, 0.0, top, top + 1e-9])
+    np.testing.assert_array_equal(edges[:3], [np.pi, np.pi, 0.0])
+    assert edges[3] == -np.inf

@@ -68,6 +68,23 @@ class Geometry:
         s, c = lib.sin(theta), lib.cos(theta)
         return -l1 * s * (1 + l1 * c / lib.sqrt(l2**2 - (l1 * s) ** 2))
 
+    def crank_reach(self, x: npt.ArrayLike) -> np.ndarray:
+        """The crank angle from top dead centre within which the slider is at or above `x` (m):
+        slider_position(theta) >= x where |theta| <= crank_reach(x), theta taken to (-pi, pi]
+        (the slider falls monotonically from theta = 0 to pi since l2 > l1), rad; pi at or below
+        the stroke's bottom, -inf above its top (no angle reaches it). In closed form, well
+        conditioned at both dead centres: with C = x - l1 + l2, 1 - cos(theta) = (2 l1 - x)
+        (x + 2 l2 - 2 l1) / (2 C l1) and 1 + cos(theta) = x (x + 2 l2) / (2 C l1), so theta =
+        2 atan2(sqrt((2 l1 - x)(x + 2 l2 - 2 l1)), sqrt(x (x + 2 l2)))."""
+        l1, l2 = self.crank_length, self.rod_length
+        x = np.asarray(x, dtype=float)
+        inside = np.clip(x, 0.0, self.stroke_top)
+        half = np.arctan2(
+            np.sqrt((self.stroke_top - inside) * (inside + 2 * (l2 - l1))),
+            np.sqrt(inside * (inside + 2 * l2)),
+        )
+        return np.where(x > self.stroke_top, -np.inf, 2 * half)
+
     def rod_angle(self, theta: npt.ArrayLike) -> np.ndarray:
         """phi = asin(l1/l2 sin(theta)), the rod's angle from the slide axis (rad)."""
         return np.arcsin(self.crank_length / self.rod_length * np.sin(np.asarray(theta, float)))
