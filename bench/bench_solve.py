@@ -46,7 +46,8 @@ from control.tightening import slider_uncertainty
 from crank.study import parse_seeds
 from ppann import kernel
 from ppann.checkpoint import load
-from ppann.model import PPANN, FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann
 
 
 def main() -> None:

@@ -23,8 +23,9 @@ import numpy as np
 import torch
 
 from ppann.fit import fit
+from ppann.heads import FusedHeads
 from ppann.losses import n_step_mse
-from ppann.model import PPANN, FusedHeads, n_step_prediction
+from ppann.model import PPANN, n_step_prediction
 from ppann.modes import MODES
 from ppann.montecarlo import monte_carlo
 from ppann.train import make_splits

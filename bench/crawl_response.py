@@ -34,7 +34,7 @@ from common.figures import save_figure
 from common.jsonio import write_json
 from control.ocp_file import OCPFile, read_ocp
 from ppann.checkpoint import load
-from ppann.model import FusedHeads
+from ppann.heads import FusedHeads
 from ppann.montecarlo import monte_carlo
 from replay.campaign import Machines, play
 from replay.config import ReplayConfig

@@ -43,7 +43,8 @@ from common.errors import CrankError
 from common.jsonio import write_json
 from control.ocp_file import Profile, read_ocp
 from ppann.checkpoint import load
-from ppann.model import PPANN, FusedHeads, rollout
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, rollout
 from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
 from replay.heldout import heldout_check

@@ -23,7 +23,7 @@ from control.ocp_file import read_ocp
 from control.tail import TAIL_DRAWS, tail_check
 from control.tightening import line_allowance
 from ppann.checkpoint import load
-from ppann.model import FusedHeads
+from ppann.heads import FusedHeads
 from replay.laws import profile_solution
 
 

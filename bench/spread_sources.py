@@ -45,10 +45,11 @@ import torch
 from control.config import lower_tail
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
+from ppann.heads import FusedHeads
 from ppann.lever import lever_squared
 from ppann.losses import propagated_terms
 from ppann.machine import EpisodeTerms, machine_design, posterior_offsets
-from ppann.model import PPANN, FusedHeads
+from ppann.model import PPANN
 from ppann.montecarlo import machine_factors, monte_carlo, rollout
 from ppann.train import History, make_splits, sigma_data, train_sigma
 from ppann.train_config import TrainConfig

@@ -22,7 +22,7 @@ from control.profiles import decide, own_tail
 from control.tail import TAIL_DRAWS
 from crank.study import parse_seeds
 from ppann.checkpoint import load
-from ppann.model import FusedHeads
+from ppann.heads import FusedHeads
 
 
 def main() -> None:

@@ -34,7 +34,7 @@ from common.errors import CrankError
 from common.jsonio import write_json
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
-from ppann.model import FusedHeads
+from ppann.heads import FusedHeads
 from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
 from replay.campaign import draw_machines, play

@@ -84,7 +84,8 @@ from common.errors import CrankError
 from control.config import OCPConfig
 from control.ocp import NominalOCP, OCPError, Solution
 from control.tightening import Uncertainty, slider_uncertainty
-from ppann.model import PPANN, FusedHeads
+from ppann.heads import FusedHeads
+from ppann.model import PPANN
 
 SURROGATE = 200
 """Angle deviations per constraint sample in the NLP's tightening term (the Monte-Carlo's

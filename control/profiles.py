@@ -45,7 +45,8 @@ from control.robust import (
     solve_robust,
 )
 from control.tail import TailCheck, tail_check
-from ppann.model import PPANN, FusedHeads
+from ppann.heads import FusedHeads
+from ppann.model import PPANN
 
 DECISION_BAND = 2.0
 """A verdict whose tightening is within this many standard errors of the cap is decided again

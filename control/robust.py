@@ -75,7 +75,8 @@ from control.records import (
     iteration,
 )
 from control.tightening import Uncertainty, slider_uncertainty
-from ppann.model import PPANN, FusedHeads
+from ppann.heads import FusedHeads
+from ppann.model import PPANN
 
 MIN_DAMPING = 1 / 256
 STROKE_SHARE = 0.95

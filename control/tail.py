@@ -66,7 +66,7 @@ from common.streams import stream
 from control.config import TARGET_RATE, OCPConfig, lower_tail
 from control.ocp import Solution
 from control.tightening import line_allowance
-from ppann.model import FusedHeads
+from ppann.heads import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
 from ppann.transmission import draw
 from twin.geometry import Geometry

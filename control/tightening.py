@@ -18,8 +18,8 @@ from common.streams import PrefixDraws, rng, stream
 from control.config import OCPConfig, lower_tail
 from control.ocp import Solution
 from ppann.confidence import confidence_quantile
+from ppann.heads import FusedHeads
 from ppann.machine import sigma_upper
-from ppann.model import FusedHeads
 from ppann.modes import MONTE_CARLO_MODES
 from ppann.montecarlo import Feedback, monte_carlo, rollout
 from ppann.transmission import draw

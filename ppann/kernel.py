@@ -56,8 +56,8 @@ from pathlib import Path
 import numpy as np
 
 from common.threads import rollout_threads
+from ppann.heads import INERTIA_FACTOR_FLOOR, FusedHeads
 from ppann.kernel_source import SOURCE
-from ppann.model import INERTIA_FACTOR_FLOOR, FusedHeads
 
 FLAGS = ("-O3", "-march=native", "-ffast-math", "-fPIC")
 """Compile flags. The link is apart and without -ffast-math: linked with it, GCC adds

@@ -41,8 +41,9 @@ import numpy.typing as npt
 from common.streams import PrefixDraws, sequence_key
 from ppann import kernel
 from ppann.counter import counter_normals, key_of
+from ppann.heads import FusedHeads
 from ppann.lever import lever_torque_sigma
-from ppann.model import PPANN, FusedHeads
+from ppann.model import PPANN
 from ppann.modes import MONTE_CARLO_MODES, check_mode
 
 NORMAL_SOURCES = ("stream", "counter")

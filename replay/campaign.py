@@ -291,7 +291,7 @@ def run_campaign(
     machines = machines if machines is not None else draw_machines(config, ocp.horizon)
     heads = None
     if model is not None:
-        from ppann.model import FusedHeads
+        from ppann.heads import FusedHeads
 
         heads = FusedHeads(model)
     replays = {}

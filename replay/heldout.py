@@ -82,7 +82,8 @@ from control.ocp_file import Profile, read_ocp
 from control.tail import crank_angles, lowered_sliders, share_below
 from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
-from ppann.model import PPANN, FusedHeads
+from ppann.heads import FusedHeads
+from ppann.model import PPANN
 from ppann.modes import MODES
 from ppann.montecarlo import Bands, Feedback, monte_carlo
 from ppann.transmission import draw

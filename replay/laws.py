@@ -23,7 +23,7 @@ from replay.config import ReplayConfig
 
 if TYPE_CHECKING:
     from control.ocp import Solution
-    from ppann.model import FusedHeads
+    from ppann.heads import FusedHeads
 
 
 def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:

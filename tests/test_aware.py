@@ -17,7 +17,8 @@ from control.config import OCPConfig, OCPConfigError
 from control.ocp import NominalOCP, Solution
 from control.robust import BeyondStrokeError, solve_robust
 from control.tightening import slider_uncertainty
-from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann, rollout
 
 CONFIG = OCPConfig()
 INDEX = np.array(CONFIG.constraint_samples) - 1

@@ -15,9 +15,10 @@ import torch
 from control.dynamics import CasadiPPANN
 from ppann import kernel
 from ppann.checkpoint import load, save
+from ppann.heads import FusedHeads
 from ppann.losses import propagated_terms
 from ppann.machine import machine_design
-from ppann.model import PPANN, FusedHeads, PPANNConfig
+from ppann.model import PPANN, PPANNConfig
 from ppann.montecarlo import rollout
 from ppann.train import History, TrainConfig, make_splits, train_mean
 from tests.test_ppann import synthetic

@@ -12,7 +12,8 @@ import torch
 from common.threads import set_rollout_threads
 from ppann import kernel
 from ppann.counter import counter_normals, key_of, splitmix
-from ppann.model import PPANN, FusedHeads, PPANNConfig
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, PPANNConfig
 from ppann.montecarlo import monte_carlo, rollout
 from tests.test_kernel import _trained_like
 

@@ -8,7 +8,8 @@ import torch
 
 from common.threads import set_rollout_threads
 from ppann import kernel
-from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, PPANNConfig, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo, rollout
 
 pytestmark = pytest.mark.skipif(kernel.load() is None, reason="no C compiler on this machine")

@@ -19,7 +19,8 @@ from control.ocp_file import OCPFile, read_ocp
 from control.solve import solve_file
 from control.tightening import slider_uncertainty
 from ppann.checkpoint import save
-from ppann.model import PPANN, FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann
 from replay.campaign import run_campaign
 from replay.config import ReplayConfig
 from replay.foxglove import plan_rows

@@ -10,8 +10,9 @@ import torch
 
 from ppann import kernel
 from ppann.checkpoint import load, save
+from ppann.heads import FusedHeads
 from ppann.lever import lever_arm
-from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
+from ppann.model import PPANN, PPANNConfig, constant_ppann
 from ppann.montecarlo import monte_carlo, rollout
 from ppann.train import History, TrainConfig, make_splits, train_sigma
 from twin.dataset import Dataset

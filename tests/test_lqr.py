@@ -14,7 +14,8 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, linearise, riccati_gains
 from control.robust import solve_robust
 from control.tightening import slider_uncertainty
-from ppann.model import FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 
 

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+from ppann.heads import FusedHeads
 from ppann.losses import propagated_nll
 from ppann.machine import EpisodeTerms, marginal_nll, sigma_upper, white_nll
-from ppann.model import PPANN, FusedHeads, PPANNConfig, constant_ppann
+from ppann.model import PPANN, PPANNConfig, constant_ppann
 from ppann.montecarlo import monte_carlo
 from ppann.train import History, TrainConfig, make_splits, train_sigma
 from twin.dataset import Dataset

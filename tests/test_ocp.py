@@ -22,7 +22,8 @@ from control.robust import BeyondStrokeError, solve_robust
 from control.solve import figure_paths, solve_file
 from control.tightening import slider_uncertainty
 from ppann.checkpoint import CheckpointError, save
-from ppann.model import PPANN, FusedHeads, constant_ppann, rollout
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann, rollout
 from ppann.montecarlo import monte_carlo
 from tests.conftest import crank
 from twin.geometry import PAPER

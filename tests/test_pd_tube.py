@@ -12,7 +12,8 @@ from control.config import PD_GAINS, OCPConfig, OCPConfigError, law_of, loop_of
 from control.robust import solve_robust
 from control.tightening import slider_uncertainty
 from crank.chain import RunConfig
-from ppann.model import PPANN, FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann
 from replay.config import ReplayConfig
 from replay.laws import closed_loop_gains, plays_own_law
 

@@ -13,10 +13,10 @@ import torch
 
 from ppann.checkpoint import CheckpointError, load, save
 from ppann.data import DataError
+from ppann.heads import FusedHeads
 from ppann.losses import propagated_nll
 from ppann.model import (
     PPANN,
-    FusedHeads,
     ModelConfigError,
     PPANNConfig,
     n_step_prediction,

@@ -17,7 +17,8 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp_file import OCPFile
 from control.tightening import sigma_relative_se
-from ppann.model import PPANN, FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig

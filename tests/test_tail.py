@@ -19,7 +19,8 @@ from control.ocp import NominalOCP
 from control.records import BeyondStrokeError
 from control.tail import tail_check
 from control.tightening import line_allowance
-from ppann.model import FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import constant_ppann
 from ppann.montecarlo import monte_carlo
 from ppann.transmission import draw
 from tests.test_tightening import _line_model

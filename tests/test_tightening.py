@@ -23,7 +23,8 @@ from control.tightening import (
     tightening,
 )
 from ppann.confidence import confidence_quantile
-from ppann.model import PROFILE_GRID, FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import PROFILE_GRID, constant_ppann
 from ppann.montecarlo import rollout
 from replay.rates import rate_upper
 from twin.geometry import PAPER

@@ -11,7 +11,8 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp import NominalOCP
 from control.tightening import slider_uncertainty
-from ppann.model import FusedHeads, constant_ppann
+from ppann.heads import FusedHeads
+from ppann.model import constant_ppann
 from ppann.transmission import (
     LEVELS,
     SLOPE_SHARE,
