@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,7 @@ from control.config import OCPConfig
 from control.ocp import NominalOCP
 from control.ocp_file import FAILED_FORMAT, OCPFileError, read_ocp
 from control.solve import failed_path
+from crank.chain import STAGES_FILE
 from ppann.checkpoint import save
 from ppann.model import PPANN, constant_ppann
 from replay.config import ReplayConfig
@@ -167,14 +169,20 @@ def _constant_checkpoint(
     return model
 
 
-def _kill_mid_step(args: list[str], out: Path, *, after: float) -> None:
+def _kill_mid_step(
+    args: list[str], out: Path, *, after: float, until: Callable[[], bool] | None = None
+) -> None:
     """Run `crank ARGS`, SIGKILL it `after` seconds into the step that writes `out` (once its
-    output lock exists), and wait for it."""
+    output lock exists, and `until` holds), and wait for it."""
     process = subprocess.Popen(
         [sys.executable, "-m", "crank", *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     deadline = time.monotonic() + 120
-    while not lock_path(out).exists() and time.monotonic() < deadline:
+
+    def ready() -> bool:
+        return lock_path(out).exists() and (until is None or until())
+
+    while not ready() and time.monotonic() < deadline:
         assert process.poll() is None, "finished before it could be killed"
         time.sleep(0.1)
     time.sleep(after)
@@ -214,7 +222,13 @@ def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None
     short.write_text("[train]\nmax_epochs = 3\nsigma_epochs = 20\n")
     args = ["run", "--seconds", "12", "--config", str(short), "--logs", str(tmp_path)]
     args += ["--name", "r"]
-    _kill_mid_step(args, run_dir, after=8.0)
+    stages = run_dir / STAGES_FILE
+
+    def generated() -> bool:  # killed in training, however slow the machine (a fixed 8 s after
+        # the run's lock fell inside generation on a machine busy with a sweep, session 45)
+        return stages.exists() and "generate" in json.loads(stages.read_text())
+
+    _kill_mid_step(args, run_dir, after=1.0, until=generated)
     assert (run_dir / "config.json").is_file()
     assert not (run_dir / "report.json").exists() and not (run_dir / "report.md").exists()
     again = crank(*args)
