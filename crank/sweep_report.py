@@ -226,6 +226,8 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
             top.plot([], [], color="k", ls="--", lw=1, label="target")[0],
         ],
         fontsize=8,
+        loc="upper left",  # beside the panel: inside, it hid a seed's bound (session 45)
+        bbox_to_anchor=(1.005, 1.0),
     )
     bottom.set_ylabel("robust cost premium [%]")
     premiums = [100 * r["premium"] for r in rows if r.get("premium") is not None]
