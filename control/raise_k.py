@@ -86,7 +86,8 @@ def raised_k(
     ]
     goal = aim(check)
     # a moved draw is at or above the height where its angle is within the reach of top dead
-    # centre (twin/geometry.py): a comparison per draw in place of its slider (~5 times faster)
+    # centre (twin/geometry.py): a comparison per draw in place of its slider (2.1x faster on
+    # 80 000 draws, measured beside a sweep)
     reach = geometry.crank_reach(config.height + population)
 
     def rate(dk: float) -> float:
