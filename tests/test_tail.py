@@ -270,7 +270,7 @@ def test_a_tail_above_the_target_is_solved_at_a_raised_k(centred, monkeypatch) -
         np.testing.assert_array_equal(result.nominal_loops[loop], spread)
 
 
-def test_a_raised_profile_s_time_is_its_loops_checks_and_predictions(centred, monkeypatch) -> None:
+def test_a_raised_profiles_time_is_its_loops_checks_and_prediction(centred, monkeypatch) -> None:
     """The wall time of a profile decided at a raised k is every decision's loop, every check
     and the raise's prediction, to the clock's resolution (before session 45 the prediction,
     0.05-0.13 s on the defaults' 80 000-draw checks, was left out); the prediction is held 50 ms
