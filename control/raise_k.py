@@ -71,7 +71,7 @@ def raised_k(
     Per constraint sample: plan_angle, the torque's mean-model crank angle, rad (its slider is
     `geometry`'s there); tightening, its tightening (`method`'s: "centred" or "gaussian");
     sampling and population, the parts of it for the Monte-Carlo's finite sample and for the
-    line's mean, m. config gives the height; check.angles and check.lowered the draws."""
+    line's mean, m. config gives the height; check.angles the draws."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
