@@ -11,7 +11,7 @@ where a C compiler is found) on every core (the kernel's threads) and on one, be
 rollout, in the same run.
 
     python bench/bench_solve.py [--model logs/<run>/model.pt] [--repeat 3] [--mc-seeds 0-4]
-        [--seeds-only]
+        [--seeds-only] [--tail-sampling plain|lines]
 
 Last, the default again on each of `--mc-seeds` (OCPConfig.mc_seed; the chain takes the
 training seed): the loop's path (drafts, full solves, IPOPT iterations) depends on the
@@ -37,7 +37,7 @@ import time
 
 from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
-from control.config import OCPConfig
+from control.config import TAIL_SAMPLINGS, OCPConfig
 from control.ocp import NominalOCP, Solution
 from control.profiles import solve_decided
 from control.records import RobustResult
@@ -57,6 +57,12 @@ def main() -> None:
     parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds, e.g. 0-4 or 0,3")
     parser.add_argument(
         "--seeds-only", action="store_true", help="only the last section, per Monte-Carlo seed"
+    )
+    parser.add_argument(
+        "--tail-sampling",
+        default=OCPConfig().tail_sampling,
+        choices=TAIL_SAMPLINGS,
+        help="the own-tail check's draws",
     )
     args = parser.parse_args()
     try:
@@ -99,7 +105,9 @@ def main() -> None:
     build = time.perf_counter() - started
     if args.seeds_only:
         print(f"model: {source}\nbuild (SX expansion + IPOPT setup, once): {build:.2f} s")
-        seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat)
+        seed_paths(
+            model, ocps[False], mc_seeds, repeat=args.repeat, tail_sampling=args.tail_sampling
+        )
         return
     started = time.perf_counter()
     ocps[True] = NominalOCP(model, OCPConfig(compiled=True))
@@ -132,7 +140,7 @@ def main() -> None:
         )
         print(f"{profile} cost premium: {result.robust.cost / result.nominal.cost - 1:+.1%}")
     monte_carlo_paths(model, result.robust, OCPConfig(), repeat=args.repeat)
-    seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat)
+    seed_paths(model, ocps[False], mc_seeds, repeat=args.repeat, tail_sampling=args.tail_sampling)
 
 
 def timed(
@@ -152,7 +160,9 @@ def timed(
     return nominal, robust, mc, solution, result
 
 
-def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat: int) -> None:
+def seed_paths(
+    model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat: int, tail_sampling: str
+) -> None:
     """The default robust loop on each Monte-Carlo seed: its solves and the ratio (median of
     `repeat`, each robust loop against the nominal solve timed just before it); beside it the
     profile as `crank solve` decides it (control/profiles.py solve_decided: the verdict's
@@ -162,7 +172,7 @@ def seed_paths(model: PPANN, ocp: NominalOCP, seeds: tuple[int, ...], *, repeat:
     ratios, decided = [], []
     heads = FusedHeads(model)
     for seed in seeds:
-        config = OCPConfig(mc_seed=seed)
+        config = OCPConfig(mc_seed=seed, tail_sampling=tail_sampling)
         nominal, robust, _, _, result = timed(model, ocp, config, "robust", repeat)
         runs = [b / a for a, b in zip(nominal, robust, strict=True)]
         its = result.iterations

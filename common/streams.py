@@ -31,6 +31,7 @@ STREAMS: dict[str, str] = {
     "training": "network initialisation and minibatch order",
     "monte_carlo": "Monte-Carlo draws of the OCP's robust loop",
     "tail_check": "Monte-Carlo draws of a robust torque's own tail, checked after its loop",
+    "tail_lines": "the lines of that check by line sampling",
     "validation_monte_carlo": "Monte-Carlo bands of the validation report",
     "calibration_machines": "twin machines of the model report's calibration",
     "calibration_noise": "slider disturbance of the calibration replays",

@@ -20,6 +20,7 @@ class OCPConfigError(CrankError, ValueError):
 TIGHTENINGS = ("centred", "gaussian", "quantile")
 MARGIN_SCHEMES = ("aware", "bracket")
 TAIL_REMEDIES = ("raise-k", "quantile")
+TAIL_SAMPLINGS = ("plain", "lines")
 """What a torque whose own tail is above its target is solved again with (control/tail.py):
 "raise-k", the configured tightening at the k its check predicts to bring it to the target,
 then the quantile tightening if that does not pass; "quantile", the quantile tightening
@@ -138,6 +139,10 @@ class OCPConfig:
     again."""
     tail_remedy: str = "raise-k"
     """What the tail check solves such a torque again with (TAIL_REMEDIES)."""
+    tail_sampling: str = "plain"
+    """How the tail check draws (TAIL_SAMPLINGS): "plain" trajectories (control/tail.py) or
+    "lines" (line sampling along the direction the crank runs ahead or behind,
+    control/tail_lines.py: the same rate from far fewer trajectories)."""
     compiled: bool = False
     """Compile the NLP's functions to C (CasADi's JIT with the system's C compiler, ~15 s once
     per model; CasADi's virtual machine if there is none). Each IPOPT iteration is then ~3x
@@ -183,6 +188,7 @@ class OCPConfig:
         check_choice("margin_scheme", self.margin_scheme, MARGIN_SCHEMES, error=OCPConfigError)
         check_choice("tightening", self.tightening, TIGHTENINGS, error=OCPConfigError)
         check_choice("tail_remedy", self.tail_remedy, TAIL_REMEDIES, error=OCPConfigError)
+        check_choice("tail_sampling", self.tail_sampling, TAIL_SAMPLINGS, error=OCPConfigError)
         check_count("mc_samples", self.mc_samples, low=0, high=MAX_MC_SAMPLES, error=OCPConfigError)
         tail = lower_tail(self.k_sigma)
         needed = GAUSSIAN_SAMPLES

@@ -71,7 +71,9 @@ def raised_k(
     Per constraint sample: plan_angle, the torque's mean-model crank angle, rad (its slider is
     `geometry`'s there); tightening, its tightening (`method`'s: "centred" or "gaussian");
     sampling and population, the parts of it for the Monte-Carlo's finite sample and for the
-    line's mean, m. config gives the height; check.angles the draws."""
+    line's mean, m. config gives the height; check.angles the draws (with line sampling,
+    control/tail_lines.py: its lines' own draws give the table, and the rate is the lines'
+    probability with each crossing moved by the shift over its slope)."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
@@ -91,11 +93,16 @@ def raised_k(
     reach = geometry.crank_reach(config.height + population)
 
     def rate(dk: float) -> float:
-        above = np.ones(len(check.angles), dtype=bool)
+        shifts = []
         for j, table in enumerate(tables):
             shift = _shift(table, k=k, raised=k + dk, sampling=sampling[j], slack=slack[j])
             if shift is None:
                 return 1.0
+            shifts.append(shift)
+        if check.lines is not None:  # line sampling: each line's crossings move by the shift
+            return float(check.lines.probabilities(np.array(shifts)).mean())
+        above = np.ones(len(check.angles), dtype=bool)
+        for j, shift in enumerate(shifts):
             phase = np.remainder(check.angles[:, j] + (shift + math.pi), 2 * math.pi) - math.pi
             above &= np.abs(phase) <= reach[j]  # a diverged draw (NaN) is below
         return float((~above).mean())

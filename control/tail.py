@@ -56,15 +56,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from common.streams import stream
+from control import tail_lines as lines
 from control.config import TARGET_RATE, OCPConfig, lower_tail
 from control.ocp import Solution
+from control.tail_lines import Crossings
 from control.tightening import line_allowance
 from ppann.heads import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
@@ -106,7 +108,13 @@ class TailCheck:
     (draws, constraint samples), m (NaN where a draw diverged)."""
     angles: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
     """The crank angle (theta + delta) under each of `lowered`'s sliders, rad: what
-    control/raise_k.py moves."""
+    control/raise_k.py moves (with lines: the pilot's plain trajectories)."""
+    sampling: str = "plain"
+    """How it drew (OCPConfig.tail_sampling): "plain" trajectories or "lines"."""
+    standard_error: float = math.nan
+    """Of `rate`: binomial at the rate for plain draws, the lines' spread for lines."""
+    lines: Crossings | None = field(repr=False, compare=False, default=None)
+    """With line sampling: every line's crossings (control/raise_k.py moves them)."""
 
     @property
     def passed(self) -> bool:
@@ -123,6 +131,9 @@ class TailCheck:
             "k_sigma": self.k_sigma,
             "passed": self.passed,
             "wall_time_s": self.wall_time,
+            "sampling": self.sampling,
+            "standard_error": self.standard_error,
+            **({} if self.lines is None else self.lines.summary()),
         }
 
 
@@ -163,6 +174,23 @@ def tail_check(
     feedback = None
     if gains is not None:
         feedback = Feedback(solution.states, gains, config.torque_limit)
+    if config.tail_sampling == "lines":
+        lined = _lines(
+            heads,
+            solution,
+            config,
+            spread=spread,
+            population=population,
+            feedback=feedback,
+            draws=draws,
+            goal=goal,
+        )
+        if lined is not None:
+            return replace(
+                lined,
+                tightening=tightening,
+                wall_time=time.perf_counter() - started,
+            )
     stages = TAIL_STAGES if draws is None else (draws,)
     crank = np.zeros((0, len(config.constraint_samples)))
     lowered = crank
@@ -198,13 +226,74 @@ def tail_check(
         stages=stages[: stages.index(count) + 1],
         lowered=lowered,
         angles=crank,
+        standard_error=standard_error(rate, count),
     )
 
 
-def decides(rate: float, goal: float, draws: int) -> bool:
+def _lines(
+    heads: FusedHeads,
+    solution: Solution,
+    config: OCPConfig,
+    *,
+    spread: np.ndarray | None,
+    population: np.ndarray,
+    feedback: Feedback | None,
+    draws: int | None,
+    goal: float,
+) -> TailCheck | None:
+    """`tail_check` by line sampling (control/tail_lines.py): its direction, then LINE_STAGES of
+    lines (or exactly `draws`) until one decides by the lines' own standard error; None where
+    the direction does not suit every constraint sample (the plain check then)."""
+    index = np.array(config.constraint_samples) - 1
+    simulator = lines.Simulator(
+        heads,
+        np.asarray(solution.states[0], dtype=float),
+        np.asarray(solution.tau, dtype=float),
+        lines.layout(heads, config.mc_mode, int(index.max())),
+        heads.machine_sigma if spread is None else np.asarray(spread),
+        index,
+        feedback,
+    )
+    found = lines.direction(simulator)
+    if not found.usable:
+        return None
+    reach = heads.geometry.crank_reach(config.height + np.asarray(population))
+    rng = np.random.default_rng(stream(config.mc_seed, "tail_lines"))
+    stages = lines.LINE_STAGES if draws is None else (draws,)
+    parts: list[lines.Crossings] = []
+    for count in stages:
+        u = rng.standard_normal((count - sum(len(p.lower) for p in parts), simulator.layout.size))
+        parts.append(lines.crossings(simulator, found, u, reach))
+        found_lines = lines.Crossings.joined(parts)
+        rate, se = lines.mean_and_error(found_lines.probabilities())
+        if count == stages[-1] or decides(rate, goal, count, se=se):
+            break
+    return TailCheck(
+        draws=count,
+        rate=rate,
+        samples={k: found_lines.per_sample()[j] for j, k in enumerate(config.constraint_samples)},
+        target=goal,
+        tightening="",
+        k_sigma=config.k_sigma,
+        wall_time=0.0,
+        stages=stages[: stages.index(count) + 1],
+        lowered=lowered_sliders(heads.geometry, found_lines.plain, population),
+        angles=found_lines.plain,
+        sampling="lines",
+        standard_error=se,
+        lines=found_lines,
+    )
+
+
+def decides(rate: float, goal: float, draws: int, *, se: float | None = None) -> bool:
     """Whether a stage of the sequential check (module docstring) of `draws` trajectories at
     `rate` stops: TAIL_BAND standard errors (at the target) below the target, or, from
-    TAIL_DRAWS on, as far above it. At a target of 0 or 1 (no error) any gap decides."""
+    TAIL_DRAWS on, as far above it. At a target of 0 or 1 (no error) any gap decides. With
+    `se` (line sampling: the lines' own standard error, and crossings that size a raise at any
+    stage) that many of it on either side, at any stage."""
+    if se is not None:
+        gap = rate - goal
+        return abs(gap) >= TAIL_BAND * se if se > 0 else gap != 0
     gap, se = rate - goal, standard_error(goal, draws)
     distance = gap / se if se > 0 else math.copysign(math.inf, gap) if gap else 0.0
     return distance <= -TAIL_BAND or (draws >= TAIL_DRAWS and distance >= TAIL_BAND)

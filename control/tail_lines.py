@@ -1,0 +1,301 @@
+"""The torque's own tail by line sampling (beyond the paper; session 46).
+
+control/tail.py estimates a robust torque's own rate below the height from plain Monte-Carlo
+trajectories: near the 0.5 % target that takes 80 000 of them to tell 0.45 % from 0.5 %, about
+2.3 nominal solves, which kept bench/bench_solve.py's ratio above 3 (bench/raise_k.md).
+
+Line sampling (Koutsourelakis, Pradlwarter and Schuëller, *Reliability of structures in high
+dimensions*, Prob. Eng. Mech. 19, 2004) reads the same probability with far fewer trajectories
+where failure lies along one direction of the standard normals. Here every random number of a
+trajectory is a standard normal u (`Layout`: the machine's three, the white z of every
+step, the slider force's, the transmission's angle by its normal score), and the crank angle at
+each constraint sample is close to linear in u (R² 0.94-0.97 on a default model's torque: the
+slider's tail is non-normal through the slider's curve near top dead centre, not through the
+angle). So:
+1. the direction: the gradient of the crank angle at each constraint sample in u, by central
+   differences at u = 0 (DIFFERENCE_STEP), each scaled to unit length and summed (the samples'
+   gradients point the same way, cosine 0.93 on that model: the crank running ahead or behind);
+2. each line is a draw u, simulated as it is (a plain trajectory, kept for control/raise_k.py),
+   then moved along the direction: the crank angle at sample j crosses the edges of its window
+   around top dead centre (the slider at the height, `Geometry.crank_reach`) at c_lo and c_hi,
+   found by secant steps (SECANT_STEPS, from the direction's slope), and the line's probability
+   below the height at any sample is Φ(max_j c_lo) + Φ(−min_j c_hi) (the union, exactly, on
+   the line);
+3. the rate is the lines' mean, its standard error their spread's over √n, and the check stops
+   in LINE_STAGES as control/tail.py's plain one does, by that standard error (on either side
+   at any stage: a raise reads the lines' crossings, each moved by the shift over its slope).
+
+The estimate is unbiased whatever the direction (a poor one only costs variance) as long as
+each line crosses each edge once. Measured on the k-3 torques of the seed-3 default model
+(session 46, development, Monte-Carlo seeds 0-3): 1000 lines read 0.37-0.60 % with a standard
+error of 0.008-0.012 points in 0.06-0.07 s (about half a nominal solve), where 320 000 plain
+trajectories read 0.37-0.58 % ± 0.011-0.013 in 2.2 s and the plain check drew 80 000 on three of
+the four (0.53-0.55 s, se 0.023-0.027). Two secant steps a line left the rate 0.005 points low
+(a standard error of 4000 lines), three 0.002, four within 0.0001 of eight. A sample whose
+gradient points away from the direction (alignment below MIN_ALIGNMENT) could cross its edges
+twice or never: there the check draws plain trajectories as before.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import special
+
+from ppann.heads import FusedHeads
+from ppann.modes import MONTE_CARLO_MODES
+from ppann.montecarlo import Feedback, rollout
+from ppann.transmission import LEVELS
+
+DIFFERENCE_STEP = 1.0
+"""Each normal's move in the central differences that give the direction: one standard normal
+(a secant over the spread, not a tangent; 0.3 read the same rate with 1.1-1.4x the variance, a
+pilot's regression with 1.1-1.2x, on two torques of a default model)."""
+LINE_STAGES = (1000, 4000, 16_000)
+"""Lines of the check's sequential stages, each nested in the next."""
+SECANT_STEPS = 4
+"""Evaluations per edge at most; most lines settle in two (ROOT_TOLERANCE)."""
+ROOT_TOLERANCE = 1e-2
+"""A crossing has settled when a secant step moves it less than this, in standard normals."""
+FAR = 5.0
+"""An edge predicted this far along the line (Φ(−5) = 2.9e-7 a line) is taken at its linear
+prediction, not simulated."""
+SLOPE_RANGE = (0.5, 2.0)
+"""A secant's slope is kept within these multiples of the direction's."""
+MIN_ALIGNMENT = 0.5
+"""The least cosine between a constraint sample's gradient and the direction for line sampling."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each random number of a trajectory sits in its standard normal vector u."""
+
+    steps: int
+    machine: int
+    """3 with machine draws (mixed, machine), else 0."""
+    white: int
+    """Rows of white z (steps, 1 for one per trajectory, 0 for none), 3 normals each."""
+    lever: bool
+    """The slider force's normal per white row."""
+
+    @property
+    def size(self) -> int:
+        return self.machine + self.white * (3 + self.lever) + 1
+
+    def split(
+        self, u: np.ndarray, spread: np.ndarray, quantiles: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.ndarray]:
+        """The rollout's inputs from u (n, size): machine factors, eps (rows, n, 3), the force's
+        normals (rows, n) and the transmission's angle (n,)."""
+        n, at = len(u), 0
+        factors = np.exp(spread * u[:, :3]) if self.machine else None
+        at += self.machine
+        eps = lever = None
+        if self.white:
+            eps = u[:, at : at + 3 * self.white].reshape(n, self.white, 3).transpose(1, 0, 2)
+            at += 3 * self.white
+            if self.lever:
+                lever = u[:, at : at + self.white].T
+                at += self.white
+        return factors, eps, lever, transmission_angle(quantiles, u[:, at])
+
+
+def layout(heads: FusedHeads, mode: str, steps: int) -> Layout:
+    """The normals of `mode`'s trajectories of `steps` steps on `heads` (ppann/modes.py)."""
+    draw = MONTE_CARLO_MODES[mode]
+    rows = {"step": steps, "held": 1, None: 0}[draw.white]
+    return Layout(steps, 3 * draw.machine, rows, heads.has_lever and rows > 0)
+
+
+def transmission_angle(quantiles: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """The transmission's angle at normal score `score`: ppann/transmission.py `draw`'s inverse
+    CDF at Φ(score), rad (zeros where nothing was fitted)."""
+    if not np.any(quantiles):
+        return np.zeros(len(score))
+    return np.interp(special.ndtr(score), LEVELS, quantiles)
+
+
+@dataclass(frozen=True)
+class Simulator:
+    """The crank angle at the constraint samples as a function of u (`angles`)."""
+
+    heads: FusedHeads
+    x0: np.ndarray
+    tau: np.ndarray
+    layout: Layout
+    spread: np.ndarray
+    index: np.ndarray
+    """0-based state index of each constraint sample."""
+    feedback: Feedback | None
+
+    def angles(self, u: np.ndarray, samples: np.ndarray | None = None) -> np.ndarray:
+        """theta + delta at the constraint samples `samples` (default all), (n, len), rad."""
+        chosen = np.arange(len(self.index)) if samples is None else np.asarray(samples)
+        at = self.index[chosen]
+        kept = np.unique(at)
+        steps = int(kept.max())
+        factors, eps, lever, delta = self.layout.split(u, self.spread, self.heads.transmission)
+        if eps is not None and len(eps) > 1:
+            eps, lever = eps[:steps], None if lever is None else lever[:steps]
+        states = rollout(
+            self.heads,
+            self.x0,
+            self.tau[:steps],
+            n_samples=len(u),
+            eps=None if eps is None else np.ascontiguousarray(eps),
+            factors=factors,
+            feedback=self.feedback,
+            lever_eps=None if lever is None else np.ascontiguousarray(lever),
+            at=kept,
+        )
+        return states[:, np.searchsorted(kept, at), 0] + delta[:, None]
+
+
+@dataclass(frozen=True)
+class Direction:
+    """The lines' direction in u and the crank's slope along it."""
+
+    direction: np.ndarray
+    """Unit vector in u, (size,)."""
+    slopes: np.ndarray
+    """d(angle)/dc along it at each constraint sample, rad (the gradients' projections)."""
+    alignment: np.ndarray
+    """Cosine between each sample's gradient and the direction."""
+    centre: np.ndarray
+    """The top dead centre nearest the mean trajectory's angle at each sample, rad."""
+
+    @property
+    def usable(self) -> bool:
+        return bool(np.all(self.alignment >= MIN_ALIGNMENT) and np.all(self.slopes > 0))
+
+
+def direction(simulator: Simulator) -> Direction:
+    """The direction (module docstring, 1): the crank angle's gradient at each constraint sample
+    by central differences at u = 0, every normal moved by +-DIFFERENCE_STEP (2 size + 1
+    trajectories), each scaled to unit length, summed."""
+    size, step = simulator.layout.size, DIFFERENCE_STEP
+    u = np.concatenate([np.zeros((1, size)), step * np.eye(size), -step * np.eye(size)])
+    angle = simulator.angles(u)
+    centre = 2 * np.pi * np.round(angle[0] / (2 * np.pi))
+    gradients = ((angle[1 : size + 1] - angle[size + 1 :]) / (2 * step)).T
+    lengths = np.linalg.norm(gradients, axis=1)
+    total = (gradients / np.where(lengths > 0, lengths, 1.0)[:, None]).sum(axis=0)
+    unit = total / max(float(np.linalg.norm(total)), 1e-300)
+    slopes = gradients @ unit
+    alignment = slopes / np.where(lengths > 0, lengths, np.inf)
+    return Direction(unit, slopes, alignment, centre)
+
+
+@dataclass(frozen=True)
+class Crossings:
+    """Where each line's crank angle crosses each sample's window edges."""
+
+    lower: np.ndarray
+    """c where sample j's angle is at -reach_j from its top dead centre (crank behind), (n, m)."""
+    upper: np.ndarray
+    """c at which it is at +reach_j (run past), (n, m)."""
+    lower_slope: np.ndarray
+    """d(angle)/dc there, rad, (n, m)."""
+    upper_slope: np.ndarray
+    plain: np.ndarray
+    """Each line's own draw's crank angle at the constraint samples, (n, m), rad: plain
+    Monte-Carlo trajectories (control/raise_k.py's table)."""
+    unsettled: int
+    """Edges whose last secant step still moved more than ROOT_TOLERANCE."""
+    diverged: int
+    """Lines whose angle at c = 0 was not finite (counted wholly below)."""
+
+    @classmethod
+    def joined(cls, parts: list[Crossings]) -> Crossings:
+        """The lines of several stages as one."""
+        if len(parts) == 1:
+            return parts[0]
+        arrays = {
+            name: np.concatenate([getattr(p, name) for p in parts])
+            for name in ("lower", "upper", "lower_slope", "upper_slope", "plain")
+        }
+        return cls(
+            **arrays,
+            unsettled=sum(p.unsettled for p in parts),
+            diverged=sum(p.diverged for p in parts),
+        )
+
+    def per_sample(self) -> dict[int, float]:
+        """Each constraint sample's own rate (0-based column j as j + 1 is not known here:
+        control/tail.py names them)."""
+        p = special.ndtr(self.lower) + special.ndtr(-self.upper)
+        return {j: float(np.minimum(p[:, j], 1.0).mean()) for j in range(p.shape[1])}
+
+    def summary(self) -> dict[str, int]:
+        """What a check's record adds (ocp.json's `tail_checks`)."""
+        return {"lines_unsettled": self.unsettled, "lines_diverged": self.diverged}
+
+    def probabilities(self, shift: np.ndarray | None = None) -> np.ndarray:
+        """Each line's probability below the height at any constraint sample, (n,), with every
+        angle at sample j moved by shift[j] rad (control/raise_k.py; default none)."""
+        lower, upper = self.lower, self.upper
+        if shift is not None:
+            lower = lower - shift / self.lower_slope
+            upper = upper - shift / self.upper_slope
+        left, right = lower.max(axis=1), upper.min(axis=1)
+        p = special.ndtr(left) + special.ndtr(-right)
+        p = np.where(left >= right, 1.0, np.minimum(p, 1.0))
+        return np.where(np.isfinite(p), p, 1.0)
+
+
+def crossings(
+    simulator: Simulator, found: Direction, u: np.ndarray, reach: np.ndarray
+) -> Crossings:
+    """Each line's crossings (module docstring, 2): the draws u (n, size) simulated as they are
+    (each line's own plain trajectory, kept: `plain`), each edge started from there at the
+    direction's slope and refined by secant steps along the line (only the edges within FAR,
+    only the lines not settled)."""
+    unit = found.direction
+    along = u @ unit
+    base = u - np.outer(along, unit)
+    plain = simulator.angles(u)
+    diverged = ~np.all(np.isfinite(plain), axis=1)
+    n, m = plain.shape
+    edges, slopes, unsettled = {}, {}, 0
+    for side, sign in (("lower", -1.0), ("upper", 1.0)):
+        edge, slope = np.empty((n, m)), np.empty((n, m))
+        for j in range(m):
+            target = sign * reach[j]
+            f0 = np.where(diverged, target, plain[:, j] - found.centre[j])
+            b = np.full(n, found.slopes[j])
+            c = along + (target - f0) / b
+            near = np.flatnonzero(np.abs(c) < FAR)
+            prev_c, prev_f = along[near], f0[near]
+            for _ in range(SECANT_STEPS):
+                if len(near) == 0:
+                    break
+                f = simulator.angles(base[near] + np.outer(c[near], unit), [j])[:, 0]
+                f = f - found.centre[j]
+                step_b = (f - prev_f) / np.where(c[near] != prev_c, c[near] - prev_c, np.nan)
+                # a secant across one of the model's small jumps (its stiffness term where theta
+                # crosses 2 pi) is no slope: kept within SLOPE_RANGE of the direction's
+                low, high = SLOPE_RANGE[0] * found.slopes[j], SLOPE_RANGE[1] * found.slopes[j]
+                good = np.isfinite(step_b)
+                b[near] = np.where(good, np.clip(step_b, low, high), b[near])
+                new = c[near] + (target - f) / b[near]
+                keep = np.abs(new - c[near]) > ROOT_TOLERANCE
+                prev_c, prev_f = c[near][keep], f[keep]
+                c[near] = new
+                near = near[keep]
+            unsettled += len(near)
+            edge[:, j], slope[:, j] = c, b
+        edges[side], slopes[side] = edge, slope
+    lower = np.where(diverged[:, None], np.inf, edges["lower"])
+    upper = np.where(diverged[:, None], -np.inf, edges["upper"])
+    return Crossings(
+        lower, upper, slopes["lower"], slopes["upper"], plain, unsettled, int(diverged.sum())
+    )
+
+
+def mean_and_error(p: np.ndarray) -> tuple[float, float]:
+    """The rate the lines read and its standard error (their spread over √n)."""
+    if len(p) < 2:
+        return float(p.mean()), math.inf
+    return float(p.mean()), float(p.std(ddof=1) / math.sqrt(len(p)))
