@@ -3,7 +3,7 @@ Monte-Carlo seeds and every returned robust torque checked on held-out machines.
 
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
         [--mc-samples 1000] [--only "horizon 200"] [--profiles robust-fb,robust-pd]
-        [--heldout-seed S] [--out tasks.json]
+        [--heldout-seed S] [--out tasks.json] [--tail-sampling plain|lines]
 
 Per task, Monte-Carlo seed and robust profile (default the open-loop `robust`; the tubes
 `robust-fb`, `robust-pd` are checked closed loop under their own gains): the verdict (a robust
@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from common.errors import ConfigError, CrankError
-from control.config import OCPConfig
+from control.config import TAIL_SAMPLINGS, OCPConfig
 from control.solve import solve_file
 from crank.console import HELDOUT_SEED
 from crank.study import parse_seeds
@@ -52,6 +52,12 @@ def main() -> None:
     parser.add_argument("--only", default="", help="run the tasks whose name contains this")
     parser.add_argument("--out", default="tasks.json", help="file name beside the model")
     parser.add_argument("--profiles", default="robust", help="robust profiles, comma-separated")
+    parser.add_argument(
+        "--tail-sampling",
+        default=OCPConfig().tail_sampling,
+        choices=TAIL_SAMPLINGS,
+        help="the own-tail check's draws",
+    )
     args = parser.parse_args()
     try:
         mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
@@ -67,7 +73,11 @@ def main() -> None:
             continue
         for mc_seed in mc_seeds:
             config = OCPConfig(
-                **options, mc_seed=mc_seed, mc_samples=args.mc_samples, profiles=profiles
+                **options,
+                mc_seed=mc_seed,
+                mc_samples=args.mc_samples,
+                profiles=profiles,
+                tail_sampling=args.tail_sampling,
             )
             ocp_path = work / f"task{t}-mc{mc_seed}.json"
             started = time.perf_counter()
