@@ -21,7 +21,7 @@ from ppann.heads import FusedHeads
 from ppann.model import constant_ppann
 
 NARROW = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
-CONFIG = OCPConfig(mc_samples=100, confidence=0.0, tail_check=False)
+CONFIG = OCPConfig(mc_samples=100, confidence=0.0, tail_check=False, tail_sampling="plain")
 LINES = replace(CONFIG, tail_sampling="lines")
 LOWERED = np.array([0.5e-3, 1.5e-3])
 """A population drop that puts the centred torque's own rate near 1.4 % (tests/test_tail.py)."""
@@ -114,23 +114,24 @@ def test_the_line_stages_are_nested_and_decide_by_their_own_error(centred) -> No
     """Each stage's lines are the first ones of the next, to the bit; a stage decides at two of
     the lines' own standard errors from the target, on either side, at any stage: a target of
     5 % stops at the first stage a pass, one of 0.5 % at the first a failure, one at the rate
-    of 4000 lines draws the last stage."""
+    of 1000 lines draws the last stage and is decided there by its rate alone."""
     _, _, result = centred
     heads = FusedHeads(NARROW)
     arguments = {"tightening": "centred", "population": LOWERED}
+    first, last = lines.LINE_STAGES
     fixed = {
         n: tail_check(heads, result.robust, LINES, draws=n, **arguments) for n in lines.LINE_STAGES
     }
-    small, middle, large = (fixed[n].lines for n in lines.LINE_STAGES)
-    np.testing.assert_array_equal(middle.lower, large.lower[:4000])
-    np.testing.assert_array_equal(small.upper, middle.upper[:1000])
-    np.testing.assert_array_equal(small.plain, large.plain[:1000])
+    small, large = (fixed[n].lines for n in lines.LINE_STAGES)
+    np.testing.assert_array_equal(small.lower, large.lower[:first])
+    np.testing.assert_array_equal(small.upper, large.upper[:first])
+    np.testing.assert_array_equal(small.plain, large.plain[:first])
     passed = tail_check(heads, result.robust, LINES, goal=0.05, **arguments)
-    assert passed.stages == (1000,) and passed.passed and passed.rate == fixed[1000].rate
+    assert passed.stages == (first,) and passed.passed and passed.rate == fixed[first].rate
     failed = tail_check(heads, result.robust, LINES, goal=0.005, **arguments)
-    assert failed.stages == (1000,) and not failed.passed
-    at = tail_check(heads, result.robust, LINES, goal=fixed[4000].rate, **arguments)
-    assert at.stages == lines.LINE_STAGES and at.rate == fixed[16_000].rate
+    assert failed.stages == (first,) and not failed.passed
+    at = tail_check(heads, result.robust, LINES, goal=fixed[first].rate, **arguments)
+    assert at.stages == lines.LINE_STAGES and at.rate == fixed[last].rate
     assert tail.decides(0.0049, 0.005, 1000, se=0.00004) and tail.decides(0.0051, 0.005, 1, se=5e-5)
     assert not tail.decides(0.0049, 0.005, 80_000, se=0.0001)
 
