@@ -147,7 +147,7 @@ def solve_decided(
     first = checks[0]
     why = (
         f"its {config.tightening} torque's own Monte-Carlo went below the height on "
-        f"{100 * first.rate:.2f} % of {first.draws} trajectories (target {100 * first.target:g} %)"
+        f"{100 * first.rate:.2f} % {_of(first)} (target {100 * first.target:g} %)"
         + "".join(f"; {step}" for step in tried)
     )
     try:
@@ -163,6 +163,13 @@ def solve_decided(
         tail_checks=(*checks, *quantile.tail_checks),
         wall_time=spent + quantile.wall_time,
     )
+
+
+def _of(check: TailCheck) -> str:
+    """What a check's rate was read from, in words."""
+    if check.sampling == "lines":
+        return f"by line sampling on {check.draws} lines"
+    return f"of {check.draws} trajectories"
 
 
 def _raise_inputs(heads: FusedHeads, result: RobustResult, config: OCPConfig) -> dict[str, Any]:

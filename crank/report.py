@@ -118,7 +118,8 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
         if checks:  # control/tail.py
             told = "; ".join(
                 f"{c['tightening']} at k {c.get('k_sigma', k):g} {100 * c['rate']:.2f} % of "
-                f"{c['draws']} below (target {100 * c['target']:g} %)"
+                f"{c['draws']}{' lines' if c.get('sampling') == 'lines' else ''} below "
+                f"(target {100 * c['target']:g} %)"
                 for c in checks
             )
             if len(checks) > 1:
