@@ -222,3 +222,14 @@ def test_a_raise_from_lines_is_predicted_from_their_moved_crossings(centred) -> 
 def test_an_unknown_tail_sampling_is_refused() -> None:
     with pytest.raises(OCPConfigError, match="tail_sampling"):
         OCPConfig(tail_sampling="importance")
+
+
+def test_a_rate_read_by_lines_says_so(centred) -> None:
+    """A refusal and the report name lines, not trajectories, where the rate was read by them."""
+    _, _, result = centred
+    heads = FusedHeads(NARROW)
+    arguments = {"tightening": "centred", "population": LOWERED, "draws": 1000}
+    lined = tail_check(heads, result.robust, LINES, **arguments)
+    plain = tail_check(heads, result.robust, CONFIG, **arguments)
+    assert profiles._of(lined) == "by line sampling on 1000 lines"
+    assert profiles._of(plain) == "of 1000 trajectories"
