@@ -95,7 +95,8 @@ class Layout:
         """The rollout's inputs from u (n, size): machine factors, eps (rows, n, 3), the force's
         normals (rows, n) and the transmission's angle (n,)."""
         n, at = len(u), 0
-        factors = np.exp(spread * u[:, :3]) if self.machine else None
+        with np.errstate(over="ignore"):  # a line carried far (its draw then diverges: below)
+            factors = np.exp(spread * u[:, :3]) if self.machine else None
         at += self.machine
         eps = lever = None
         if self.white:
@@ -285,7 +286,8 @@ def crossings(
                 good = np.isfinite(step_b)
                 b[near] = np.where(good, np.clip(step_b, low, high), b[near])
                 new = c[near] + (target - f) / b[near]
-                keep = np.abs(new - c[near]) > ROOT_TOLERANCE
+                # settled, or carried beyond FAR (its linear place is as good there)
+                keep = (np.abs(new - c[near]) > ROOT_TOLERANCE) & (np.abs(new) < FAR)
                 prev_c, prev_f = c[near][keep], f[keep]
                 c[near] = new
                 near = near[keep]
