@@ -139,7 +139,7 @@ class OCPConfig:
     again."""
     tail_remedy: str = "raise-k"
     """What the tail check solves such a torque again with (TAIL_REMEDIES)."""
-    tail_sampling: str = "plain"
+    tail_sampling: str = "lines"
     """How the tail check draws (TAIL_SAMPLINGS): "plain" trajectories (control/tail.py) or
     "lines" (line sampling along the direction the crank runs ahead or behind,
     control/tail_lines.py: the same rate from far fewer trajectories)."""

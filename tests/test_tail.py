@@ -26,7 +26,7 @@ from ppann.transmission import draw
 from tests.test_tightening import _line_model
 
 NARROW = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
-CONFIG = OCPConfig(mc_samples=100, confidence=0.0)
+CONFIG = OCPConfig(mc_samples=100, confidence=0.0, tail_sampling="plain")  # the plain check
 
 
 @pytest.fixture(scope="module")
