@@ -109,9 +109,10 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     tail = ""
     if checks:  # control/tail.py: the returned torque's own tail; the one before it, if re-solved
         last = checks[-1]
+        read = f"line sampling, {last['draws']} lines; " if last.get("sampling") == "lines" else ""
         tail = (
             f"\nits own Monte-Carlo, with the allowances, {100 * last['rate']:.2f} % below the "
-            f"height (target {100 * last['target']:g} %)"
+            f"height ({read}target {100 * last['target']:g} %)"
         )
         if len(checks) > 1:
             first = checks[0]
