@@ -50,6 +50,12 @@ the pair's horizon-200 refusals were such draws (every model now returns and hol
 defaults' own rates sit in the band, so most of their checks draw 80 000 (their checks took a
 median 2.3 nominal solves per profile on the paper task; each stage draws only its new
 trajectories, `first`).
+
+By line sampling (the default since session 46, OCPConfig.tail_sampling = "lines",
+control/tail_lines.py, `_lines` below): the same rate from 1000-4000 lines along the direction
+the crank runs ahead or behind, to ±0.006-0.012 points (one standard error), in a median 0.7
+nominal solves where the plain stages took 2.3 (bench/tail_lines.md); the plain trajectories
+where the direction does not suit a constraint sample, or with tail_sampling = "plain".
 """
 
 from __future__ import annotations
