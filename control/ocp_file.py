@@ -54,7 +54,8 @@ stages, rate, samples, target, tightening, k_sigma, passed, wall_time_s}: `draws
 that decided, `stages` every one drawn; empty without config.tail_check; absent in files
 written before session 30, `k_sigma` before session 31, `stages` before session 43; since
 session 46 also `sampling` ("plain" or "lines": control/tail_lines.py, `draws` then counting
-lines), `standard_error`, and with lines `lines_unsettled`, `lines_diverged`);
+lines), `standard_error`, and with lines `lines_unsettled` (crossings whose secant steps had
+not settled) and `lines_diverged`);
 and `gain_theta`, `gain_omega`
 (N - 1 each), the gains of the profile's law (control/config.py law_of: the LQR along the plan,
 control/lqr.py, or robust-pd's fixed PD at every sample; N·m/rad and N·m·s/rad) that the twin's

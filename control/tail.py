@@ -114,7 +114,7 @@ class TailCheck:
     (draws, constraint samples), m (NaN where a draw diverged)."""
     angles: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
     """The crank angle (theta + delta) under each of `lowered`'s sliders, rad: what
-    control/raise_k.py moves (with lines: the pilot's plain trajectories)."""
+    control/raise_k.py moves (with lines: each line's own draw, a plain trajectory)."""
     sampling: str = "plain"
     """How it drew (OCPConfig.tail_sampling): "plain" trajectories or "lines"."""
     standard_error: float = math.nan
@@ -274,10 +274,11 @@ def _lines(
         rate, se = lines.mean_and_error(found_lines.probabilities())
         if count == stages[-1] or decides(rate, goal, count, se=se):
             break
+    each = found_lines.per_sample()
     return TailCheck(
         draws=count,
         rate=rate,
-        samples={k: found_lines.per_sample()[j] for j, k in enumerate(config.constraint_samples)},
+        samples={k: each[j] for j, k in enumerate(config.constraint_samples)},
         target=goal,
         tightening="",
         k_sigma=config.k_sigma,

@@ -211,7 +211,8 @@ class Crossings:
     unsettled: int
     """Edges whose last secant step still moved more than ROOT_TOLERANCE."""
     diverged: int
-    """Lines whose angle at c = 0 was not finite (counted wholly below)."""
+    """Lines whose own draw's angle was not finite (counted wholly below; so is a line whose
+    angle diverged during its secant steps, its crossing then NaN)."""
 
     @classmethod
     def joined(cls, parts: list[Crossings]) -> Crossings:
@@ -229,8 +230,7 @@ class Crossings:
         )
 
     def per_sample(self) -> dict[int, float]:
-        """Each constraint sample's own rate (0-based column j as j + 1 is not known here:
-        control/tail.py names them)."""
+        """Each constraint sample's own rate, by column (control/tail.py names the samples)."""
         p = special.ndtr(self.lower) + special.ndtr(-self.upper)
         return {j: float(np.minimum(p[:, j], 1.0).mean()) for j in range(p.shape[1])}
 
