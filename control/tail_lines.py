@@ -61,7 +61,9 @@ precision of the plain check's last stage of 80 000 trajectories; a third stage 
 (±0.003) cost 0.7-1.1 s, 5.7-7.9 nominal solves, on the two of 25 bench_solve pairs whose rate
 sat within 0.012 points of the target (0.48 % and 0.50 %; bench/tail_lines.md A)."""
 SECANT_STEPS = 4
-"""Evaluations per edge at most; most lines settle in two (ROOT_TOLERANCE)."""
+"""Evaluations per edge at most (ROOT_TOLERANCE): on 4000 lines of a default torque about 2450
+and 600 of the ~8000 simulated edges were still moving after three and four; the rate after four
+was within 0.0001 points of eight's."""
 ROOT_TOLERANCE = 1e-2
 """A crossing has settled when a secant step moves it less than this, in standard normals."""
 FAR = 5.0
