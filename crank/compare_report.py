@@ -11,6 +11,9 @@ from matplotlib.figure import Figure
 from control.figures import COLORS
 
 CONTROLLER_STYLES = {"open": "o-", "closed-PD": "s:", "closed-LQR": "^--", "mpc": "D-."}
+DODGE = {"nominal": -0.9, "robust": -0.3, "robust-fb": 0.3, "robust-pd": 0.9}
+"""Each profile's points beside its scenario's spread in the rate panel, ±%: equal rates of two
+profiles drew one over the other (session 46: `robust` open loop under `robust-pd`'s PD)."""
 COLUMNS = (
     ("profile", "profile", ""),
     ("controller", "controller", ""),
@@ -173,7 +176,9 @@ def figure(compare: dict[str, Any]) -> Figure:
         worst = [max(r["heldout_rate"] for r in by_spread[v]) for v in sorted(by_spread)]
         style = {"color": COLORS[profile], "ms": 5}
         label = f"{profile}, {controller}" + (" (worst seed)" if len(rows) > len(series) else "")
-        top.plot(x, [100 * w for w in worst], CONTROLLER_STYLES[controller], label=label, **style)
+        dodged = [v + DODGE.get(profile, 0.0) for v in x]
+        rates = [100 * w for w in worst]
+        top.plot(dodged, rates, CONTROLLER_STYLES[controller], label=label, **style)
         if profile != "nominal" and controller in ("closed-LQR", "mpc", *OWN_LAW.get(profile, ())):
             most = [max(r["effort_over_nominal"] for r in by_spread[v]) for v in sorted(by_spread)]
             label = f"{profile}: Σu² applied under {controller} (largest)"
