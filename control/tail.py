@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -190,13 +190,11 @@ def tail_check(
             feedback=feedback,
             draws=draws,
             goal=goal,
+            tightening=tightening,
+            started=started,
         )
         if lined is not None:
-            return replace(
-                lined,
-                tightening=tightening,
-                wall_time=time.perf_counter() - started,
-            )
+            return lined
     stages = TAIL_STAGES if draws is None else (draws,)
     crank = np.zeros((0, len(config.constraint_samples)))
     lowered = crank
@@ -246,10 +244,13 @@ def _lines(
     feedback: Feedback | None,
     draws: int | None,
     goal: float,
+    tightening: str,
+    started: float,
 ) -> TailCheck | None:
     """`tail_check` by line sampling (control/tail_lines.py): its direction, then LINE_STAGES of
-    lines (or exactly `draws`) until one decides by the lines' own standard error; None where
-    the direction does not suit every constraint sample (the plain check then)."""
+    lines (or exactly `draws`) until one decides by the lines' own standard error, the check's
+    time counted from `started`; None where the direction does not suit every constraint sample
+    (the plain check then)."""
     index = np.array(config.constraint_samples) - 1
     simulator = lines.Simulator(
         heads,
@@ -280,9 +281,9 @@ def _lines(
         rate=rate,
         samples={k: each[j] for j, k in enumerate(config.constraint_samples)},
         target=goal,
-        tightening="",
+        tightening=tightening,
         k_sigma=config.k_sigma,
-        wall_time=0.0,
+        wall_time=time.perf_counter() - started,
         stages=stages[: stages.index(count) + 1],
         lowered=lowered_sliders(heads.geometry, found_lines.plain, population),
         angles=found_lines.plain,

@@ -48,7 +48,7 @@ from scipy import special
 from ppann.heads import FusedHeads
 from ppann.modes import MONTE_CARLO_MODES
 from ppann.montecarlo import Feedback, rollout
-from ppann.transmission import LEVELS
+from ppann.transmission import at_levels
 
 DIFFERENCE_STEP = 1.0
 """Each normal's move in the central differences that give the direction: one standard normal
@@ -79,7 +79,6 @@ MIN_ALIGNMENT = 0.5
 class Layout:
     """Where each random number of a trajectory sits in its standard normal vector u."""
 
-    steps: int
     machine: int
     """3 with machine draws (mixed, machine), else 0."""
     white: int
@@ -107,22 +106,15 @@ class Layout:
             if self.lever:
                 lever = u[:, at : at + self.white].T
                 at += self.white
-        return factors, eps, lever, transmission_angle(quantiles, u[:, at])
+        # the transmission's angle at its normal score's level (ppann/transmission.py `draw`'s)
+        return factors, eps, lever, at_levels(quantiles, special.ndtr(u[:, at]))
 
 
 def layout(heads: FusedHeads, mode: str, steps: int) -> Layout:
     """The normals of `mode`'s trajectories of `steps` steps on `heads` (ppann/modes.py)."""
     draw = MONTE_CARLO_MODES[mode]
     rows = {"step": steps, "held": 1, None: 0}[draw.white]
-    return Layout(steps, 3 * draw.machine, rows, heads.has_lever and rows > 0)
-
-
-def transmission_angle(quantiles: np.ndarray, score: np.ndarray) -> np.ndarray:
-    """The transmission's angle at normal score `score`: ppann/transmission.py `draw`'s inverse
-    CDF at Φ(score), rad (zeros where nothing was fitted)."""
-    if not np.any(quantiles):
-        return np.zeros(len(score))
-    return np.interp(special.ndtr(score), LEVELS, quantiles)
+    return Layout(3 * draw.machine, rows, heads.has_lever and rows > 0)
 
 
 @dataclass(frozen=True)

@@ -56,4 +56,14 @@ def draw(quantiles: np.ndarray, shape: tuple[int, ...], rng: np.random.Generator
     """delta of the given shape by inverse CDF (linear between the stored quantiles)."""
     if not np.any(quantiles):
         return np.zeros(shape)
-    return np.interp(rng.uniform(size=shape), LEVELS, quantiles)
+    return at_levels(quantiles, rng.uniform(size=shape))
+
+
+def at_levels(quantiles: np.ndarray, levels: npt.ArrayLike) -> np.ndarray:
+    """delta at probability levels `levels` (the inverse CDF, linear between the stored
+    quantiles; zeros where nothing was fitted): `draw`'s, and control/tail_lines.py's at the
+    normal score's level."""
+    levels = np.asarray(levels, dtype=float)
+    if not np.any(quantiles):
+        return np.zeros(levels.shape)
+    return np.interp(levels, LEVELS, quantiles)
