@@ -254,14 +254,18 @@ def iterate(
     record: Callable[[Solution, Uncertainty, np.ndarray, bool], None],
     draft: bool = True,
     multipliers: bool = False,
-) -> tuple[Solution, Uncertainty]:
+    settled: Callable[[Solution, Uncertainty], float | None] | None = None,
+) -> tuple[Solution, Uncertainty, float]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
     sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
     `draft`: whether the first solve is a draft; `multipliers`: whether it starts from
     `nominal`'s multipliers too (where `nominal` is this NLP's own solution, e.g. at another
-    k: control/robust.py's `start`).
+    k: control/robust.py's `start`). `settled`: sees the first draft that settled, with its
+    Monte-Carlo, before the full solve it would lead to, and may answer a larger k: the scheme
+    then goes on at that k from that draft, drafts first (control/profiles.py: its own tail).
     Returns the accepted full solve, its `heights` the height plus that margin (the bounds
-    under which the bracketed loop's NLP has this solution), and its Monte-Carlo.
+    under which the bracketed loop's NLP has this solution), its Monte-Carlo and the k it was
+    solved at.
 
     Raises:
       AwareError: a solve failed, a margin passed `cap`, a solve repeated an earlier one
@@ -297,12 +301,18 @@ def iterate(
         residual = unc.tightening - margin
         accepted = acceptance.take(margin, residual, kept)
         if accepted is not None:
-            return accepted
+            return (*accepted, config.k_sigma)
         if acceptance.cycling():
             raise AwareError(f"cycling: solve {attempt + 1} repeats an earlier one, unsettled")
         current, fresh = solution, False
         if acceptance.start is not None:
             current, unc = acceptance.start
+        elif draft and not acceptance.draft and settled is not None:  # a full solve is next
+            raised, settled = settled(solution, unc), None
+            if raised is not None and raised > config.k_sigma:  # the same draws at that k
+                config = replace(config, k_sigma=raised)
+                unc = slider_uncertainty(heads, solution, config, constraints_only=True)
+                acceptance = Acceptance(config.margin_tolerance, draft=True)
     raise AwareError(f"not settled in {MAX_SOLVES} solves")
 
 

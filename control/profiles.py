@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from control import tail
+from control import tail, tail_lines
 from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
 from control.raise_k import raised_k
@@ -44,7 +44,8 @@ from control.robust import (
     RobustResult,
     solve_robust,
 )
-from control.tail import TailCheck, tail_check
+from control.tail import TAIL_BAND, TailCheck, tail_check
+from control.tightening import Uncertainty
 from ppann.heads import FusedHeads
 from ppann.model import PPANN
 
@@ -62,6 +63,9 @@ control/config.py MAX_MC_SAMPLES (the quantile tightening's 14 816 at k = 3 esca
 TAIL_STEPS = 2
 """At most this many re-decisions at a raised k (control/raise_k.py `raised_k`) before the
 quantile tightening."""
+DRAFT_LINES = tail_lines.LINE_STAGES[0]
+"""Lines of the settled draft's check (`_draft_raise`): the returned torque's first stage, whose
+crossings then start that stage's secants (control/tail.py, a warm check)."""
 
 
 @dataclass(frozen=True)
@@ -112,13 +116,16 @@ def solve_decided(
         "on_iteration": on_iteration,
         "heads": heads,
     }
-    result = decide(model, config, **arguments)
+    drafts: list[TailCheck] = []
+    early = _draft_raise(heads, config, profile=profile, seen=drafts)
+    result = decide(model, config, settled=early, **arguments)
     if not config.tail_check:
         return result
-    checks = [own_tail(heads, result, config, profile=profile)]
+    ahead = tuple(drafts[-1:])  # the settled draft's check of the last decision, if any
+    checks = [own_tail(heads, result, config, profile=profile, warm=next(iter(ahead), None))]
     spent = result.wall_time + checks[0].wall_time
     if checks[0].passed or config.tightening == "quantile":  # nothing sounder to send it to
-        return replace(result, tail_checks=(checks[0],), wall_time=spent)
+        return replace(result, tail_checks=(*ahead, checks[0]), wall_time=spent)
     tried = []
     for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
         predicting = time.perf_counter()
@@ -142,7 +149,7 @@ def solve_decided(
         checks.append(own_tail(heads, result, config, profile=profile))
         spent += result.wall_time + checks[-1].wall_time
         if checks[-1].passed:
-            return replace(result, tail_checks=tuple(checks), wall_time=spent)
+            return replace(result, tail_checks=(*ahead, *checks), wall_time=spent)
         tried.append(f"at k {k:g} {100 * checks[-1].rate:.2f} %")
     first = checks[0]
     why = (
@@ -160,9 +167,58 @@ def solve_decided(
         raise
     return replace(
         quantile,
-        tail_checks=(*checks, *quantile.tail_checks),
+        tail_checks=(*ahead, *checks, *quantile.tail_checks),
         wall_time=spent + quantile.wall_time,
     )
+
+
+def _draft_raise(
+    heads: FusedHeads, config: OCPConfig, *, profile: str, seen: list[TailCheck]
+) -> Callable[[Solution, Uncertainty, OCPConfig], float | None] | None:
+    """The open-loop aware scheme's settled draft checked before its full solve (session 47;
+    control/aware.py `iterate`'s `settled`), where its own tail would be checked and raised
+    afterwards: on DRAFT_LINES lines, and where their rate is TAIL_BAND of their standard errors
+    above the target (the returned torque's check would raise it), the k `raised_k` predicts,
+    so that the full solve is made once, at that k. `seen` collects each check; None where
+    there is none to make (a tube, the bracketed loop, plain sampling, the quantile
+    tightening, no check or no raise)."""
+    if not (
+        config.tail_check
+        and config.tail_remedy == "raise-k"
+        and config.tail_sampling == "lines"
+        and config.margin_scheme == "aware"
+        and config.tightening in ("centred", "gaussian")
+        and loop_of(profile) == "open"
+    ):
+        return None
+    goal = tail.target(config)
+
+    def raised(solution: Solution, unc: Uncertainty, solving: OCPConfig) -> float | None:
+        check = tail_check(
+            heads,
+            solution,
+            solving,
+            tightening=solving.tightening,
+            population=unc.population,
+            goal=goal,
+            draws=DRAFT_LINES,
+        )
+        seen.append(replace(check, draft=True))
+        if check.sampling != "lines" or check.rate - TAIL_BAND * check.standard_error <= goal:
+            return None
+        index = np.array(solving.constraint_samples) - 1
+        return raised_k(
+            check,
+            solving,
+            geometry=heads.geometry,
+            plan_angle=solution.states[index, 0],
+            tightening=unc.tightening,
+            sampling=unc.sampling,
+            population=unc.population,
+            method=solving.tightening,
+        )
+
+    return raised
 
 
 def _of(check: TailCheck) -> str:
@@ -196,11 +252,13 @@ def own_tail(
     profile: str,
     allowances: bool = True,
     draws: int | None = None,
+    warm: TailCheck | None = None,
 ) -> TailCheck:
     """control/tail.py's check of a decided torque: its Monte-Carlo with the allowances its
     tightening used (or, without `allowances`, the model's own), open loop or, for a tube,
     under the profile's law along it, at the k it was solved with, judged by the configured k's
-    target (`config`'s: a raised k does not move it); sequential, or exactly `draws`."""
+    target (`config`'s: a raised k does not move it); sequential, or exactly `draws`; `warm`:
+    control/tail.py's (the same task and configuration)."""
     return tail_check(
         heads,
         result.robust,
@@ -211,6 +269,7 @@ def own_tail(
         goal=tail.target(config),
         allowances=allowances,
         draws=draws,
+        warm=warm,
     )
 
 
@@ -242,9 +301,11 @@ def decide(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
     start: RobustResult | None = None,
+    settled: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
-    as many while its verdict is undecided (module docstring); `start`: solve_robust's. The
+    as many while its verdict is undecided (module docstring); `start`, `settled`:
+    solve_robust's. The
     result's uncertainties say how many trajectories the last decision drew
     (`Uncertainty.samples`), its iterations are the last decision's, its wall time is all of
     them.
@@ -271,6 +332,7 @@ def decide(
                 on_iteration=on_iteration,
                 heads=heads,
                 start=start,
+                settled=settled,
             )
         except BeyondStrokeError as exc:
             if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):

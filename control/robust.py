@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -94,6 +95,7 @@ def solve_robust(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
     start: RobustResult | None = None,
+    settled: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
 ) -> RobustResult:
     """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
     margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
@@ -107,7 +109,9 @@ def solve_robust(
     Where that torque is the aware scheme's own, its first solve is a full one from
     its multipliers too (they belong to the same NLP): on the ten raised pairs of session 33
     (five models, Monte-Carlo seeds 3 and 4) 1-2 full solves where three (two drafts and a full
-    one) were made from its primal point, the same margins to 0.07 mm.
+    one) were made from its primal point, the same margins to 0.07 mm. `settled`: shown the
+    aware scheme's first settled draft, its Monte-Carlo and the configuration, it may answer a
+    larger k to go on at (control/aware.py `iterate`; the result says the k it was solved at).
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -160,8 +164,11 @@ def solve_robust(
     iterations: list[Iteration] = []
     failed: list[np.ndarray] = []
 
-    def finish(solution: Solution, unc: Uncertainty, gains: np.ndarray | None) -> RobustResult:
+    def finish(
+        solution: Solution, unc: Uncertainty, gains: np.ndarray | None, k: float
+    ) -> RobustResult:
         wall_time = time.perf_counter() - started
+        solved = replace(config, k_sigma=k)
         # the tube's gains and the sized-for loop's spread are known; only the rest is new
         feedback_gains, feedback_loops = nominal_feedback()
         robust_gains = gains_of(solution) if gains is None else gains
@@ -176,9 +183,9 @@ def solve_robust(
             nominal_gains=feedback_gains,
             robust_gains=robust_gains,
             nominal_loops=feedback_loops,
-            robust_loops=_loops(heads, solution, config, robust_gains, unc, sized=loop),
+            robust_loops=_loops(heads, solution, solved, robust_gains, unc, sized=loop),
             tightening=config.tightening,
-            k_sigma=config.k_sigma,
+            k_sigma=k,
         )
 
     if scheme == "aware":
@@ -205,8 +212,10 @@ def solve_robust(
                 record=record,
                 draft=not again,
                 multipliers=again,
+                settled=None if settled is None else lambda s, u: settled(s, u, config),
             )
-            return finish(*found, None)
+            solution, unc, k = found
+            return finish(solution, unc, None, k)
         except aware.AwareError:
             pass  # the bracket decides, from the nominal plan
     first = len(iterations)  # the aware scheme's solves, if it handed over
@@ -261,7 +270,7 @@ def solve_robust(
                 draft = False  # confirm with a full solve
                 continue
             if settled:
-                return finish(solution, unc, gains)
+                return finish(solution, unc, gains, config.k_sigma)
             beta = min(1.0, 2 * beta)  # solved: undo infeasibility damping step by step
             draft = True
         raise RobustError(

@@ -31,10 +31,6 @@ solved again (control/profiles.py, OCPConfig.tail_remedy):
   at most 11 of 4000 below, 2.5-6.3 points of premium less.
 - "quantile" (session 30's): the quantile tightening at the configured k, whose own rate is at
   most the number of constraint samples times Φ(−k) by construction.
-The check costs one Monte-Carlo of TAIL_DRAWS, its white normals generated inside the kernel
-(ppann/counter.py): 0.07 s idle on the paper's task, ~0.7 nominal solves (0.28-0.45 s with
-NumPy's generator before session 32).
-
 Sequential (session 43, bench/sequential_tail_check.md): the rate is a Monte-Carlo estimate,
 standard error sqrt(t (1 - t) / n) at the target t (0.05 points at 20 000 draws and 0.5 %), so
 a torque whose own rate sits within a few of them of the target passes or not by the draws.
@@ -55,7 +51,10 @@ By line sampling (the default since session 46, OCPConfig.tail_sampling = "lines
 control/tail_lines.py, `_lines` below): the same rate from 1000-4000 lines along the direction
 the crank runs ahead or behind, to ±0.006-0.012 points (one standard error), in a median 0.7
 nominal solves where the plain stages took 2.3 (bench/tail_lines.md); the plain trajectories
-where the direction does not suit a constraint sample, or with tail_sampling = "plain".
+where the direction does not suit a constraint sample, or with tail_sampling = "plain". A warm
+check (session 47, `warm`) reads a torque near one checked before on the same lines: that
+check's direction (its slopes and origin simulated again) and its crossings as the secants'
+starts (control/profiles.py: the returned torque after its settled draft's check).
 """
 
 from __future__ import annotations
@@ -72,7 +71,7 @@ from common.streams import stream
 from control import tail_lines as lines
 from control.config import TARGET_RATE, OCPConfig, lower_tail
 from control.ocp import Solution
-from control.tail_lines import Crossings
+from control.tail_lines import Crossings, Direction
 from control.tightening import line_allowance
 from ppann.heads import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
@@ -121,6 +120,11 @@ class TailCheck:
     """Of `rate`: binomial at the rate for plain draws, the lines' spread for lines."""
     lines: Crossings | None = field(repr=False, compare=False, default=None)
     """With line sampling: every line's crossings (control/raise_k.py moves them)."""
+    direction: Direction | None = field(repr=False, compare=False, default=None)
+    """With line sampling: the lines' direction (a warm check's start)."""
+    draft: bool = False
+    """A check of the robust loop's settled draft, which chose the k its full solve was made at
+    (control/profiles.py), not of a returned torque."""
 
     @property
     def passed(self) -> bool:
@@ -139,6 +143,7 @@ class TailCheck:
             "wall_time_s": self.wall_time,
             "sampling": self.sampling,
             "standard_error": self.standard_error,
+            "draft": self.draft,
             **({} if self.lines is None else self.lines.summary()),
         }
 
@@ -162,6 +167,7 @@ def tail_check(
     draws: int | None = None,
     goal: float | None = None,
     allowances: bool = True,
+    warm: TailCheck | None = None,
 ) -> TailCheck:
     """The torque's own violation rate (module docstring): trajectories under `solution`'s
     torque (solved with `tightening` at config.k_sigma), open loop or (with `gains`, (N-1, 2))
@@ -170,7 +176,8 @@ def tail_check(
     the target it is judged by (default `target(config)`; a torque whose k the check raised
     keeps the configured k's). Without `allowances`, the same draws with the model's own machine
     spread and no population drop: the rate the model alone predicts, which a refusal reports
-    beside the check's (what the confidence adds)."""
+    beside the check's (what the confidence adds). `warm`: a check by line sampling of a torque
+    near this one, on the same task and configuration (module docstring)."""
     started = time.perf_counter()
     goal = target(config) if goal is None else goal
     if allowances:
@@ -192,6 +199,7 @@ def tail_check(
             goal=goal,
             tightening=tightening,
             started=started,
+            warm=warm,
         )
         if lined is not None:
             return lined
@@ -246,11 +254,13 @@ def _lines(
     goal: float,
     tightening: str,
     started: float,
+    warm: TailCheck | None,
 ) -> TailCheck | None:
-    """`tail_check` by line sampling (control/tail_lines.py): its direction, then LINE_STAGES of
-    lines (or exactly `draws`) until one decides by the lines' own standard error, the check's
-    time counted from `started`; None where the direction does not suit every constraint sample
-    (the plain check then)."""
+    """`tail_check` by line sampling (control/tail_lines.py): its direction (`warm`'s, if given),
+    then LINE_STAGES of lines (or exactly `draws`) until one decides by the lines' own standard
+    error, the lines `warm` crossed started from its crossings, the check's time counted from
+    `started`; None where the direction does not suit every constraint sample (the plain check
+    then)."""
     index = np.array(config.constraint_samples) - 1
     simulator = lines.Simulator(
         heads,
@@ -261,7 +271,8 @@ def _lines(
         index,
         feedback,
     )
-    found = lines.direction(simulator)
+    before = warm.direction if warm is not None else None
+    found = lines.direction(simulator) if before is None else lines.redirected(simulator, before)
     if not found.usable:
         return None
     reach = heads.geometry.crank_reach(config.height + np.asarray(population))
@@ -270,7 +281,11 @@ def _lines(
     parts: list[lines.Crossings] = []
     for count in stages:
         u = rng.standard_normal((count - sum(len(p.lower) for p in parts), simulator.layout.size))
-        parts.append(lines.crossings(simulator, found, u, reach))
+        start, done = None, count - len(u)
+        if before is not None and warm.lines is not None and len(warm.lines.lower) >= count:
+            start = warm.lines.rows(done, count)  # the same lines: the same stream, in order
+        shift = None if start is None else found.origin - before.origin
+        parts.append(lines.crossings(simulator, found, u, reach, warm=start, shift=shift))
         found_lines = lines.Crossings.joined(parts)
         rate, se = lines.mean_and_error(found_lines.probabilities())
         if count == stages[-1] or decides(rate, goal, count, se=se):
@@ -290,6 +305,7 @@ def _lines(
         sampling="lines",
         standard_error=se,
         lines=found_lines,
+        direction=found,
     )
 
 

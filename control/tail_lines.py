@@ -165,6 +165,8 @@ class Direction:
     """Cosine between each sample's gradient and the direction."""
     centre: np.ndarray
     """The top dead centre nearest the mean trajectory's angle at each sample, rad."""
+    origin: np.ndarray
+    """The crank angle at u = 0 at each sample, rad (a warm check's shift: `redirected`)."""
 
     @property
     def usable(self) -> bool:
@@ -185,7 +187,19 @@ def direction(simulator: Simulator) -> Direction:
     unit = total / max(float(np.linalg.norm(total)), 1e-300)
     slopes = gradients @ unit
     alignment = slopes / np.where(lengths > 0, lengths, np.inf)
-    return Direction(unit, slopes, alignment, centre)
+    return Direction(unit, slopes, alignment, centre, angle[0])
+
+
+def redirected(simulator: Simulator, found: Direction) -> Direction:
+    """`found`'s direction for another torque of the same task (a warm check: control/tail.py),
+    its slopes by central differences along it and its origin and centre at u = 0 (3
+    trajectories, where `direction` draws 2 size + 1); the alignment is `found`'s. Any
+    direction keeps line sampling unbiased: this one only saves the gradients."""
+    step = DIFFERENCE_STEP * found.direction
+    angle = simulator.angles(np.stack([np.zeros_like(step), step, -step]))
+    centre = 2 * np.pi * np.round(angle[0] / (2 * np.pi))
+    slopes = (angle[1] - angle[2]) / (2 * DIFFERENCE_STEP)
+    return Direction(found.direction, slopes, found.alignment, centre, angle[0])
 
 
 @dataclass(frozen=True)
@@ -223,6 +237,22 @@ class Crossings:
             diverged=sum(p.diverged for p in parts),
         )
 
+    def rows(self, start: int, stop: int) -> Crossings:
+        """Lines start..stop - 1 (their edges, slopes and draws; the counts are the whole's)."""
+        arrays = {
+            name: getattr(self, name)[start:stop]
+            for name in ("lower", "upper", "lower_slope", "upper_slope", "plain")
+        }
+        return Crossings(**arrays, unsettled=self.unsettled, diverged=self.diverged)
+
+    def edges(self, side: str) -> np.ndarray:
+        """`lower` or `upper`, by name."""
+        return self.lower if side == "lower" else self.upper
+
+    def slopes(self, side: str) -> np.ndarray:
+        """`lower_slope` or `upper_slope`, by name."""
+        return self.lower_slope if side == "lower" else self.upper_slope
+
     def per_sample(self) -> dict[int, float]:
         """Each constraint sample's own rate, by column (control/tail.py names the samples)."""
         p = special.ndtr(self.lower) + special.ndtr(-self.upper)
@@ -246,12 +276,23 @@ class Crossings:
 
 
 def crossings(
-    simulator: Simulator, found: Direction, u: np.ndarray, reach: np.ndarray
+    simulator: Simulator,
+    found: Direction,
+    u: np.ndarray,
+    reach: np.ndarray,
+    *,
+    warm: Crossings | None = None,
+    shift: np.ndarray | None = None,
 ) -> Crossings:
     """Each line's crossings (module docstring, 2): the draws u (n, size) simulated as they are
     (each line's own plain trajectory, kept: `plain`), each edge started from there at the
     direction's slope and refined by secant steps along the line (only the edges within FAR,
-    only the lines not settled)."""
+    only the lines not settled). `warm`: the same lines' crossings for a torque nearby, whose
+    angles at u = 0 were `shift` (rad, per sample) behind these: each edge then starts at its
+    crossing there moved by the shift over its slope, at that slope (one or two steps where
+    three or four are taken cold)."""
+    if warm is not None and warm.lower.shape != (len(u), len(reach)):
+        raise ValueError(f"a warm start of {warm.lower.shape} crossings for {len(u)} lines")
     unit = found.direction
     along = u @ unit
     base = u - np.outer(along, unit)
@@ -266,8 +307,13 @@ def crossings(
             f0 = np.where(diverged, target, plain[:, j] - found.centre[j])
             b = np.full(n, found.slopes[j])
             c = along + (target - f0) / b
+            if warm is not None:  # no secant to the own draw: the first step at the warm slope
+                b = np.where(np.isfinite(warm.slopes(side)[:, j]), warm.slopes(side)[:, j], b)
+                moved = warm.edges(side)[:, j] - (0.0 if shift is None else shift[j]) / b
+                c = np.where(np.isfinite(moved), moved, c)
             near = np.flatnonzero(np.abs(c) < FAR)
-            prev_c, prev_f = along[near], f0[near]
+            prev_c = np.full(len(near), np.nan) if warm is not None else along[near]
+            prev_f = f0[near]
             for _ in range(SECANT_STEPS):
                 if len(near) == 0:
                     break
