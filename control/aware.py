@@ -96,6 +96,11 @@ MAX_SOLVES = 10
 MAX_IPOPT = 100
 """IPOPT iterations of one aware solve before it counts as failed (one took 21 at most in the
 benchmark; an infeasible one ran 14 s on a line-15 model before IPOPT said so)."""
+NEAR = 3.0
+"""`iterate`'s `settled` sees the first draft whose residual is within this many tolerances at
+every sample: the second on all 25 model-seed pairs of bench/bench_solve.py (0.14-0.26 mm, the
+third 0.03-0.19 mm; session 47, bench/draft_check.md), so that a raised k's drafts replace the
+third instead of following it."""
 ANGLES = 720
 """Crank angles over one turn on which `reachable` looks for one that keeps a row up."""
 
@@ -260,9 +265,10 @@ def iterate(
     sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
     `draft`: whether the first solve is a draft; `multipliers`: whether it starts from
     `nominal`'s multipliers too (where `nominal` is this NLP's own solution, e.g. at another
-    k: control/robust.py's `start`). `settled`: sees the first draft that settled, with its
-    Monte-Carlo, before the full solve it would lead to, and may answer a larger k: the scheme
-    then goes on at that k from that draft, drafts first (control/profiles.py: its own tail).
+    k: control/robust.py's `start`). `settled`: sees the first draft within NEAR tolerances of
+    its Monte-Carlo's tightening at every sample, with that Monte-Carlo, and may answer a
+    larger k: the scheme then goes on at that k from that draft, drafts first
+    (control/profiles.py: its own tail checked before the full solve).
     Returns the accepted full solve, its `heights` the height plus that margin (the bounds
     under which the bracketed loop's NLP has this solution), its Monte-Carlo and the k it was
     solved at.
@@ -278,6 +284,7 @@ def iterate(
     acceptance: Acceptance[tuple[Solution, Uncertainty]] = Acceptance(
         config.margin_tolerance, draft=draft
     )
+    tolerance = config.margin_tolerance
     for attempt in range(MAX_SOLVES):
         aware.freeze(current, unc)
         if attempt == 0 and not aware.reachable(base + unc.population).all():
@@ -307,7 +314,7 @@ def iterate(
         current, fresh = solution, False
         if acceptance.start is not None:
             current, unc = acceptance.start
-        elif draft and not acceptance.draft and settled is not None:  # a full solve is next
+        elif draft and settled is not None and np.all(np.abs(residual) < NEAR * tolerance):
             raised, settled = settled(solution, unc), None
             if raised is not None and raised > config.k_sigma:  # the same draws at that k
                 config = replace(config, k_sigma=raised)

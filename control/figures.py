@@ -121,8 +121,9 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
                 if last["tightening"] == first["tightening"]
                 else "with this tightening"
             )
+            which = "its settled draft" if first.get("draft") else "torque"
             tail += (
-                f"\nsolved again {now}: the {first['tightening']} torque at k "
+                f"\nsolved again {now}: the {first['tightening']} {which} at k "
                 f"{first.get('k_sigma', ocp.config.k_sigma):g} had {100 * first['rate']:.2f} %"
             )
     top.set_title(

@@ -35,7 +35,7 @@ import numpy as np
 from control import tail, tail_lines
 from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
-from control.raise_k import raised_k
+from control.raise_k import prediction, raised_k, smallest_k
 from control.robust import (
     STROKE_SHARE,
     BeyondStrokeError,
@@ -175,13 +175,15 @@ def solve_decided(
 def _draft_raise(
     heads: FusedHeads, config: OCPConfig, *, profile: str, seen: list[TailCheck]
 ) -> Callable[[Solution, Uncertainty, OCPConfig], float | None] | None:
-    """The open-loop aware scheme's settled draft checked before its full solve (session 47;
-    control/aware.py `iterate`'s `settled`), where its own tail would be checked and raised
-    afterwards: on DRAFT_LINES lines, and where their rate is TAIL_BAND of their standard errors
-    above the target (the returned torque's check would raise it), the k `raised_k` predicts,
-    so that the full solve is made once, at that k. `seen` collects each check; None where
-    there is none to make (a tube, the bracketed loop, plain sampling, the quantile
-    tightening, no check or no raise)."""
+    """The open-loop aware scheme's draft near its fixed point checked before its full solve
+    (session 47; control/aware.py `iterate`'s `settled`), where its own tail would be checked
+    and raised afterwards: on DRAFT_LINES lines; their rate moved to where the loop would settle
+    at this k (control/raise_k.py `prediction`, `short`: the draft's margin is up to
+    aware.NEAR tolerances short of its tightening) and, where that is TAIL_BAND of the lines'
+    standard errors above the target (the returned torque's check would raise it), the k
+    predicted to bring it to the aim, so that the full solve is made once, at that k. `seen`
+    collects each check; None where there is none to make (a tube, the bracketed loop, plain
+    sampling, the quantile tightening, no check or no raise)."""
     if not (
         config.tail_check
         and config.tail_remedy == "raise-k"
@@ -204,10 +206,10 @@ def _draft_raise(
             draws=DRAFT_LINES,
         )
         seen.append(replace(check, draft=True))
-        if check.sampling != "lines" or check.rate - TAIL_BAND * check.standard_error <= goal:
+        if check.sampling != "lines":
             return None
         index = np.array(solving.constraint_samples) - 1
-        return raised_k(
+        rate = prediction(
             check,
             solving,
             geometry=heads.geometry,
@@ -216,7 +218,11 @@ def _draft_raise(
             sampling=unc.sampling,
             population=unc.population,
             method=solving.tightening,
+            short=True,
         )
+        if rate(0.0) - TAIL_BAND * check.standard_error <= goal:
+            return None
+        return smallest_k(rate, k=solving.k_sigma, goal=tail.aim(check))
 
     return raised
 

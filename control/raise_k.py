@@ -32,6 +32,7 @@ horizon 200, 13 of 5000 against 15).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -74,6 +75,36 @@ def raised_k(
     line's mean, m. config gives the height; check.angles the draws (with line sampling,
     control/tail_lines.py: its lines' own draws give the table, and the rate is the lines'
     probability with each crossing moved by the shift over its slope)."""
+    rate = prediction(
+        check,
+        config,
+        geometry=geometry,
+        plan_angle=plan_angle,
+        tightening=tightening,
+        sampling=sampling,
+        population=population,
+        method=method,
+    )
+    return smallest_k(rate, k=check.k_sigma, goal=aim(check))
+
+
+def prediction(
+    check: TailCheck,
+    config: OCPConfig,
+    *,
+    geometry: Geometry,
+    plan_angle: npt.ArrayLike,
+    tightening: npt.ArrayLike,
+    sampling: npt.ArrayLike,
+    population: npt.ArrayLike,
+    method: str = "centred",
+    short: bool = False,
+) -> Callable[[float], float]:
+    """The checked torque's own rate predicted at k + dk, as a function of dk (`raised_k`'s
+    inputs). `short`: a torque whose tightening is above the margin it keeps (a draft of the
+    aware loop not yet at its fixed point, control/profiles.py) is first moved to where that
+    condition holds, so that the rate at dk = 0 is its loop's settled torque's; otherwise such
+    a shortfall (within the loop's tolerance on a returned torque) is left as it is."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
@@ -81,12 +112,12 @@ def raised_k(
     population = np.broadcast_to(np.asarray(population, dtype=float), plan_angle.shape)
     sampling = np.broadcast_to(np.asarray(sampling, dtype=float), plan_angle.shape)
     plan = geometry.slider_position(plan_angle)
-    slack = np.clip(plan - config.height - np.asarray(tightening), 0.0, None)
+    slack = plan - config.height - np.asarray(tightening)
+    slack = slack if short else np.clip(slack, 0.0, None)
     tables = [
         _table(geometry, check.angles[:TABLE_DRAWS, j], plan_angle[j], population[j], method)
         for j in range(len(plan_angle))
     ]
-    goal = aim(check)
     # a moved draw is at or above the height where its angle is within the reach of top dead
     # centre (twin/geometry.py): a comparison per draw in place of its slider (2.1x faster on
     # 80 000 draws, measured beside a sweep)
@@ -107,6 +138,13 @@ def raised_k(
             above &= np.abs(phase) <= reach[j]  # a diverged draw (NaN) is below
         return float((~above).mean())
 
+    return rate
+
+
+def smallest_k(rate: Callable[[float], float], *, k: float, goal: float) -> float | None:
+    """The smallest k + dk, dk in (0, MAX_RAISE] to 1e-3 and rounded up to the next 0.01, whose
+    predicted `rate(dk)` is at most `goal`: the first STEP at or below it, then bisection; None
+    if none is."""
     low = 0.0
     for high in np.arange(STEP, MAX_RAISE + STEP / 2, STEP):
         if rate(high) <= goal:
