@@ -121,7 +121,9 @@ def solve_decided(
     result = decide(model, config, settled=early, **arguments)
     if not config.tail_check:
         return result
-    ahead = tuple(drafts[-1:])  # the settled draft's check of the last decision, if any
+    # the last decision's draft check, if its torque is the aware scheme's (not the bracket's)
+    aware = bool(result.iterations) and result.iterations[-1].scheme == "aware"
+    ahead = tuple(drafts[-1:]) if aware else ()
     checks = [own_tail(heads, result, config, profile=profile, warm=next(iter(ahead), None))]
     spent = result.wall_time + checks[0].wall_time
     if checks[0].passed or config.tightening == "quantile":  # nothing sounder to send it to
