@@ -2,11 +2,13 @@
 (its "the default on Monte-Carlo seeds" section), one colour per labelled set of runs.
 
     python bench/solve_seeds_figure.py --out docs/bench_solve_seeds.png \
-        "session 27's code=b27_*.log" "today's=b28_*.log" [--names "seed 0,seed 1,..."]
+        "session 27's code=b27_*.log" "today's=b28_*.log" [--names "seed 0,seed 1,..."] \
+        [--decided]
 
-Each glob is one set (one log per model); the models are those of the first set, in its sorted
-order, named by the folder of their logs' "model:" line or by --names, and matched by that line
-in the other sets.
+Each glob is one set (logs of one or more models each, one after the other); the models are
+those of the first set, in its order, named by the folder of their "model:" lines or by
+--names, and matched by that line in the other sets. --decided: the ratio as `crank solve`
+decides (the own-tail checks and raises included), not the loop's alone.
 """
 
 from __future__ import annotations
@@ -20,16 +22,22 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 SEED = re.compile(r"^seed \d+: .*, ratio ([0-9.]+)")
+DECIDED = re.compile(r"^seed \d+: .*; as crank solve decides it ([0-9.]+)")
 
 
-def read(path: str) -> tuple[str, list[float]]:
-    """The model's folder and the ratio per Monte-Carlo seed of one log."""
-    text = Path(path).read_text().splitlines()
-    model = next(line.split("model:")[1].strip() for line in text if line.startswith("model:"))
-    rows = [float(m[1]) for line in text if (m := SEED.match(line))]
-    if not rows:
+def read(path: str, *, decided: bool = False) -> list[tuple[str, list[float]]]:
+    """Each model's folder and its ratio per Monte-Carlo seed, in the order of the log."""
+    pattern = DECIDED if decided else SEED
+    found: list[tuple[str, list[float]]] = []
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("model:"):
+            model = line.split("model:")[1].strip()
+            found.append((Path(model).parent.name or model, []))
+        elif found and (m := pattern.match(line)):
+            found[-1][1].append(float(m[1]))
+    if not any(rows for _, rows in found):
         raise SystemExit(f"solve_seeds_figure: {path} has no Monte-Carlo seed section")
-    return Path(model).parent.name or model, rows
+    return found
 
 
 def main() -> None:
@@ -37,6 +45,7 @@ def main() -> None:
     parser.add_argument("sets", nargs="+", help="LABEL=GLOB, one per set of runs")
     parser.add_argument("--out", required=True)
     parser.add_argument("--names", default="", help="display names of the models, comma-separated")
+    parser.add_argument("--decided", action="store_true", help="as crank solve decides")
     args = parser.parse_args()
     sets = []
     for spec in args.sets:
@@ -44,7 +53,7 @@ def main() -> None:
         logs = sorted(glob.glob(pattern))
         if not logs:
             raise SystemExit(f"solve_seeds_figure: no log matches {pattern!r}")
-        sets.append((label, dict(map(read, logs))))
+        sets.append((label, {m: r for log in logs for m, r in read(log, decided=args.decided)}))
     models = list(sets[0][1])
     names = args.names.split(",") if args.names else models
     if len(names) != len(models):
@@ -61,7 +70,8 @@ def main() -> None:
     ax.axhline(3.0, color="k", ls="--", lw=1, label="target 3")
     ax.set_xticks(range(len(names)), names, fontsize=8)
     ax.set_xlabel("model (one dot per Monte-Carlo seed, a bar at the median)", fontsize=9)
-    ax.set_ylabel("robust loop / nominal solve")
+    what = "as crank solve decides" if args.decided else "robust loop"
+    ax.set_ylabel(f"{what} / nominal solve")
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=8)
     fig.savefig(args.out, dpi=110)
