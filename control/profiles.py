@@ -70,7 +70,7 @@ TAIL_STEPS = 2
 """At most this many re-decisions at a raised k (control/raise_k.py `raised_k`) before the
 quantile tightening."""
 DRAFT_LINES = tail_lines.LINE_STAGES[0]
-"""Lines of the settled draft's check (`_draft_raise`): the returned torque's first stage, whose
+"""Lines of the draft's check (`_draft_raise`): the returned torque's first stage, whose
 crossings then start that stage's secants (control/tail.py, a warm check)."""
 
 
@@ -99,16 +99,18 @@ def solve_decided(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
 ) -> RobustResult:
-    """`decide`, then (OCPConfig.tail_check) the torque's own tail (`own_tail`): where its own
-    violation rate is above the target, the profile is decided again at the k its check's own
-    trajectories predict to bring it to the target (control/raise_k.py `raised_k`), and checked
-    again, at most TAIL_STEPS times; where no raised k passes (or none exists, or it is
-    refused), with the quantile tightening at the configured k (unless that was the
-    tightening). The torque returned is the last one, its checks after the ones before it; the
-    wall time is all of it: every decision's loop, every check and every raise's prediction
-    (each decided torque's spreads for the reports, control/robust.py `_loops`, are not the
-    loop's). `heads`: the model's FusedHeads, if already built (every decision and check shares
-    one).
+    """`decide` (its open-loop aware loop's draft checked before the full solve, and k raised
+    there where that check is clear: `_draft_raise`), then (OCPConfig.tail_check) the torque's
+    own tail (`own_tail`, warm from the draft's check): where its own violation rate is above
+    the target, the profile is decided again at the k its check's own trajectories predict to
+    bring it to the target (control/raise_k.py `raised_k`), and checked again, at most
+    TAIL_STEPS times; where no raised k passes (or none exists, or it is refused), with the
+    quantile tightening at the configured k (unless that was the tightening). The torque
+    returned is the last one, its checks after the ones before it (the draft's first,
+    `TailCheck.draft`); the wall time is all of it: every decision's loop (the draft's check
+    inside it), every check and every raise's prediction (each decided torque's spreads for
+    the reports, control/robust.py `_loops`, are not the loop's). `heads`: the model's
+    FusedHeads, if already built (every decision and check shares one).
 
     Raises:
       RobustError: no robust torque; or, where the tail sent the profile to the quantile
