@@ -104,7 +104,10 @@ def prediction(
     inputs). `short`: a torque whose tightening is above the margin it keeps (a draft of the
     aware loop not yet at its fixed point, control/profiles.py) is first moved to where that
     condition holds, so that the rate at dk = 0 is its loop's settled torque's; otherwise such
-    a shortfall (within the loop's tolerance on a returned torque) is left as it is."""
+    a shortfall (within the loop's tolerance on a returned torque) is left as it is. A draft
+    with margin to spare is taken as it is either way (the table moves draws toward top dead
+    centre only): its rate, a little below its settled torque's, may leave a raise to the
+    returned torque's own check."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
