@@ -104,10 +104,10 @@ def prediction(
     inputs). `short`: a torque whose tightening is above the margin it keeps (a draft of the
     aware loop not yet at its fixed point, control/profiles.py) is first moved to where that
     condition holds, so that the rate at dk = 0 is its loop's settled torque's; otherwise such
-    a shortfall (within the loop's tolerance on a returned torque) is left as it is. A draft
-    with margin to spare is taken as it is either way (the table moves draws toward top dead
-    centre only): its rate, a little below its settled torque's, may leave a raise to the
-    returned torque's own check."""
+    a shortfall (within the loop's tolerance on a returned torque) is left as it is. With
+    `short` a margin to spare is given back too (the draws moved away from top dead centre
+    until the condition holds exactly), where a returned torque keeps it (its slack absorbs a
+    raise)."""
     if method not in ("centred", "gaussian"):
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
@@ -118,7 +118,14 @@ def prediction(
     slack = plan - config.height - np.asarray(tightening)
     slack = slack if short else np.clip(slack, 0.0, None)
     tables = [
-        _table(geometry, check.angles[:TABLE_DRAWS, j], plan_angle[j], population[j], method)
+        _table(
+            geometry,
+            check.angles[:TABLE_DRAWS, j],
+            plan_angle[j],
+            population[j],
+            method,
+            back=short,
+        )
         for j in range(len(plan_angle))
     ]
     # a moved draw is at or above the height where its angle is within the reach of top dead
@@ -162,14 +169,22 @@ def smallest_k(rate: Callable[[float], float], *, k: float, goal: float) -> floa
 
 
 def _table(
-    geometry: Geometry, angles: np.ndarray, plan_angle: float, population: float, method: str
+    geometry: Geometry,
+    angles: np.ndarray,
+    plan_angle: float,
+    population: float,
+    method: str,
+    *,
+    back: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shifts toward the top dead centre nearest `plan_angle` (SHIFTS, finest near 0, rad), and
-    at each the centre the tightening counts from (the draws' mean, or the plan's slider for the
-    gaussian tightening) and the draws' sigma, m."""
+    """Shifts toward the top dead centre nearest `plan_angle` (SHIFTS, finest near 0, rad; with
+    `back`, as many away from it first, in increasing order), and at each the centre the
+    tightening counts from (the draws' mean, or the plan's slider for the gaussian tightening)
+    and the draws' sigma, m."""
     phase = math.remainder(plan_angle, 2 * math.pi)  # top dead centre at 0
     direction = -1.0 if phase > 0 else 1.0
-    shifts = direction * abs(phase) * np.linspace(0.0, 1.0, SHIFTS) ** 2
+    grid = abs(phase) * np.linspace(0.0, 1.0, SHIFTS) ** 2
+    shifts = direction * (np.concatenate([-grid[:0:-1], grid]) if back else grid)
     moved = lowered_sliders(geometry, angles[None, :] + shifts[:, None], population)
     sigma = np.nanstd(moved, axis=1)
     if method == "gaussian":
@@ -191,12 +206,13 @@ def _shift(
     `raised` holds as well as it held at k with `slack` to spare; None if none does."""
     shifts, centre, sigma = table
     scale = raised / k - 1.0 if k > 0 else 0.0
-    held = centre - raised * sigma - (centre[0] - k * sigma[0]) - sampling * scale + slack
+    at = int(np.argmin(np.abs(shifts)))  # the unmoved draws (the first, without `back`)
+    held = centre - raised * sigma - (centre[at] - k * sigma[at]) - sampling * scale + slack
     ok = np.flatnonzero(held >= 0)
     if len(ok) == 0:
         return None
     i = ok[0]
     if i == 0:
-        return 0.0
+        return float(shifts[0])
     t = held[i - 1] / (held[i - 1] - held[i])
     return float(shifts[i - 1] + t * (shifts[i] - shifts[i - 1]))

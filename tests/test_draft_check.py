@@ -195,3 +195,43 @@ def test_a_warm_start_of_other_lines_is_refused() -> None:
     )
     with pytest.raises(ValueError, match="warm start"):
         lines.crossings(None, None, np.zeros((4, 5)), np.ones(2), warm=crossings)
+
+
+def test_a_drafts_rate_is_moved_to_its_fixed_point_on_either_side() -> None:
+    """raise_k.prediction with `short`: a draft short of its tightening by 0.2 mm is predicted
+    below its own rate (its draws moved toward top dead centre), one with 0.2 mm to spare above
+    it (moved away), one at its tightening at it; without `short` (a returned torque) neither
+    moves: a shortfall is within the loop's tolerance, a spare margin absorbs a raise."""
+    geometry = FusedHeads(NARROW).geometry
+    config = replace(CONFIG, constraint_samples=(100,))
+    angles = -0.55 + 0.12 * np.random.default_rng(0).standard_normal((20_000, 1))
+    reach = geometry.crank_reach(config.height)
+    raw = float(np.mean(np.abs(angles[:, 0]) > reach))
+    assert 0.002 < raw < 0.05  # the test would say little otherwise
+    check = tail.TailCheck(
+        draws=len(angles),
+        rate=raw,
+        samples={100: raw},
+        target=0.005,
+        tightening="centred",
+        k_sigma=3.0,
+        wall_time=0.0,
+        angles=angles,
+    )
+    plan = float(geometry.slider_position(np.array([-0.55]))[0])
+    rates = {}
+    for short in (True, False):
+        for slack in (-0.2e-3, 0.0, 0.2e-3):
+            rate = profiles.prediction(
+                check,
+                config,
+                geometry=geometry,
+                plan_angle=[-0.55],
+                tightening=[plan - config.height - slack],
+                sampling=[0.0],
+                population=[0.0],
+                short=short,
+            )
+            rates[short, slack] = rate(0.0)
+    assert rates[True, -0.2e-3] < rates[True, 0.0] == raw < rates[True, 0.2e-3]
+    assert rates[False, -0.2e-3] == rates[False, 0.0] == rates[False, 0.2e-3] == raw
