@@ -25,8 +25,8 @@ the nominal, in fewer solves), then with the quantile tightening; the last torqu
 Before the full solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise would
 follow, it is made inside the open-loop aware scheme, from its draft near the fixed point, so
 that the full solve is made once, at the raised k (on five default models × five Monte-Carlo
-seeds 17 of 25 decided within 3 nominal solves, from 8); the returned torque's check then starts
-from that draft check's lines (control/tail.py `warm`).
+seeds 16-17 of 25 decided within 3 nominal solves, from 8); the returned torque's check then
+starts from that draft check's lines (control/tail.py `warm`).
 """
 
 from __future__ import annotations
