@@ -139,7 +139,10 @@ def solve_decided(
     tried = []
     for _ in range(TAIL_STEPS if config.tail_remedy == "raise-k" else 0):
         predicting = time.perf_counter()
-        k = raised_k(checks[-1], config, **_raise_inputs(heads, result, config))
+        inputs = _raise_inputs(
+            heads, result.robust, result.robust_uncertainty, config, result.tightening
+        )
+        k = raised_k(checks[-1], config, **inputs)
         spent += time.perf_counter() - predicting  # the decision's too (before session 45 not)
         if k is None:
             tried.append("no k reaches the target")
@@ -218,18 +221,8 @@ def _draft_raise(
         seen.append(replace(check, draft=True))
         if check.sampling != "lines":
             return None
-        index = np.array(solving.constraint_samples) - 1
-        rate = prediction(
-            check,
-            solving,
-            geometry=heads.geometry,
-            plan_angle=solution.states[index, 0],
-            tightening=unc.tightening,
-            sampling=unc.sampling,
-            population=unc.population,
-            method=solving.tightening,
-            short=True,
-        )
+        inputs = _raise_inputs(heads, solution, unc, solving, solving.tightening)
+        rate = prediction(check, solving, short=True, **inputs)
         if rate(0.0) - TAIL_BAND * check.standard_error <= goal:
             return None
         return smallest_k(rate, k=solving.k_sigma, goal=tail.aim(check))
@@ -244,19 +237,20 @@ def _of(check: TailCheck) -> str:
     return f"of {check.draws} trajectories"
 
 
-def _raise_inputs(heads: FusedHeads, result: RobustResult, config: OCPConfig) -> dict[str, Any]:
-    """What control/raise_k.py `raised_k` predicts from: the torque's mean-model crank angle, its
-    tightening and that tightening's parts for the Monte-Carlo's finite sample and
-    for the line's mean at each constraint sample, and the mechanism."""
-    unc = result.robust_uncertainty
+def _raise_inputs(
+    heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPConfig, method: str
+) -> dict[str, Any]:
+    """What control/raise_k.py predicts from: a torque's mean-model crank angle, its
+    tightening and that tightening's parts for the Monte-Carlo's finite sample and for the
+    line's mean at each constraint sample (its Monte-Carlo `unc`), and the mechanism."""
     index = np.array(config.constraint_samples) - 1
     return {
         "geometry": heads.geometry,
-        "plan_angle": result.robust.states[index, 0],
+        "plan_angle": solution.states[index, 0],
         "tightening": unc.tightening,
         "sampling": unc.sampling,
         "population": unc.population,
-        "method": result.tightening,
+        "method": method,
     }
 
 

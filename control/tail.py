@@ -54,7 +54,7 @@ nominal solves where the plain stages took 2.3 (bench/tail_lines.md); the plain 
 where the direction does not suit a constraint sample, or with tail_sampling = "plain". A warm
 check (session 47, `warm`) reads a torque near one checked before on the same lines: that
 check's direction (its slopes and origin simulated again) and its crossings as the secants'
-starts (control/profiles.py: the returned torque after its settled draft's check).
+starts (control/profiles.py: the returned torque after its draft's check).
 """
 
 from __future__ import annotations
@@ -123,8 +123,8 @@ class TailCheck:
     direction: Direction | None = field(repr=False, compare=False, default=None)
     """With line sampling: the lines' direction (a warm check's start)."""
     draft: bool = False
-    """A check of the robust loop's settled draft, which chose the k its full solve was made at
-    (control/profiles.py), not of a returned torque."""
+    """A check of the robust loop's draft near its fixed point, which chose the k its full solve
+    was made at (control/profiles.py `_draft_raise`), not of a returned torque."""
 
     @property
     def passed(self) -> bool:
