@@ -97,7 +97,7 @@ MAX_IPOPT = 100
 """IPOPT iterations of one aware solve before it counts as failed (one took 21 at most in the
 benchmark; an infeasible one ran 14 s on a line-15 model before IPOPT said so)."""
 NEAR = 3.0
-"""`iterate`'s `settled` sees the first draft whose residual is within this many tolerances at
+"""`iterate`'s `draft_check` sees the first draft whose residual is within this many tolerances at
 every sample: the second on all 25 model-seed pairs of bench/bench_solve.py (0.14-0.26 mm, the
 third 0.03-0.19 mm; session 47, bench/draft_check.md), so that a raised k's drafts replace the
 third instead of following it."""
@@ -259,13 +259,13 @@ def iterate(
     record: Callable[[Solution, Uncertainty, np.ndarray, bool], None],
     draft: bool = True,
     multipliers: bool = False,
-    settled: Callable[[Solution, Uncertainty], float | None] | None = None,
+    draft_check: Callable[[Solution, Uncertainty], float | None] | None = None,
 ) -> tuple[Solution, Uncertainty, float]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
     sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
     `draft`: whether the first solve is a draft; `multipliers`: whether it starts from
     `nominal`'s multipliers too (where `nominal` is this NLP's own solution, e.g. at another
-    k: control/robust.py's `start`). `settled`: sees the first draft within NEAR tolerances of
+    k: control/robust.py's `start`). `draft_check`: sees the first draft within NEAR tolerances of
     its Monte-Carlo's tightening at every sample, with that Monte-Carlo, and may answer a
     larger k: the scheme then goes on at that k from that draft, drafts first
     (control/profiles.py: its own tail checked before the full solve).
@@ -314,8 +314,8 @@ def iterate(
         current, fresh = solution, False
         if acceptance.start is not None:
             current, unc = acceptance.start
-        elif draft and settled is not None and np.all(np.abs(residual) < NEAR * tolerance):
-            raised, settled = settled(solution, unc), None
+        elif draft and draft_check is not None and np.all(np.abs(residual) < NEAR * tolerance):
+            raised, draft_check = draft_check(solution, unc), None
             if raised is not None and raised > config.k_sigma:  # the same draws at that k
                 config = replace(config, k_sigma=raised)
                 unc = slider_uncertainty(heads, solution, config, constraints_only=True)

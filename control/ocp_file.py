@@ -56,7 +56,8 @@ written before session 30, `k_sigma` before session 31, `stages` before session 
 session 46 also `sampling` ("plain" or "lines": control/tail_lines.py, `draws` then counting
 lines), `standard_error`, and with lines `lines_unsettled` (crossings whose secant steps had
 not settled) and `lines_diverged`); since session 47 `draft` (true for the check of the robust
-loop's settled draft, first where it was made, which chose the k of the full solve);
+loop's draft near its fixed point, first where it was made, which chose the k of the full
+solve);
 and `gain_theta`, `gain_omega`
 (N - 1 each), the gains of the profile's law (control/config.py law_of: the LQR along the plan,
 control/lqr.py, or robust-pd's fixed PD at every sample; N·m/rad and N·m·s/rad) that the twin's

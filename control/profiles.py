@@ -126,7 +126,7 @@ def solve_decided(
     }
     drafts: list[TailCheck] = []
     early = _draft_raise(heads, config, profile=profile, seen=drafts)
-    result = decide(model, config, settled=early, **arguments)
+    result = decide(model, config, draft_check=early, **arguments)
     if not config.tail_check:
         return result
     # the last decision's draft check, if its torque is the aware scheme's (not the bracket's)
@@ -189,7 +189,7 @@ def _draft_raise(
     heads: FusedHeads, config: OCPConfig, *, profile: str, seen: list[TailCheck]
 ) -> Callable[[Solution, Uncertainty, OCPConfig], float | None] | None:
     """The open-loop aware scheme's draft near its fixed point checked before its full solve
-    (session 47; control/aware.py `iterate`'s `settled`), where its own tail would be checked
+    (session 47; control/aware.py `iterate`'s `draft_check`), where its own tail would be checked
     and raised afterwards: on DRAFT_LINES lines; their rate moved to where the loop would settle
     at this k (control/raise_k.py `prediction`, `short`: the draft's margin is up to
     aware.NEAR tolerances short of its tightening) and, where that is TAIL_BAND of the lines'
@@ -311,10 +311,10 @@ def decide(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
     start: RobustResult | None = None,
-    settled: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
+    draft_check: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
-    as many while its verdict is undecided (module docstring); `start`, `settled`:
+    as many while its verdict is undecided (module docstring); `start`, `draft_check`:
     solve_robust's. The
     result's uncertainties say how many trajectories the last decision drew
     (`Uncertainty.samples`), its iterations are the last decision's, its wall time is all of
@@ -342,7 +342,7 @@ def decide(
                 on_iteration=on_iteration,
                 heads=heads,
                 start=start,
-                settled=settled,
+                draft_check=draft_check,
             )
         except BeyondStrokeError as exc:
             if final or not undecided(np.array([exc.tightening]), np.array([exc.se]), cap):

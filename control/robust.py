@@ -95,7 +95,7 @@ def solve_robust(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
     start: RobustResult | None = None,
-    settled: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
+    draft_check: Callable[[Solution, Uncertainty, OCPConfig], float | None] | None = None,
 ) -> RobustResult:
     """Nominal solve (or `nominal`, solved before on `ocp`), its uncertainty, then the bracketed
     margin iteration of the module docstring for the robust `profile` (ROBUST_PROFILES: its
@@ -109,9 +109,10 @@ def solve_robust(
     Where that torque is the aware scheme's own, its first solve is a full one from
     its multipliers too (they belong to the same NLP): on the ten raised pairs of session 33
     (five models, Monte-Carlo seeds 3 and 4) 1-2 full solves where three (two drafts and a full
-    one) were made from its primal point, the same margins to 0.07 mm. `settled`: shown the
-    aware scheme's first settled draft, its Monte-Carlo and the configuration, it may answer a
-    larger k to go on at (control/aware.py `iterate`; the result says the k it was solved at).
+    one) were made from its primal point, the same margins to 0.07 mm. `draft_check`: shown the
+    aware scheme's first draft near its fixed point, its Monte-Carlo and the configuration, it
+    may answer a larger k to go on at (control/aware.py `iterate`; the result says the k it was
+    solved at).
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -212,7 +213,7 @@ def solve_robust(
                 record=record,
                 draft=not again,
                 multipliers=again,
-                settled=None if settled is None else lambda s, u: settled(s, u, config),
+                draft_check=None if draft_check is None else lambda s, u: draft_check(s, u, config),
             )
             solution, unc, k = found
             return finish(solution, unc, None, k)

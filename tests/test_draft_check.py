@@ -1,6 +1,7 @@
-"""The robust loop's settled draft checked before its full solve (control/profiles.py
-`_draft_raise`, control/aware.py `iterate`'s `settled`), and the returned torque's check
-warm-started from that draft's lines (control/tail.py `warm`, control/tail_lines.py)."""
+"""The robust loop's draft near its fixed point checked before its full solve
+(control/profiles.py `_draft_raise`, control/aware.py `iterate`'s `draft_check`), and the
+returned torque's check warm-started from that draft's lines (control/tail.py `warm`,
+control/tail_lines.py)."""
 
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ def _decided(plan, config=CONFIG, **kwargs):
 
 
 def test_a_draft_that_clearly_fails_raises_k_before_the_one_full_solve(plan, monkeypatch) -> None:
-    """At a target the k-3 torque's own rate is well above, the settled draft's check (the
+    """At a target the k-3 torque's own rate is well above, the draft's check (the
     first recorded, `draft`) raises k, and the loop makes its only full solve at that k, whose
     torque passes its own check; without the draft check the same target takes a full solve at
     k 3, a raise from its check and at least one more full solve, to a k within 0.05 of it."""
@@ -80,7 +81,7 @@ def test_a_draft_that_passes_or_is_undecided_changes_nothing(plan, monkeypatch) 
 original_raise = profiles._draft_raise
 
 
-def test_no_draft_check_where_the_loop_has_no_settled_draft_or_no_lines(plan) -> None:
+def test_no_draft_check_where_the_loop_has_no_aware_draft_or_no_lines(plan) -> None:
     """A tube (the bracketed loop), the plain check, the quantile remedy: no draft check."""
     for config, profile in (
         (CONFIG, "robust-fb"),
@@ -92,14 +93,14 @@ def test_no_draft_check_where_the_loop_has_no_settled_draft_or_no_lines(plan) ->
         assert result.tail_checks and not any(c.draft for c in result.tail_checks)
 
 
-def test_the_settled_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> None:
-    """aware.iterate's `settled`: called once, on a draft, before any full solve; the k it
+def test_the_draft_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> None:
+    """aware.iterate's `draft_check`: called once, on a draft, before any full solve; the k it
     answers is the one the result is solved at, its margins those of a loop run at that k from
     the nominal plan, to the loop's tolerance."""
     ocp, nominal = plan
     seen = []
 
-    def settled(solution, unc, config):
+    def hook(solution, unc, config):
         seen.append((len(iterations), config.k_sigma))
         return 3.3
 
@@ -110,7 +111,7 @@ def test_the_settled_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> No
         base,
         ocp=ocp,
         nominal=nominal,
-        settled=settled,
+        draft_check=hook,
         on_iteration=iterations.append,
     )
     assert len(seen) == 1 and seen[0][1] == 3.0
@@ -122,7 +123,7 @@ def test_the_settled_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> No
     np.testing.assert_allclose(
         result.robust.slider[index], cold.robust.slider[index], atol=CONFIG.margin_tolerance
     )
-    none = solve_robust(NARROW, base, ocp=ocp, nominal=nominal, settled=lambda *a: None)
+    none = solve_robust(NARROW, base, ocp=ocp, nominal=nominal, draft_check=lambda *a: None)
     plain = solve_robust(NARROW, base, ocp=ocp, nominal=nominal)
     np.testing.assert_array_equal(none.robust.tau, plain.robust.tau)
 
