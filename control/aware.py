@@ -256,13 +256,14 @@ def iterate(
     nominal: Solution,
     nominal_unc: Uncertainty,
     cap: np.ndarray,
-    record: Callable[[Solution, Uncertainty, np.ndarray, bool], None],
+    record: Callable[[Solution, Uncertainty, np.ndarray, bool, float], None],
     draft: bool = True,
     multipliers: bool = False,
     draft_check: Callable[[Solution, Uncertainty], float | None] | None = None,
 ) -> tuple[Solution, Uncertainty, float]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
-    sees each solve, its Monte-Carlo, the margin its slider keeps and whether it was a draft.
+    sees each solve, its Monte-Carlo, the margin its slider keeps, whether it was a draft and
+    the k its Monte-Carlo's tightening is at.
     `draft`: whether the first solve is a draft; `multipliers`: whether it starts from
     `nominal`'s multipliers too (where `nominal` is this NLP's own solution, e.g. at another
     k: control/robust.py's `start`). `draft_check`: sees the first draft within NEAR tolerances of
@@ -300,7 +301,7 @@ def iterate(
             solution = torque_states(aware, solution, warm=current)
         unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
         margin = solution.slider[index] - config.height
-        record(solution, unc, margin, draft)
+        record(solution, unc, margin, draft, config.k_sigma)
         if np.any(margin > cap):
             raise AwareError("beyond the stroke share a margin may take")
         # the bounds a margin solve of this torque would have had (the constraint is active)

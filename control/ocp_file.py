@@ -27,7 +27,8 @@ Top-level keys (stable; `version` changes if any meaning does):
                              ipopt_iterations, solve_time_s, monte_carlo_time_s, damping, draft
                              (true: a draft solve, control/ocp.py; each profile's last entry is
                              always a full solve, the one in its profile), scheme ("aware":
-                             control/aware.py, margin = the one the solution keeps; "bracket")
+                             control/aware.py, margin = the one the solution keeps; "bracket"),
+                             k_sigma (the k its tightening is at; since session 47)
   failed_margins             {profile: margins IPOPT could not meet during its loop, m}
   timing                     build_s, engine (compiled or vm), nominal_solve_s, robust_loop_s
                              ({profile: s})

@@ -121,6 +121,7 @@ def _history(results: dict[str, RobustResult] | dict[str, Partial]) -> dict[str,
                 "damping": it.damping,
                 "draft": it.draft,
                 "scheme": it.scheme,
+                "k_sigma": it.k_sigma,
             }
             for result in results.values()
             for it in result.iterations

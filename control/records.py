@@ -61,6 +61,9 @@ class Iteration:
     damping: float
     draft: bool
     """A draft solve (one loose pass) rather than a full one."""
+    k_sigma: float
+    """The k its tightening was computed at (the configured one, or raised at a draft:
+    control/profiles.py `_draft_raise`)."""
     profile: str = "robust"
     """The robust profile (control/config.py ROBUST_PROFILES) this solve was for."""
     samples: int = 0
@@ -144,4 +147,5 @@ def iteration(
         profile=profile,
         samples=config.mc_samples,
         scheme=scheme,
+        k_sigma=config.k_sigma,
     )

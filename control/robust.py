@@ -191,8 +191,11 @@ def solve_robust(
 
     if scheme == "aware":
 
-        def record(solution: Solution, unc: Uncertainty, kept: np.ndarray, draft: bool) -> None:
-            iterations.append(iteration(solution, unc, kept, config, profile, draft, "aware"))
+        def record(
+            solution: Solution, unc: Uncertainty, kept: np.ndarray, draft: bool, k: float
+        ) -> None:
+            at = replace(config, k_sigma=k)  # raised at a draft (`draft_check`), or config's
+            iterations.append(iteration(solution, unc, kept, at, profile, draft, "aware"))
             if on_iteration is not None:
                 on_iteration(iterations[-1])
 

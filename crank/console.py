@@ -340,7 +340,7 @@ def show_iteration(it: Iteration) -> None:
     typer.echo(
         f"  {it.profile} iteration ({kind}, {it.scheme}, {it.samples} trajectories): margin "
         f"{kept} [{margin}] mm -> "
-        f"tightening [{k_sigma}] mm, "
+        f"tightening at k {it.k_sigma:g} [{k_sigma}] mm, "
         f"cost {it.cost:.5g}, {it.ipopt_iterations} IPOPT iterations",
         err=True,
     )

@@ -52,6 +52,9 @@ def test_a_draft_that_clearly_fails_raises_k_before_the_one_full_solve(plan, mon
     assert result.k_sigma == returned.k_sigma > 3.0 and returned.passed
     fulls = [it for it in result.iterations if not it.draft]
     assert len(fulls) == 1 and not result.iterations[-1].draft
+    # each solve's record says the k of its tightening: 3 up to the draft checked, then raised
+    ks = [it.k_sigma for it in result.iterations]
+    assert ks[0] == 3.0 and ks[-1] == result.k_sigma and ks == sorted(ks)
     assert draft.as_dict()["draft"] is True and returned.as_dict()["draft"] is False
     monkeypatch.setattr(profiles, "_draft_raise", lambda *args, **kwargs: None)
     after = _decided(plan)
