@@ -41,7 +41,7 @@ import numpy as np
 from control import tail, tail_lines
 from control.config import MAX_MC_SAMPLES, OCPConfig, loop_of
 from control.ocp import NominalOCP, Solution
-from control.raise_k import prediction, raised_k, smallest_k
+from control.raise_k import PREDICTED, prediction, raised_k, smallest_k
 from control.robust import (
     STROKE_SHARE,
     BeyondStrokeError,
@@ -202,7 +202,7 @@ def _draft_raise(
         and config.tail_remedy == "raise-k"
         and config.tail_sampling == "lines"
         and config.margin_scheme == "aware"
-        and config.tightening in ("centred", "gaussian")
+        and config.tightening in PREDICTED
         and loop_of(profile) == "open"
     ):
         return None

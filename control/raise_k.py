@@ -48,6 +48,9 @@ STEP = 0.1
 with k: draws carried past top dead centre fall again)."""
 TABLE_DRAWS = 5000
 """Draws (the check's first, its first stage) whose mean and sigma are tabulated over the shift."""
+PREDICTED = ("centred", "gaussian")
+"""The tightenings whose condition `prediction` re-evaluates on moved draws (the quantile's is a
+tail share, which the check's own remedy sends torques to instead)."""
 SHIFTS = 161
 """Shifts tabulated per constraint sample, from 0 to top dead centre, finest near 0."""
 
@@ -108,7 +111,7 @@ def prediction(
     `short` a margin to spare is given back too (the draws moved away from top dead centre
     until the condition holds exactly), where a returned torque keeps it (its slack absorbs a
     raise)."""
-    if method not in ("centred", "gaussian"):
+    if method not in PREDICTED:
         raise ValueError(f"raised_k predicts the centred or gaussian tightening, not {method!r}")
     k = check.k_sigma
     plan_angle = np.asarray(plan_angle, dtype=float)

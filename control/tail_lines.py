@@ -180,7 +180,7 @@ def direction(simulator: Simulator) -> Direction:
     size, step = simulator.layout.size, DIFFERENCE_STEP
     u = np.concatenate([np.zeros((1, size)), step * np.eye(size), -step * np.eye(size)])
     angle = simulator.angles(u)
-    centre = 2 * np.pi * np.round(angle[0] / (2 * np.pi))
+    centre = nearest_centre(angle[0])
     gradients = ((angle[1 : size + 1] - angle[size + 1 :]) / (2 * step)).T
     lengths = np.linalg.norm(gradients, axis=1)
     total = (gradients / np.where(lengths > 0, lengths, 1.0)[:, None]).sum(axis=0)
@@ -190,6 +190,11 @@ def direction(simulator: Simulator) -> Direction:
     return Direction(unit, slopes, alignment, centre, angle[0])
 
 
+def nearest_centre(angle: np.ndarray) -> np.ndarray:
+    """The top dead centre (a multiple of 2 pi) nearest each crank angle, rad."""
+    return 2 * np.pi * np.round(angle / (2 * np.pi))
+
+
 def redirected(simulator: Simulator, found: Direction) -> Direction:
     """`found`'s direction for another torque of the same task (a warm check: control/tail.py),
     its slopes by central differences along it and its origin and centre at u = 0 (3
@@ -197,7 +202,7 @@ def redirected(simulator: Simulator, found: Direction) -> Direction:
     direction keeps line sampling unbiased: this one only saves the gradients."""
     step = DIFFERENCE_STEP * found.direction
     angle = simulator.angles(np.stack([np.zeros_like(step), step, -step]))
-    centre = 2 * np.pi * np.round(angle[0] / (2 * np.pi))
+    centre = nearest_centre(angle[0])
     slopes = (angle[1] - angle[2]) / (2 * DIFFERENCE_STEP)
     return Direction(found.direction, slopes, found.alignment, centre, angle[0])
 
