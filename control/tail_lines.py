@@ -294,8 +294,11 @@ def crossings(
     direction's slope and refined by secant steps along the line (only the edges within FAR,
     only the lines not settled). `warm`: the same lines' crossings for a torque nearby, whose
     angles at u = 0 were `shift` (rad, per sample) behind these: each edge then starts at its
-    crossing there moved by the shift over its slope, at that slope (one or two steps where
-    three or four are taken cold)."""
+    crossing there moved by the shift over its slope, its first secant through the own draw as
+    a cold start's (one or two steps where three or four are taken cold; before session 48 that
+    first step was taken at the warm slope, which read 0.011-0.015 points above the converged
+    rate on four checks of tests/test_draft_check.py's torque, where the cold start reads within
+    0.006)."""
     if warm is not None and warm.lower.shape != (len(u), len(reach)):
         raise ValueError(f"a warm start of {warm.lower.shape} crossings for {len(u)} lines")
     unit = found.direction
@@ -312,12 +315,12 @@ def crossings(
             f0 = np.where(diverged, target, plain[:, j] - found.centre[j])
             b = np.full(n, found.slopes[j])
             c = along + (target - f0) / b
-            if warm is not None:  # no secant to the own draw: the first step at the warm slope
+            if warm is not None:  # started near its crossing; the secant still from the own draw
                 b = np.where(np.isfinite(warm.slopes(side)[:, j]), warm.slopes(side)[:, j], b)
                 moved = warm.edges(side)[:, j] - (0.0 if shift is None else shift[j]) / b
                 c = np.where(np.isfinite(moved), moved, c)
             near = np.flatnonzero(np.abs(c) < FAR)
-            prev_c = np.full(len(near), np.nan) if warm is not None else along[near]
+            prev_c = along[near]
             prev_f = f0[near]
             for _ in range(SECANT_STEPS):
                 if len(near) == 0:

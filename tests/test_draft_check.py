@@ -131,10 +131,10 @@ def test_the_draft_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> None
     np.testing.assert_array_equal(none.robust.tau, plain.robust.tau)
 
 
-def test_a_warm_check_reads_the_cold_rate_on_fewer_trajectories(plan, monkeypatch) -> None:
-    """The k-3.3 torque checked cold and warm from the k-3 torque's check on the same lines:
-    the same rate to a tenth of its standard error, the same direction, fewer simulated
-    trajectories; its direction's origin is the cold one's to the bit."""
+def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(plan, monkeypatch) -> None:
+    """The k-3.3 torque checked cold and warm from the k-3 torque's check on the same lines: the
+    same direction and lines, fewer simulated trajectories; its direction's origin is the cold
+    one's to the bit."""
     ocp, nominal = plan
     heads = FusedHeads(NARROW)
     base = replace(CONFIG, tail_check=False)
@@ -156,12 +156,38 @@ def test_a_warm_check_reads_the_cold_rate_on_fewer_trajectories(plan, monkeypatc
     rows.clear()
     warm = tail_check(heads, torque, raised, warm=before, **arguments)
     assert warm.sampling == cold.sampling == "lines"
-    assert abs(warm.rate - cold.rate) < 0.1 * cold.standard_error
     assert 0.002 < cold.rate < 0.05  # the test would say little otherwise
     np.testing.assert_array_equal(warm.direction.direction, before.direction.direction)
     np.testing.assert_array_equal(warm.direction.origin, cold.direction.origin)
     assert sum(rows) < 0.8 * cold_rows
     np.testing.assert_array_equal(warm.lines.plain, cold.lines.plain)  # the same lines
+
+
+def test_a_warm_check_reads_the_converged_rate(plan, monkeypatch) -> None:
+    """On Monte-Carlo seeds 0-5, the k-3.3 torque's warm check (from the k-3 torque's) less the
+    rate the same lines read with the secant steps run to convergence averages to nothing
+    within three of its standard errors over the seeds. Before session 48 the warm start's
+    first step was taken at the stale slope: +0.005 to +0.028 points on every seed, t = 4.2."""
+    ocp, nominal = plan
+    heads = FusedHeads(NARROW)
+    base = replace(CONFIG, tail_check=False)
+    arguments = {"tightening": "centred", "population": LOWERED, "draws": 1000}
+    near = solve_robust(NARROW, base, ocp=ocp, nominal=nominal).robust
+    raised = replace(base, k_sigma=3.3)
+    torque = solve_robust(NARROW, raised, ocp=ocp, nominal=nominal).robust
+    gaps = []
+    for seed in range(6):
+        before = tail_check(heads, near, replace(base, mc_seed=seed), **arguments)
+        at = replace(raised, mc_seed=seed)
+        warm = tail_check(heads, torque, at, warm=before, **arguments)
+        with monkeypatch.context() as converged:
+            converged.setattr(lines, "SECANT_STEPS", 12)
+            converged.setattr(lines, "ROOT_TOLERANCE", 1e-7)
+            reference = tail_check(heads, torque, at, **arguments)
+        gaps.append(warm.rate - reference.rate)
+    gaps = np.array(gaps)
+    assert abs(gaps.mean()) < 3 * gaps.std(ddof=1) / np.sqrt(len(gaps))
+    assert np.all(np.abs(gaps) < 0.003)  # within a standard error of 1000 lines at ~0.6 %
 
 
 def test_a_redirected_direction_has_the_gradients_slopes() -> None:
