@@ -50,7 +50,9 @@ trajectories, `first`).
 By line sampling (the default since session 46, OCPConfig.tail_sampling = "lines",
 control/tail_lines.py, `_lines` below): the same rate from 1000-4000 lines along the direction
 the crank runs ahead or behind, to ±0.006-0.012 points (one standard error), in a median 0.7
-nominal solves where the plain stages took 2.3 (bench/tail_lines.md); the plain trajectories
+nominal solves where the plain stages took 2.3 (bench/tail_lines.md); since session 48 from
+500-2000 lines in mirrored pairs, to about the same error (bench/antithetic_lines.md); the plain
+trajectories
 where the direction does not suit a constraint sample, or with tail_sampling = "plain". A warm
 check (session 47, `warm`) reads a torque near one checked before on the same lines: that
 check's direction (its slopes and origin simulated again) and its crossings as the secants'
@@ -280,7 +282,7 @@ def _lines(
     stages = lines.LINE_STAGES if draws is None else (draws,)
     parts: list[lines.Crossings] = []
     for count in stages:
-        u = rng.standard_normal((count - sum(len(p.lower) for p in parts), simulator.layout.size))
+        u = lines.mirrored(rng, count - sum(len(p.lower) for p in parts), simulator.layout.size)
         start, done = None, count - len(u)
         if before is not None and warm.lines is not None and len(warm.lines.lower) >= count:
             start = warm.lines.rows(done, count)  # the same lines: the same stream, in order

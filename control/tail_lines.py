@@ -21,7 +21,8 @@ angle). So:
    found by secant steps (SECANT_STEPS, from the direction's slope), and the line's probability
    below the height at any sample is Φ(max_j c_lo) + Φ(−min_j c_hi) (the union, exactly, on
    the line);
-3. the rate is the lines' mean, its standard error their spread's over √n, and the check stops
+3. the lines come in mirrored pairs (u, -u: `mirrored`, session 48); the rate is the lines'
+   mean, its standard error the pairs' means' spread over √pairs, and the check stops
    in LINE_STAGES as control/tail.py's plain one does, by that standard error (on either side
    at any stage: a raise reads the lines' crossings, each moved by the shift over its slope),
    the last by its rate alone.
@@ -54,12 +55,15 @@ DIFFERENCE_STEP = 1.0
 """Each normal's move in the central differences that give the direction: one standard normal
 (a secant over the spread, not a tangent; 0.3 read the same rate with 1.1-1.4x the variance, a
 pilot's regression with 1.1-1.2x, on two torques of a default model)."""
-LINE_STAGES = (1000, 4000)
-"""Lines of the check's sequential stages, each nested in the next. The last decides by its rate
-alone, to about ±0.006 points (one standard error at 0.5 % on a default torque), four times the
-precision of the plain check's last stage of 80 000 trajectories; a third stage of 16 000 lines
-(±0.003) cost 0.7-1.1 s, 5.7-7.9 nominal solves, on the two of 25 bench_solve pairs whose rate
-sat within 0.012 points of the target (0.48 % and 0.50 %; bench/tail_lines.md A)."""
+LINE_STAGES = (500, 2000)
+"""Lines of the check's sequential stages, in mirrored pairs (`mirrored`), each nested in the
+next. The last decides by its rate alone, to about ±0.006 points (one standard error at 0.5 % on
+a default torque), four times the precision of the plain check's last stage of 80 000
+trajectories. Before session 48 the lines were independent and the stages (1000, 4000), of the
+same precision at twice the cost (the pairs' probabilities correlate at -0.52..-0.57 on three
+default torques: bench/antithetic_lines.md); a third stage of 16 000 independent lines (±0.003)
+cost 0.7-1.1 s, 5.7-7.9 nominal solves, on the two of 25 bench_solve pairs whose rate sat within
+0.012 points of the target (0.48 % and 0.50 %; bench/tail_lines.md A)."""
 SECANT_STEPS = 4
 """Evaluations per edge at most (ROOT_TOLERANCE): on 4000 lines of a default torque about 2450
 and 600 of the ~8000 simulated edges were still moving after three and four; the rate after four
@@ -349,8 +353,28 @@ def crossings(
     )
 
 
+def mirrored(rng: np.random.Generator, count: int, size: int) -> np.ndarray:
+    """`count` lines' draws u, (count, size), in antithetic pairs (session 48): rows 2i and 2i + 1
+    are a standard normal draw and its mirror -u, the one's line the other's reflected through
+    the origin (the same direction: a line running behind where the other runs ahead). Each row
+    is a standard normal draw, so the lines' mean stays unbiased; the pair's probabilities are
+    anticorrelated where the tail lies mostly on one side of the mean (-0.52..-0.57 on three
+    default torques, bench/antithetic_lines.md), which `mean_and_error` counts. Drawn `count` // 2
+    rows at a time from `rng`, so that stages drawn in turn are one run of pairs."""
+    if count % 2:
+        raise ValueError(f"line sampling draws lines in mirrored pairs: an even count, not {count}")
+    half = rng.standard_normal((count // 2, size))
+    u = np.empty((count, size))
+    u[0::2], u[1::2] = half, -half
+    return u
+
+
 def mean_and_error(p: np.ndarray) -> tuple[float, float]:
-    """The rate the lines read and its standard error (their spread over √n)."""
-    if len(p) < 2:
+    """The rate the lines (`mirrored` pairs, in order) read and its standard error: the spread of
+    the pairs' means over √pairs."""
+    if len(p) % 2:
+        raise ValueError(f"{len(p)} lines are not whole mirrored pairs")
+    pairs = p.reshape(-1, 2).mean(axis=1)
+    if len(pairs) < 2:
         return float(p.mean()), math.inf
-    return float(p.mean()), float(p.std(ddof=1) / math.sqrt(len(p)))
+    return float(p.mean()), float(pairs.std(ddof=1) / math.sqrt(len(pairs)))

@@ -233,3 +233,47 @@ def test_a_rate_read_by_lines_says_so(centred) -> None:
     plain = tail_check(heads, result.robust, CONFIG, **arguments)
     assert profiles._of(lined) == "by line sampling on 1000 lines"
     assert profiles._of(plain) == "of 1000 trajectories"
+
+
+def test_lines_come_in_mirrored_pairs_drawn_in_one_run() -> None:
+    """Rows 2i + 1 are rows 2i mirrored; stages drawn in turn from one generator are the lines of
+    one draw of their total, to the bit; an odd count is refused, as is an odd set of lines."""
+    first = lines.mirrored(np.random.default_rng(3), 500, 7)
+    np.testing.assert_array_equal(first[1::2], -first[0::2])
+    rng = np.random.default_rng(3)
+    staged = np.concatenate([lines.mirrored(rng, 500, 7), lines.mirrored(rng, 1500, 7)])
+    np.testing.assert_array_equal(staged, lines.mirrored(np.random.default_rng(3), 2000, 7))
+    np.testing.assert_array_equal(staged[:500], first)
+    with pytest.raises(ValueError, match="mirrored pairs: an even count, not 501"):
+        lines.mirrored(rng, 501, 7)
+    with pytest.raises(ValueError, match="3 lines are not whole mirrored pairs"):
+        lines.mean_and_error(np.zeros(3))
+
+
+def test_the_standard_error_is_the_pairs_means_spread() -> None:
+    """Two pairs of each kind: perfectly anticorrelated pairs (a line and its mirror summing to
+    the same) read no error; the formula is the pair means' sample deviation over √pairs."""
+    rate, se = lines.mean_and_error(np.array([0.01, 0.03, 0.0, 0.04]))
+    assert rate == pytest.approx(0.02, rel=1e-15) and se == 0.0
+    rate, se = lines.mean_and_error(np.array([0.01, 0.03, 0.0, 0.0]))
+    assert rate == pytest.approx(0.01, rel=1e-15)
+    assert se == pytest.approx(np.std([0.02, 0.0], ddof=1) / np.sqrt(2), rel=1e-15)
+
+
+def test_the_pairs_error_is_the_spread_of_the_checks_rate_over_seeds(centred) -> None:
+    """On the lowered centred torque, 500-line checks on Monte-Carlo seeds 0-23: the rates'
+    spread over the seeds matches the standard error each check reports (their ratio within
+    0.6-1.5, about three standard errors of a deviation of 24), and it is below the error of
+    as many independent lines (their own spread's over √n)."""
+    _, _, result = centred
+    heads = FusedHeads(NARROW)
+    arguments = {"tightening": "centred", "population": LOWERED, "draws": 500}
+    checks = [
+        tail_check(heads, result.robust, replace(LINES, mc_seed=seed), **arguments)
+        for seed in range(24)
+    ]
+    rates = np.array([c.rate for c in checks])
+    reported = np.array([c.standard_error for c in checks])
+    assert 0.6 < rates.std(ddof=1) / reported.mean() < 1.5
+    independent = np.mean([c.lines.probabilities().std(ddof=1) / np.sqrt(500) for c in checks])
+    assert reported.mean() < independent
