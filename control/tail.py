@@ -51,12 +51,12 @@ By line sampling (the default since session 46, OCPConfig.tail_sampling = "lines
 control/tail_lines.py, `_lines` below): the same rate from 1000-4000 lines along the direction
 the crank runs ahead or behind, to ±0.006-0.012 points (one standard error), in a median 0.7
 nominal solves where the plain stages took 2.3 (bench/tail_lines.md); since session 48 from
-500-2000 lines in mirrored pairs, to about the same error (bench/antithetic_lines.md); the plain
-trajectories
-where the direction does not suit a constraint sample, or with tail_sampling = "plain". A warm
-check (session 47, `warm`) reads a torque near one checked before on the same lines: that
-check's direction (its slopes and origin simulated again) and its crossings as the secants'
-starts (control/profiles.py: the returned torque after its draft's check).
+500-2000 lines in mirrored pairs, to about the same error (bench/antithetic_lines.md); the
+plain trajectories where the direction does not suit a constraint sample, or with
+tail_sampling = "plain". A warm check (session 47, `warm`) reads a torque near one checked
+before on the same lines: that check's direction (its slopes and origin simulated again) and
+its crossings as the secants' starts (control/profiles.py: the returned torque after its
+draft's check).
 """
 
 from __future__ import annotations

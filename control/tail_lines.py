@@ -300,9 +300,9 @@ def crossings(
     angles at u = 0 were `shift` (rad, per sample) behind these: each edge then starts at its
     crossing there moved by the shift over its slope, its first secant through the own draw as
     a cold start's (one or two steps where three or four are taken cold; before session 48 that
-    first step was taken at the warm slope, which read 0.011-0.015 points above the converged
-    rate on four checks of tests/test_draft_check.py's torque, where the cold start reads within
-    0.006)."""
+    first step was taken at the warm slope, which read 0.005-0.028 points above the converged
+    rate on six checks of tests/test_draft_check.py's torque, where the cold start reads
+    0.002-0.010 above it, and a default torque's 0.0001)."""
     if warm is not None and warm.lower.shape != (len(u), len(reach)):
         raise ValueError(f"a warm start of {warm.lower.shape} crossings for {len(u)} lines")
     unit = found.direction
