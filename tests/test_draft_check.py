@@ -131,18 +131,30 @@ def test_the_draft_hook_sees_a_draft_once_and_its_k_is_the_results(plan) -> None
     np.testing.assert_array_equal(none.robust.tau, plain.robust.tau)
 
 
-def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(plan, monkeypatch) -> None:
+WARM = {"tightening": "centred", "population": LOWERED, "draws": 1000}
+"""The warm checks' arguments."""
+
+
+@pytest.fixture(scope="module")
+def near_and_raised(plan):
+    """The k-3 torque, its configuration, the k-3.3 torque and its configuration (no check)."""
+    ocp, nominal = plan
+    base = replace(CONFIG, tail_check=False)
+    raised = replace(base, k_sigma=3.3)
+    near = solve_robust(NARROW, base, ocp=ocp, nominal=nominal).robust
+    torque = solve_robust(NARROW, raised, ocp=ocp, nominal=nominal).robust
+    return near, base, torque, raised
+
+
+def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(
+    near_and_raised, monkeypatch
+) -> None:
     """The k-3.3 torque checked cold and warm from the k-3 torque's check on the same lines: the
     same direction and lines, fewer simulated trajectories; its direction's origin is the cold
     one's to the bit."""
-    ocp, nominal = plan
+    near, base, torque, raised = near_and_raised
     heads = FusedHeads(NARROW)
-    base = replace(CONFIG, tail_check=False)
-    arguments = {"tightening": "centred", "population": LOWERED, "draws": 1000}
-    near = solve_robust(NARROW, base, ocp=ocp, nominal=nominal).robust
-    raised = replace(base, k_sigma=3.3)
-    torque = solve_robust(NARROW, raised, ocp=ocp, nominal=nominal).robust
-    before = tail_check(heads, near, base, **arguments)
+    before = tail_check(heads, near, base, **WARM)
     rows = []
     original = lines.Simulator.angles
 
@@ -151,10 +163,10 @@ def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(plan, mo
         return original(self, u, samples)
 
     monkeypatch.setattr(lines.Simulator, "angles", counted)
-    cold = tail_check(heads, torque, raised, **arguments)
+    cold = tail_check(heads, torque, raised, **WARM)
     cold_rows = sum(rows)
     rows.clear()
-    warm = tail_check(heads, torque, raised, warm=before, **arguments)
+    warm = tail_check(heads, torque, raised, warm=before, **WARM)
     assert warm.sampling == cold.sampling == "lines"
     assert 0.002 < cold.rate < 0.05  # the test would say little otherwise
     np.testing.assert_array_equal(warm.direction.direction, before.direction.direction)
@@ -163,31 +175,28 @@ def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(plan, mo
     np.testing.assert_array_equal(warm.lines.plain, cold.lines.plain)  # the same lines
 
 
-def test_a_warm_check_reads_the_converged_rate(plan, monkeypatch) -> None:
+def test_a_warm_check_reads_the_converged_rate(near_and_raised, monkeypatch) -> None:
     """On Monte-Carlo seeds 0-5, the k-3.3 torque's warm check (from the k-3 torque's) less the
-    rate the same lines read with the secant steps run to convergence averages to nothing
-    within three of its standard errors over the seeds. Before session 48 the warm start's
-    first step was taken at the stale slope: +0.005 to +0.028 points on every seed, t = 4.2."""
-    ocp, nominal = plan
+    rate the same lines read with the secant steps run to convergence: their mean within three
+    of its standard errors over the seeds of nothing, each within the check's own standard
+    error (measured: -0.68 to +0.37 of it). Before session 48 the warm start's first step was
+    taken at the stale slope: +0.005 to +0.028 points on every seed, t = 4.2."""
+    near, base, torque, raised = near_and_raised
     heads = FusedHeads(NARROW)
-    base = replace(CONFIG, tail_check=False)
-    arguments = {"tightening": "centred", "population": LOWERED, "draws": 1000}
-    near = solve_robust(NARROW, base, ocp=ocp, nominal=nominal).robust
-    raised = replace(base, k_sigma=3.3)
-    torque = solve_robust(NARROW, raised, ocp=ocp, nominal=nominal).robust
-    gaps = []
+    gaps, errors = [], []
     for seed in range(6):
-        before = tail_check(heads, near, replace(base, mc_seed=seed), **arguments)
+        before = tail_check(heads, near, replace(base, mc_seed=seed), **WARM)
         at = replace(raised, mc_seed=seed)
-        warm = tail_check(heads, torque, at, warm=before, **arguments)
+        warm = tail_check(heads, torque, at, warm=before, **WARM)
         with monkeypatch.context() as converged:
             converged.setattr(lines, "SECANT_STEPS", 12)
             converged.setattr(lines, "ROOT_TOLERANCE", 1e-7)
-            reference = tail_check(heads, torque, at, **arguments)
+            reference = tail_check(heads, torque, at, **WARM)
         gaps.append(warm.rate - reference.rate)
+        errors.append(warm.standard_error)
     gaps = np.array(gaps)
     assert abs(gaps.mean()) < 3 * gaps.std(ddof=1) / np.sqrt(len(gaps))
-    assert np.all(np.abs(gaps) < 0.003)  # within a standard error of 1000 lines at ~0.6 %
+    assert np.all(np.abs(gaps) < np.array(errors))
 
 
 def test_a_redirected_direction_has_the_gradients_slopes() -> None:
