@@ -1,0 +1,48 @@
+"""Development measurement (session 48, bench/antithetic_lines.md): the aware loop's residual
+(tightening - margin, mm, at each constraint sample) after every solve, with the k it was at and
+its IPOPT iterations, for the robust profile as `crank solve` decides it, on the five default
+models of training seeds 0-4 (the session-45 ones; the paths are this machine's) at Monte-Carlo
+seeds 0-4. One line per pair: d = draft, F = full solve, k(residual at 50, at 100)iterations.
+
+    PYTHONPATH=. python bench/aware_residuals.py > bench/antithetic_lines_loops.log
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from control import profiles
+from control.config import OCPConfig
+from control.ocp import NominalOCP
+from ppann.checkpoint import load
+from ppann.heads import FusedHeads
+
+MODELS = ("fcc9b1e17707", "ed08465aeaa3", "5800e00574e0", "a1129f30b6a7", "d761a73494ec")
+
+
+def main() -> None:
+    for key in MODELS:
+        model, _ = load(f"/work/e45/s10/model/{key}/model.pt")
+        ocp = NominalOCP(model, OCPConfig())
+        heads, nominal = FusedHeads(model), ocp.solve()
+        for seed in range(5):
+            result = profiles.solve_decided(
+                model,
+                OCPConfig(mc_seed=seed),
+                profile="robust",
+                ocp=ocp,
+                nominal=nominal,
+                heads=heads,
+            )
+            steps = []
+            for it in result.iterations:
+                res = 1e3 * (np.asarray(it.tightening) - np.asarray(it.margin))
+                kind = "d" if it.draft else "F"
+                steps.append(
+                    f"{kind}{it.k_sigma:g}({res[0]:+.2f},{res[1]:+.2f}){it.ipopt_iterations}"
+                )
+            print(key[:3], seed, " ".join(steps), flush=True)
+
+
+if __name__ == "__main__":
+    main()
