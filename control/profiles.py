@@ -132,7 +132,7 @@ def solve_decided(
     # the last decision's draft check, if its torque is the aware scheme's (not the bracket's)
     aware = bool(result.iterations) and result.iterations[-1].scheme == "aware"
     ahead = tuple(drafts[-1:]) if aware else ()
-    checks = [own_tail(heads, result, config, profile=profile, warm=next(iter(ahead), None))]
+    checks = [own_tail(heads, result, config, profile=profile, warm=ahead[0] if ahead else None)]
     spent = result.wall_time + checks[0].wall_time
     if checks[0].passed or config.tightening == "quantile":  # nothing sounder to send it to
         return replace(result, tail_checks=(*ahead, checks[0]), wall_time=spent)
@@ -315,8 +315,7 @@ def decide(
 ) -> RobustResult:
     """solve_robust with `config.mc_samples` trajectories, decided again with ESCALATION times
     as many while its verdict is undecided (module docstring); `start`, `draft_check`:
-    solve_robust's. The
-    result's uncertainties say how many trajectories the last decision drew
+    solve_robust's. The result's uncertainties say how many trajectories the last decision drew
     (`Uncertainty.samples`), its iterations are the last decision's, its wall time is all of
     them.
 
