@@ -5,9 +5,12 @@ models of training seeds 0-4 (the session-45 ones; the paths are this machine's)
 seeds 0-4. One line per pair: d = draft, F = full solve, k(residual at 50, at 100)iterations.
 
     PYTHONPATH=. python bench/aware_residuals.py > bench/antithetic_lines_loops.log
+    PYTHONPATH=. python bench/aware_residuals.py --mc-seeds 5-9   # other seeds (development)
 """
 
 from __future__ import annotations
+
+import argparse
 
 import numpy as np
 
@@ -21,11 +24,14 @@ MODELS = ("fcc9b1e17707", "ed08465aeaa3", "5800e00574e0", "a1129f30b6a7", "d761a
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--mc-seeds", default="0-4", help="first-last Monte-Carlo seeds")
+    first, last = (int(v) for v in parser.parse_args().mc_seeds.split("-"))
     for key in MODELS:
         model, _ = load(f"/work/e45/s10/model/{key}/model.pt")
         ocp = NominalOCP(model, OCPConfig())
         heads, nominal = FusedHeads(model), ocp.solve()
-        for seed in range(5):
+        for seed in range(first, last + 1):
             result = profiles.solve_decided(
                 model,
                 OCPConfig(mc_seed=seed),
