@@ -46,9 +46,18 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=20, help="machines per campaign")
     parser.add_argument("--repeat", type=int, default=3, help="IPOPT solves (median)")
     parser.add_argument("--no-do-mpc", action="store_true", help="skip the do-mpc comparison")
+    parser.add_argument("--profile", default="robust", help="the ocp.json profile played")
     args = parser.parse_args()
     model = plan_model(args.ocp, override=args.model)
     ocp = read_ocp(args.ocp)
+    horizons = [int(h) for h in args.horizons.split(",")]
+    if args.profile not in ocp.profiles:
+        parser.error(
+            f"{args.ocp} has no profile {args.profile!r} (it has {', '.join(ocp.profiles)}): "
+            "choose one with --profile"
+        )
+    if len(horizons) < 2:
+        parser.error("--horizons needs two or more (the second runs on the VM too)")
     physics = SliderCrank(load_model()[0])
 
     solvers = {}
@@ -70,7 +79,7 @@ def main() -> None:
             f"{full / max(iterations, 1) * 1e3:.1f} ms per iteration"
         )
     ipopt = next(iter(solvers.values()))[1]
-    print(f"model: {args.ocp} (horizon {ocp.horizon}, profile robust)")
+    print(f"model: {args.ocp} (horizon {ocp.horizon}, profile {args.profile})")
     if not args.no_do_mpc:
         compare_do_mpc(solvers, model, repeat=args.repeat)
 
@@ -80,17 +89,19 @@ def main() -> None:
     for mode in ("open", "closed"):
         config = replace(base, modes=(mode,))
         started = time.perf_counter()
-        replay = play(physics, ocp, profile="robust", mode=mode, machines=machines, config=config)
+        replay = play(
+            physics, ocp, profile=args.profile, mode=mode, machines=machines, config=config
+        )
         rows.append((mode, time.perf_counter() - started, replay, None))
-    runs = [(int(h), True) for h in args.horizons.split(",")]
-    runs.append((int(args.horizons.split(",")[1]), False))  # the second horizon on the VM too
+    runs = [(h, True) for h in horizons]
+    runs.append((horizons[1], False))  # the second horizon on the VM too
     for horizon, compiled in runs:
         config = replace(base, modes=("mpc",), mpc=MPCConfig(horizon=horizon, compiled=compiled))
         started = time.perf_counter()
         replay = play(
             physics,
             ocp,
-            profile="robust",
+            profile=args.profile,
             mode="mpc",
             machines=machines,
             config=config,
@@ -106,7 +117,7 @@ def main() -> None:
     c = ocp.config
     for label, seconds, replay, timing in rows:
         lowest = min(replay.slider_position[:, k - 1].min() for k in c.constraint_samples)
-        rms = 1e3 * float(np.sqrt(np.mean((replay.theta - ocp.profiles["robust"].theta) ** 2)))
+        rms = 1e3 * float(np.sqrt(np.mean((replay.theta - ocp.profiles[args.profile].theta) ** 2)))
         if timing is None:
             cells = f"{'':>15} {'':>8} {'':>8} {'':>7} {'':>10}"
         else:
