@@ -14,9 +14,11 @@ import argparse
 
 import numpy as np
 
+from common.errors import ConfigError
 from control import profiles
 from control.config import OCPConfig
 from control.ocp import NominalOCP
+from crank.study import parse_seeds
 from ppann.checkpoint import load
 from ppann.heads import FusedHeads
 
@@ -25,13 +27,16 @@ MODELS = ("fcc9b1e17707", "ed08465aeaa3", "5800e00574e0", "a1129f30b6a7", "d761a
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--mc-seeds", default="0-4", help="first-last Monte-Carlo seeds")
-    first, last = (int(v) for v in parser.parse_args().mc_seeds.split("-"))
+    parser.add_argument("--mc-seeds", default="0-4", help="Monte-Carlo seeds, e.g. 0-4 or 0,3")
+    try:
+        seeds = parse_seeds(parser.parse_args().mc_seeds, option="--mc-seeds")
+    except ConfigError as exc:
+        parser.error(str(exc))
     for key in MODELS:
         model, _ = load(f"/work/e45/s10/model/{key}/model.pt")
         ocp = NominalOCP(model, OCPConfig())
         heads, nominal = FusedHeads(model), ocp.solve()
-        for seed in range(first, last + 1):
+        for seed in seeds:
             result = profiles.solve_decided(
                 model,
                 OCPConfig(mc_seed=seed),
