@@ -17,12 +17,30 @@ import numpy as np
 from common.errors import ConfigError
 from control import profiles
 from control.config import OCPConfig
-from control.ocp import NominalOCP
+from control.ocp import NominalOCP, Solution
+from control.robust import RobustResult
 from crank.study import parse_seeds
 from ppann.checkpoint import load
 from ppann.heads import FusedHeads
+from ppann.model import PPANN
 
 MODELS = ("fcc9b1e17707", "ed08465aeaa3", "5800e00574e0", "a1129f30b6a7", "d761a73494ec")
+"""The five default models' keys (session 45's, training seeds 0-4; bench/loop_levers_ab.py's
+too)."""
+
+
+def load_default(key: str) -> PPANN:
+    """One of MODELS from this machine's session-45 sweep folder."""
+    return load(f"/work/e45/s10/model/{key}/model.pt")[0]
+
+
+def decided(
+    model: PPANN, ocp: NominalOCP, *, nominal: Solution, heads: FusedHeads, seed: int
+) -> RobustResult:
+    """The robust profile as `crank solve` decides it at Monte-Carlo seed `seed`."""
+    return profiles.solve_decided(
+        model, OCPConfig(mc_seed=seed), profile="robust", ocp=ocp, nominal=nominal, heads=heads
+    )
 
 
 def main() -> None:
@@ -33,18 +51,11 @@ def main() -> None:
     except ConfigError as exc:
         parser.error(str(exc))
     for key in MODELS:
-        model, _ = load(f"/work/e45/s10/model/{key}/model.pt")
+        model = load_default(key)
         ocp = NominalOCP(model, OCPConfig())
         heads, nominal = FusedHeads(model), ocp.solve()
         for seed in seeds:
-            result = profiles.solve_decided(
-                model,
-                OCPConfig(mc_seed=seed),
-                profile="robust",
-                ocp=ocp,
-                nominal=nominal,
-                heads=heads,
-            )
+            result = decided(model, ocp, nominal=nominal, heads=heads, seed=seed)
             steps = []
             for it in result.iterations:
                 res = 1e3 * (np.asarray(it.tightening) - np.asarray(it.margin))

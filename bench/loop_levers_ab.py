@@ -16,13 +16,12 @@ import statistics
 import sys
 import time
 
-from control import profiles
+from aware_residuals import MODELS, decided, load_default  # the script's folder is on the path
+
 from control.config import OCPConfig
 from control.ocp import NominalOCP
-from ppann.checkpoint import load
 from ppann.heads import FusedHeads
 
-MODELS = ("fcc9b1e17707", "ed08465aeaa3", "5800e00574e0", "a1129f30b6a7", "d761a73494ec")
 REPEAT = 5
 
 
@@ -31,7 +30,7 @@ def main() -> None:
     variants = [tuple(v.split("/")) for v in named]  # warm full solves' mu_init / drafts'
     total = dict.fromkeys(variants, 0.0)
     for key in MODELS:
-        model, _ = load(f"/work/e45/s10/model/{key}/model.pt")
+        model = load_default(key)
         heads = FusedHeads(model)
         ocps = {}
         for warm, draft in variants:
@@ -43,14 +42,7 @@ def main() -> None:
             times: dict[tuple[str, ...], list[float]] = {v: [] for v in ocps}
             for _ in range(REPEAT):
                 for variant, ocp in ocps.items():
-                    result = profiles.solve_decided(
-                        model,
-                        OCPConfig(mc_seed=seed),
-                        profile="robust",
-                        ocp=ocp,
-                        nominal=nominal,
-                        heads=heads,
-                    )
+                    result = decided(model, ocp, nominal=nominal, heads=heads, seed=seed)
                     times[variant].append(result.wall_time)
             started = time.perf_counter()
             for _ in range(REPEAT):
