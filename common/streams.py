@@ -16,6 +16,7 @@ asked for.
 from __future__ import annotations
 
 import hashlib
+import threading
 from collections.abc import Callable
 
 import numpy as np
@@ -88,21 +89,24 @@ class PrefixDraws:
     draft. A draw is made by `make(rows)` in row-major order from a fresh generator, so fewer rows
     are a prefix of more: `get` returns the first `rows` of the longest draw kept for `key` (the
     drafts' 99 steps of the full solve's 249, bit for bit), read-only. Keeps the `size` keys used
-    last."""
+    last; safe to share between threads (control/aware.py checks a draft on one while the loop
+    solves on another)."""
 
     def __init__(self, size: int = 4) -> None:
         self.size = size
         self._kept: dict[tuple, np.ndarray] = {}
+        self._lock = threading.Lock()
 
     def get(self, key: tuple, rows: int, make: Callable[[int], np.ndarray]) -> np.ndarray:
-        kept = self._kept.pop(key, None)
-        if kept is None or kept.shape[0] < rows:
-            kept = make(rows)
-            kept.flags.writeable = False
-        self._kept[key] = kept  # now the newest
-        while len(self._kept) > self.size:
-            del self._kept[next(iter(self._kept))]
-        return kept[:rows]
+        with self._lock:
+            kept = self._kept.pop(key, None)
+            if kept is None or kept.shape[0] < rows:
+                kept = make(rows)
+                kept.flags.writeable = False
+            self._kept[key] = kept  # now the newest
+            while len(self._kept) > self.size:
+                del self._kept[next(iter(self._kept))]
+            return kept[:rows]
 
 
 def sequence_key(sequence: np.random.SeedSequence) -> tuple:

@@ -74,6 +74,8 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import replace
 from typing import Generic, TypeVar
 
@@ -81,6 +83,7 @@ import casadi as ca
 import numpy as np
 
 from common.errors import CrankError
+from control.beside import Pending, wanted
 from control.config import OCPConfig
 from control.ocp import NominalOCP, OCPError, Solution
 from control.tightening import Uncertainty, slider_uncertainty
@@ -260,6 +263,7 @@ def iterate(
     draft: bool = True,
     multipliers: bool = False,
     draft_check: Callable[[Solution, Uncertainty], float | None] | None = None,
+    beside: bool | None = None,
 ) -> tuple[Solution, Uncertainty, float]:
     """The scheme of the module docstring from the nominal plan and its Monte-Carlo; `record`
     sees each solve, its Monte-Carlo, the margin its slider keeps, whether it was a draft and
@@ -269,7 +273,9 @@ def iterate(
     k: control/robust.py's `start`). `draft_check`: sees the first draft within NEAR tolerances of
     its Monte-Carlo's tightening at every sample, with that Monte-Carlo, and may answer a
     larger k: the scheme then goes on at that k from that draft, drafts first
-    (control/profiles.py: its own tail checked before the full solve).
+    (control/profiles.py: its own tail checked before the full solve). `beside`: whether that
+    check runs on a thread of its own while the scheme goes on (control/beside.py; None: where
+    the process has more than one core for it); the same solves, records and result either way.
     Returns the accepted full solve, its `heights` the height plus that margin (the bounds
     under which the bracketed loop's NLP has this solution), its Monte-Carlo and the k it was
     solved at.
@@ -286,42 +292,89 @@ def iterate(
         config.margin_tolerance, draft=draft
     )
     tolerance = config.margin_tolerance
-    for attempt in range(MAX_SOLVES):
-        aware.freeze(current, unc)
-        if attempt == 0 and not aware.reachable(base + unc.population).all():
-            raise AwareError("no crank angle keeps the slider above the height with this spread")
-        draft = acceptance.draft
-        try:
-            solution = aware.solve(
-                base + unc.population, warm=current, draft=draft, multipliers=not fresh
-            )
-        except OCPError as exc:
-            raise AwareError(f"solve failed: {exc}") from None
-        if draft:
-            solution = torque_states(aware, solution, warm=current)
-        unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
-        margin = solution.slider[index] - config.height
-        record(solution, unc, margin, draft, config.k_sigma)
-        if np.any(margin > cap):
-            raise AwareError("beyond the stroke share a margin may take")
-        # the bounds a margin solve of this torque would have had (the constraint is active)
-        kept = (replace(solution, heights=config.height + margin), unc)
-        residual = unc.tightening - margin
-        accepted = acceptance.take(margin, residual, kept)
-        if accepted is not None:
-            return (*accepted, config.k_sigma)
-        if acceptance.cycling():
-            raise AwareError(f"cycling: solve {attempt + 1} repeats an earlier one, unsettled")
+    pending: Pending | None = None
+    solves = 0
+
+    def at_draft(solution: Solution, k: float) -> None:
+        """The scheme from the checked draft `solution` at the raised k, drafts first."""
+        nonlocal config, unc, acceptance, current, fresh
+        config = replace(config, k_sigma=k)  # the same draws at that k
+        unc = slider_uncertainty(heads, solution, config, constraints_only=True)
+        acceptance = Acceptance(config.margin_tolerance, draft=True)
         current, fresh = solution, False
-        if acceptance.start is not None:
-            current, unc = acceptance.start
-        elif draft and draft_check is not None and np.all(np.abs(residual) < NEAR * tolerance):
-            raised, draft_check = draft_check(solution, unc), None
-            if raised is not None and raised > config.k_sigma:  # the same draws at that k
-                config = replace(config, k_sigma=raised)
-                unc = slider_uncertainty(heads, solution, config, constraints_only=True)
-                acceptance = Acceptance(config.margin_tolerance, draft=True)
-    raise AwareError(f"not settled in {MAX_SOLVES} solves")
+
+    def settle() -> bool:
+        """The pending check's answer: the held solves recorded where k stays (False); where
+        it is raised, they are dropped and the scheme goes back to the draft (True)."""
+        nonlocal pending, solves
+        assert pending is not None
+        checked, pending = pending, None
+        raised = checked.answer()
+        if raised is not None and raised > config.k_sigma:
+            solves = checked.solves
+            at_draft(checked.draft[0], raised)
+            return True
+        for held in checked.held:
+            record(*held)
+        return False
+
+    with ThreadPoolExecutor(1) if draft_check and wanted(beside) else nullcontext() as pool:
+        while True:
+            if solves >= MAX_SOLVES:
+                if pending is not None and settle():
+                    continue
+                raise AwareError(f"not settled in {MAX_SOLVES} solves")
+            try:
+                aware.freeze(current, unc)
+                if solves == 0 and not aware.reachable(base + unc.population).all():
+                    raise AwareError(
+                        "no crank angle keeps the slider above the height with this spread"
+                    )
+                draft = acceptance.draft
+                try:
+                    solution = aware.solve(
+                        base + unc.population, warm=current, draft=draft, multipliers=not fresh
+                    )
+                except OCPError as exc:
+                    raise AwareError(f"solve failed: {exc}") from None
+                solves += 1
+                if draft:
+                    solution = torque_states(aware, solution, warm=current)
+                unc = slider_uncertainty(heads, solution, config, constraints_only=draft)
+                margin = solution.slider[index] - config.height
+                made = (solution, unc, margin, draft, config.k_sigma)
+                if pending is None:
+                    record(*made)
+                else:
+                    pending.held.append(made)
+                if np.any(margin > cap):
+                    raise AwareError("beyond the stroke share a margin may take")
+                # the bounds a margin solve of this torque would have had (the constraint is
+                # active)
+                kept = (replace(solution, heights=config.height + margin), unc)
+                residual = unc.tightening - margin
+                accepted = acceptance.take(margin, residual, kept)
+                if accepted is None and acceptance.cycling():
+                    raise AwareError(f"cycling: solve {solves} repeats an earlier one, unsettled")
+            except AwareError:
+                if pending is not None and settle():
+                    continue
+                raise
+            if pending is not None and (accepted is not None or pending.done()) and settle():
+                continue
+            if accepted is not None:
+                return (*accepted, config.k_sigma)
+            current, fresh = solution, False
+            if acceptance.start is not None:
+                current, unc = acceptance.start
+            elif draft and draft_check is not None and np.all(np.abs(residual) < NEAR * tolerance):
+                check, draft_check = draft_check, None
+                if pool is not None:
+                    pending = Pending(pool, check, (solution, unc), solves=solves)
+                    continue
+                raised = check(solution, unc)
+                if raised is not None and raised > config.k_sigma:
+                    at_draft(solution, raised)
 
 
 def repeats(

@@ -207,10 +207,11 @@ def _draft_raise(
     ):
         return None
     goal = tail.target(config)
+    own = heads.clone()  # the check may run beside the loop's solves (control/beside.py)
 
     def raised(solution: Solution, unc: Uncertainty, solving: OCPConfig) -> float | None:
         check = tail_check(
-            heads,
+            own,
             solution,
             solving,
             tightening=solving.tightening,
@@ -221,7 +222,7 @@ def _draft_raise(
         seen.append(replace(check, draft=True))
         if check.sampling != "lines":
             return None
-        inputs = _raise_inputs(heads, solution, unc, solving, solving.tightening)
+        inputs = _raise_inputs(own, solution, unc, solving, solving.tightening)
         rate = prediction(check, solving, short=True, **inputs)
         if rate(0.0) - TAIL_BAND * check.standard_error <= goal:
             return None

@@ -4,6 +4,7 @@ Apart from the torch model so that each stays one concept of readable length."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -36,7 +37,8 @@ class FusedHeads:
     paths); each network's last layer on its own columns. Each sample is one row, computed by
     the same kernel: equal states give bit-equal z. The arrays live in a workspace reused across
     calls of the same n (a fresh array per step cost more in page faults than the arithmetic). A
-    snapshot of the current weights: rebuild after training; not to be shared between threads.
+    snapshot of the current weights: rebuild after training; not to be shared between threads
+    (`clone` one for another).
     `lever_table`: the slider force's lever_sigma x'(theta) on the same grid (ppann/lever.py).
     """
 
@@ -82,6 +84,13 @@ class FusedHeads:
             self.b_out[j] = float(last.bias.detach()[0])
             row += width
         self._workspace: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def clone(self) -> FusedHeads:
+        """The same networks (their arrays shared, read only) with a workspace of its own: for
+        another thread (control/aware.py runs a check beside the loop's solves)."""
+        twin = copy.copy(self)
+        twin._workspace = {}
+        return twin
 
     @property
     def has_lever(self) -> bool:
