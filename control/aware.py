@@ -320,9 +320,10 @@ def iterate(
 
     with ThreadPoolExecutor(1) if draft_check and wanted(beside) else nullcontext() as pool:
         while True:
+            due = pending and (pending.held or not acceptance.draft or solves >= MAX_SOLVES)
+            if due and settle():  # one draft went on beside the check (control/beside.py)
+                continue
             if solves >= MAX_SOLVES:
-                if pending is not None and settle():
-                    continue
                 raise AwareError(f"not settled in {MAX_SOLVES} solves")
             try:
                 aware.freeze(current, unc)
@@ -349,8 +350,7 @@ def iterate(
                     pending.held.append(made)
                 if np.any(margin > cap):
                     raise AwareError("beyond the stroke share a margin may take")
-                # the bounds a margin solve of this torque would have had (the constraint is
-                # active)
+                # the bounds a margin solve of this torque would have had (constraint active)
                 kept = (replace(solution, heights=config.height + margin), unc)
                 residual = unc.tightening - margin
                 accepted = acceptance.take(margin, residual, kept)

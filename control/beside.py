@@ -7,11 +7,14 @@ threads, a second stage of 2000 more where the rate sits within two standard err
 target (0.11-0.13 s), 0.2-1.2 nominal solves of the loop's time in session 48's benchmark.
 Whatever the check answers, the loop's next solves from that draft are the ones it would make
 at the same k; only a raised k sends it back to the draft. So the check runs on a thread of its
-own while the loop goes on solving, the solves recorded meanwhile held back: at the check's
-answer (asked for after each solve, and before the loop returns or gives up) they are recorded
-if k stays, dropped and the loop taken back to the draft if k is raised. The loop's path, its
-records and its result are those of the check made in line (tests/test_beside.py); what
-changes is the wall time.
+own while the loop makes its next draft (not a full solve), that draft's record held back; then
+the loop waits for the answer: the draft is recorded if k stays, dropped and the loop taken back
+to the checked draft if k is raised. One draft and its Monte-Carlo (~45 ms on the default
+models) is about the check's time (35-45 ms on one thread, with its raise's prediction); a
+second draft or a full solve beside a check that raised cost the pair 40-80 ms for nothing
+(session 50, bench/beside.md), and the loop cannot return without the answer anyway. The
+loop's path, its records and its result are those of the check made in line
+(tests/test_beside.py); what changes is the wall time.
 
 It runs where the process has more than one core to give (`common.threads.rollout_threads() >
 1`): IPOPT holds one, the check the other while the loop solves (its rollouts on CHECK_THREADS
