@@ -31,6 +31,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 from common.threads import rollout_threads, threads_here
+from ppann import kernel
 
 CHECK_THREADS = 1
 """Threads of the rollouts of a check run beside the loop while it solves (its IPOPT holds the
@@ -39,8 +40,11 @@ other core)."""
 
 def wanted(beside: bool | None) -> bool:
     """Whether the check runs beside the loop: `beside` where given, else where this process
-    has more than one core for its rollouts (a sweep's one-CPU worker does not)."""
-    return rollout_threads() > 1 if beside is None else beside
+    has more than one core for its rollouts (a sweep's one-CPU worker does not) and they run
+    compiled (ppann/kernel.py; NumPy's rollout would hold the GIL between its array steps)."""
+    if beside is not None:
+        return beside
+    return rollout_threads() > 1 and kernel.load() is not None
 
 
 class Pending:

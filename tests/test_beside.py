@@ -19,6 +19,7 @@ from common.threads import rollout_threads, threads_here
 from control.config import OCPConfig
 from control.ocp import NominalOCP
 from control.robust import solve_robust
+from ppann import kernel
 from ppann.heads import FusedHeads
 from ppann.model import constant_ppann
 
@@ -164,6 +165,19 @@ def test_threads_here_is_this_threads_alone() -> None:
         assert (rollout_threads(), rollout_threads()) == (2, 5)
     with pytest.raises(ValueError), threads_here(0):
         pass
+
+
+def test_beside_where_the_process_has_cores_and_the_kernel(monkeypatch) -> None:
+    """By default beside where the rollouts have more than one thread and run compiled; as
+    given where given."""
+    monkeypatch.setattr(kernel, "load", lambda: object())
+    monkeypatch.setenv("CRANK_ROLLOUT_THREADS", "2")
+    assert beside.wanted(None) and not beside.wanted(False)
+    monkeypatch.setenv("CRANK_ROLLOUT_THREADS", "1")
+    assert not beside.wanted(None) and beside.wanted(True)
+    monkeypatch.setenv("CRANK_ROLLOUT_THREADS", "2")
+    monkeypatch.setattr(kernel, "load", lambda: None)
+    assert not beside.wanted(None)
 
 
 def test_a_clone_gives_the_same_numbers_from_a_workspace_of_its_own() -> None:
