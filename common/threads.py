@@ -49,8 +49,7 @@ def threads_here(count: int | Callable[[], int]) -> Iterator[None]:
 
 def rollout_threads() -> int:
     """The threads a rollout runs on by default: this thread's `threads_here` count, else
-    `set_rollout_threads`' count, else
-    $CRANK_ROLLOUT_THREADS, else every core.
+    `set_rollout_threads`' count, else $CRANK_ROLLOUT_THREADS, else every core.
 
     Raises:
       ConfigError: $CRANK_ROLLOUT_THREADS is not an integer >= 1 (one line on the CLI).
