@@ -18,7 +18,10 @@ training seed): the loop's path (drafts, full solves, IPOPT iterations) depends 
 Monte-Carlo's draws, and one seed is one sample of it. Each seed's line also gives the ratio of
 the profile as `crank solve` decides it (control/profiles.py solve_decided: the verdict's
 re-decisions, then the torque's own tail check, one Monte-Carlo of 20 000 trajectories, and
-where that is above its target the remedy, a raised k or the quantile tightening).
+where that is above its target the remedy, a raised k or the quantile tightening). The draft's
+check runs beside the loop's next draft where the process has the cores (control/beside.py;
+`CRANK_ROLLOUT_THREADS=1` keeps it in line, bench/beside_ab.py compares the two); the line says
+which, and counts in "the own tail's checks in line" only the checks the loop waited for.
 
 Without --model it solves on a PPANN with constant networks (the test suite's: prior J_m, B_m,
 K_m, z_K = -0.9, z_sigma = 0.03, 0.05, 0.05), so it needs no training run; its nominal solve
