@@ -320,8 +320,8 @@ def iterate(
 
     with ThreadPoolExecutor(1) if draft_check and wanted(beside) else nullcontext() as pool:
         while True:
-            due = pending and (pending.held or not acceptance.draft or solves >= MAX_SOLVES)
-            if due and settle():  # one draft went on beside the check (control/beside.py)
+            due = pending is not None and (not acceptance.draft or solves >= MAX_SOLVES)
+            if due and settle():  # a draft goes on beside the check, a full solve does not
                 continue
             if solves >= MAX_SOLVES:
                 raise AwareError(f"not settled in {MAX_SOLVES} solves")
@@ -360,7 +360,7 @@ def iterate(
                 if pending is not None and settle():
                     continue
                 raise
-            if pending is not None and (accepted is not None or pending.done()) and settle():
+            if pending is not None and settle():  # the draft beside it made: wait for it
                 continue
             if accepted is not None:
                 return (*accepted, config.k_sigma)

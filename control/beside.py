@@ -17,10 +17,11 @@ loop's path, its records and its result are those of the check made in line
 (tests/test_beside.py); what changes is the wall time.
 
 It runs where the process has more than one core to give (`common.threads.rollout_threads() >
-1`): IPOPT holds one, the check the other while the loop solves (its rollouts on CHECK_THREADS
-thread), every core once the loop waits for it. CasADi lets go of Python's GIL inside a solve
-and takes it back between its function calls, so the check must spend its time in the compiled
-kernel, where the GIL is free, or the two slow each other.
+1`) and the compiled kernel (`wanted`): IPOPT holds one, the check the other while the loop
+solves (its rollouts on CHECK_THREADS thread), every core once the loop waits for it. CasADi
+lets go of Python's GIL inside a solve and takes it back between its function calls, so the
+check must spend its time in the compiled kernel, where the GIL is free, or the two slow each
+other.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def wanted(beside: bool | None) -> bool:
 class Pending:
     """A check under way on `pool`'s thread: `check(*draft)`, the number of solves the loop
     had made at the draft checked (`solves`), that draft (`draft`: the solution and its
-    Monte-Carlo), and the records of the solves made since (`held`), in order. Its rollouts run
+    Monte-Carlo), and the record of the draft made beside it (`held`). Its rollouts run
     on CHECK_THREADS threads while the loop solves, on the process's (every core unless set)
     once the loop waits for its `answer`."""
 
@@ -68,10 +69,6 @@ class Pending:
         self._all = rollout_threads()
         self._waiting = threading.Event()
         self._future: Future[float | None] = pool.submit(self._run, check, *draft)
-
-    def done(self) -> bool:
-        """Whether the check has answered (its answer then costs no wait)."""
-        return self._future.done()
 
     def answer(self) -> float | None:
         """The check's answer, waiting for it; its exception, if it raised one."""
