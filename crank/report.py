@@ -7,9 +7,8 @@ from typing import Any
 
 from common.atomic import atomic_path
 from common.jsonio import finite_or_none
-from control.config import law_of, loop_of
+from crank.report_heldout import heldout_lines, loop_words, number, ratio_text
 from ppann.modes import MODES
-from replay.placement import in_words, named
 from replay.statistics import format_table, summary_rows
 
 FIGURES = (
@@ -27,44 +26,6 @@ FIGURES = (
 )
 
 
-LOOP_WORDS = {
-    "open": "open loop",
-    "closed": "closed loop under its LQR gains",
-    "mpc": "under the online MPC",
-}
-
-
-def loop_words(loop: str, profile: str) -> str:
-    """A loop a profile was played in, in words: closed is under the profile's own gains (its
-    LQR, or robust-pd's fixed PD)."""
-    if loop == "closed" and law_of(profile) == "pd":
-        return "closed loop under its fixed PD"
-    return LOOP_WORDS[loop]
-
-
-def _number(value: Any, spec: str) -> str:
-    return "n/a" if value is None else format(value, spec)
-
-
-DIVERGED_RATIO = 1e3
-"""A predicted / observed ratio beyond this is a Monte-Carlo whose draws ran away (the
-`trajectory` mode's white σ held for a whole run), not a calibration."""
-
-
-def diverged(ratio: float | None) -> bool:
-    """No ratio to read: a run-away Monte-Carlo's (beyond DIVERGED_RATIO, or not finite), or
-    none was left."""
-    return ratio is None or not abs(ratio) <= DIVERGED_RATIO
-
-
-def _ratio(value: Any) -> str:
-    """A predicted/observed ratio; one beyond DIVERGED_RATIO is shown as such, not as 70
-    digits (n/a where none was left)."""
-    if value is not None and abs(value) > DIVERGED_RATIO:
-        return f"diverged ({value:.1e})"
-    return _number(value, ".2f")
-
-
 def train_summary(report: dict[str, Any]) -> dict[str, Any]:
     """The training report in a few lines (n/a where a diverged draw left no number)."""
     report = finite_or_none(report)
@@ -72,14 +33,15 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
     for kind, entry in report["models"].items():
         r10 = entry["rmse_10_step"]
         rows[f"{kind} 10-step RMSE θ / ω"] = (
-            f"{_number(r10['theta'], '.4f')} rad / {_number(r10['omega'], '.3f')} rad/s"
+            f"{number(r10['theta'], '.4f')} rad / {number(r10['omega'], '.3f')} rad/s"
         )
     if report["calibration"] is None:
         rows["σ predicted/observed"] = "n/a: rig data, no twin to observe"
     for mode in MODES if report["calibration"] is not None else ():
         c = report["calibration"][mode]
+        theta, slider = c["theta"]["median"], c["slider_position"]["median"]
         rows[f"σ predicted/observed ({mode})"] = (
-            f"θ {_ratio(c['theta']['median'])}, slider {_ratio(c['slider_position']['median'])}"
+            f"θ {ratio_text(theta)}, slider {ratio_text(slider)}"
         )
     force = report["models"]["ppann"].get("lever_sigma")
     if force is not None:  # the slider force's channel (ppann/lever.py)
@@ -232,113 +194,6 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     return "\n".join(lines)
 
 
-def _own_rate(entry: dict[str, Any]) -> str:
-    """What the model's own Monte-Carlo put below the height (heldout.json version 4)."""
-    if "model_rate" not in entry:
-        return ""
-    own = entry["model_rate"]
-    return (
-        f" (the model's own Monte-Carlo of {own['draws']} trajectories: {100 * own['rate']:.2f} %)"
-    )
-
-
-def _verdict_words(entry: dict[str, Any], heldout: dict[str, Any]) -> str:
-    """A profile's held-out verdict in a sentence's words (replay/rates.py)."""
-    from replay.rates import machines_to_confirm, verdict
-
-    target = heldout["target_rate"]
-    said = verdict(entry["violating_runs"], heldout["runs"], target=target)
-    if said == "fails":
-        return "**does not hold**."
-    if said == "holds":
-        return "**holds**."
-    return (
-        f"**is not confirmed**: within it on these {heldout['runs']} machines, but they are too "
-        f"few for the bound to be (none below on {machines_to_confirm(target)} would confirm it)."
-    )
-
-
-def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
-    """The held-out verdicts and the calibration table of report.md (nothing if not run)."""
-    if heldout is None:
-        return []
-    profiles = heldout["profiles"]
-    lines = [
-        "## Held-out machines",
-        "",
-        f"On {heldout['runs']} held-out machines (root seed {heldout['seed']}, streams no other "
-        f"stage draws from):",
-        "",
-    ]
-    for name in list(profiles)[1:]:
-        for loop in heldout["modes"]:
-            robust, nominal = profiles[name][loop], profiles["nominal"][loop]
-            word = _verdict_words(robust, heldout)
-            pd = loop == "closed" and heldout.get("feedback") == "pd"
-            sized = loop_of(name) == loop and name in heldout.get("holds", {})
-            own = " (the loop it was tightened for)" if sized else ""
-            words = "closed loop under the fixed PD" if pd else loop_words(loop, name)
-            lines.append(
-                f"- {words}{own}, the {name} torque left the slider below the height "
-                f"on {100 * robust['rate']:.2f} % of machines (exact 95 % upper bound "
-                f"{100 * robust['rate_upper_95']:.2f} %){_own_rate(robust)}, the nominal one "
-                f"on {100 * nominal['rate']:.1f} %. Against the target of <= "
-                f"{100 * heldout['target_rate']:.1f} % the {name} torque {word}"
-            )
-            lines += [f"  - machine {i} below: {in_words(where)}" for i, where in named(robust)]
-    allow = (
-        "these machines and that Monte-Carlo allow (a bootstrap over the machines, widened by "
-        "the Monte-Carlo's standard error)"
-        if heldout.get("version", 0) >= 6
-        else "these machines allow (a bootstrap over them)"
-    )
-    lines += [
-        "",
-        "Predicted / observed σ of the slider under the OCP's own torque, per Monte-Carlo mode "
-        f"({heldout['mc_samples']} trajectories); in brackets the 95 % interval {allow}:",
-        "",
-    ]
-    first = next(iter(next(iter(profiles.values())).values()))
-    modes = list(next(iter(first["samples"].values()))["predicted"])
-    lines.append(
-        "| profile | loop | sample | observed σ mm | lowest mm | skew | " + " | ".join(modes) + " |"
-    )
-    lines.append("|" + "---|" * (6 + len(modes)))
-    for profile, played in profiles.items():
-        for loop, entry in played.items():
-            for sample, e in entry["samples"].items():
-                ratios = [_with_interval(e["predicted"][m]) for m in modes]
-                observed = f"{1e3 * e['observed_sigma']:.2f}"
-                if "observed_sigma_ci95" in e:
-                    low, high = (1e3 * v for v in e["observed_sigma_ci95"])
-                    observed += f" ({low:.2f}–{high:.2f})"
-                lines.append(
-                    f"| {profile} | {loop} | {sample} | {observed} | "
-                    f"{1e3 * e['lowest']:.1f} | {e['skew']:+.2f} | " + " | ".join(ratios) + " |"
-                )
-    if "theta" not in next(iter(first["samples"].values())):
-        return [*lines, ""]  # a heldout.json of version 2
-    lines += [
-        "",
-        "The same for the crank angle θ (near top dead centre the slider's σ magnifies an error "
-        "in θ's):",
-        "",
-        "| profile | loop | sample | observed θ σ mrad | " + " | ".join(modes) + " |",
-        "|" + "---|" * (4 + len(modes)),
-    ]
-    for profile, played in profiles.items():
-        for loop, entry in played.items():
-            thetas = [(k, e["theta"]) for k, e in entry["samples"].items()]
-            for sample, e in [*thetas, ("last", entry["theta_final"])]:
-                ratios = [_ratio(e["predicted"][m]["ratio"]) for m in modes]
-                lines.append(
-                    f"| {profile} | {loop} | {sample} | {1e3 * e['observed_sigma']:.1f} | "
-                    + " | ".join(ratios)
-                    + " |"
-                )
-    return [*lines, ""]
-
-
 def _rerun_args(argv: list[str]) -> str:
     """The command that repeats a run: its own arguments without its folder name."""
     args = list(argv[1:])
@@ -376,15 +231,6 @@ def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
         )
     first = {f"first solve: {k}": v for k, v in plan_round["first_solve"].items()}
     return _rows("Plan round (the model and OCP above are its second round)", played | first)
-
-
-def _with_interval(predicted: dict[str, Any]) -> str:
-    """A calibration ratio, with its interval where heldout.json has one."""
-    text = _ratio(predicted["ratio"])
-    if predicted.get("ratio_ci95") and not diverged(predicted["ratio"]):
-        low, high = predicted["ratio_ci95"]
-        text += f" ({low:.2f}–{high:.2f})"
-    return text
 
 
 def _wall(report: dict[str, Any]) -> dict[str, str]:

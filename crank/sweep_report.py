@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from common.atomic import atomic_path
 from common.figures import save_figure
 from crank import stages
-from crank.report import diverged
+from crank.report_heldout import diverged
 from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
 from crank.sweep_spec import KINDS, Leaf
 from ppann.figures import CALIBRATION_BAND
@@ -265,7 +265,7 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
 def _calibration_marks(ax: Any, at: float, row: dict[str, Any], samples: dict[str, str]) -> None:
     """A leaf's slider ratio at each of its constraint samples with its 95 % interval (sweep.csv
     ratio_<k>, ratio_<k>_low, ratio_<k>_high; a ratio without an interval alone, none where it
-    diverged, crank/report.py's rule), side by side at `at`."""
+    diverged, crank/report_heldout.py's rule), side by side at `at`."""
     ks = [key[len("ratio_") :] for key in row if re.fullmatch(r"ratio_\d+", key)]
     for i, k in enumerate(ks):
         value = row.get(f"ratio_{k}")

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from crank.report import heldout_lines, train_summary
+from crank.report import train_summary
+from crank.report_heldout import heldout_lines
 
 
 def _heldout(mode: str, ratio: float) -> dict:
