@@ -7,7 +7,8 @@ weights into the fresh PPANN before the second training (bench/warm_round.patch 
 this was measured for, not landed). Writes into OUT the chain's round files and round.json
 (seconds per stage, phase-1 epochs); check the torques with `crank heldout` (the md's commands).
 
-    python bench/warm_round.py --seed S --first DIR --arm warm|scratch --out OUT
+    python bench/warm_round.py --seed S --first DIR --arm warm|scratch --out OUT \
+        [--horizon 200 --samples 70,130]
 
 DIR holds the first round's model.pt and dataset.mcap of training seed S (the default chain's).
 """
@@ -33,10 +34,18 @@ def main() -> None:
     parser.add_argument("--first", type=Path, required=True)
     parser.add_argument("--arm", choices=("warm", "scratch"), required=True)
     parser.add_argument("--episodes", type=int, default=240)
+    parser.add_argument("--horizon", type=int, default=150, help="the task's (paper: 150)")
+    parser.add_argument("--samples", default="50,100", help="its constraint samples")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     torch.set_num_threads(1)  # two arms run side by side on the two cores
-    config = RunConfig.for_seed(args.seed, plan={"episodes": args.episodes}, baselines=False)
+    task = {
+        "horizon": args.horizon,
+        "constraint_samples": tuple(int(k) for k in args.samples.split(",")),
+    }
+    config = RunConfig.for_seed(
+        args.seed, ocp=task, plan={"episodes": args.episodes}, baselines=False
+    )
     out, first = args.out, args.out / stages.FIRST_ROUND
     first.mkdir(parents=True, exist_ok=True)
     seconds = {}
