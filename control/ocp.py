@@ -27,11 +27,12 @@ Draft solves (`solve(..., draft=True)`, used by the robust loop between its fina
 IPOPT pass on the warm start's turns at tolerance DRAFT_TOLERANCE, without the turn passes. The
 torque of a draft meets every constraint of the NLP (to 1e-8) but where its crossing moved, its
 states follow the stiffness term extrapolated across 2 pi rather than the wrapped one; the robust
-loop uses a draft only for the Monte-Carlo of its torque, never as a result. A draft whose heights
-jump by more than DRAFT_JUMP starts from the warm start's primal point alone; so does one asked
-to (`multipliers=False`), not pushed off the bounds it sits on (PRIMAL_BOUND_PUSH). The draft
-solvers share the derivative functions of the full one (CasADi's `cache` option), so they cost no
-second build (0.03 s against 3.5 s for the first).
+loop uses such a draft only for the Monte-Carlo of its torque; it returns a draft only where
+its crossing stayed and its states are its torque's own (control/aware.py `exact`). A draft
+whose heights jump by more than DRAFT_JUMP starts from the warm start's primal point alone; so
+does one asked to (`multipliers=False`), not pushed off the bounds it sits on
+(PRIMAL_BOUND_PUSH). The draft solvers share the derivative functions of the full one
+(CasADi's `cache` option), so they cost no second build (0.03 s against 3.5 s for the first).
 """
 
 from __future__ import annotations

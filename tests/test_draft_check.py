@@ -176,26 +176,33 @@ def test_a_warm_check_reads_the_cold_checks_lines_on_fewer_trajectories(
 
 
 def test_a_warm_check_reads_the_converged_rate(near_and_raised, monkeypatch) -> None:
-    """On Monte-Carlo seeds 0-5, the k-3.3 torque's warm check (from the k-3 torque's) less the
-    rate the same lines read with the secant steps run to convergence: their mean within three
-    of its standard errors over the seeds of nothing, each within the check's own standard
-    error (measured: -0.68 to +0.37 of it). Before session 48 the warm start's first step was
-    taken at the stale slope: +0.005 to +0.028 points on every seed, t = 4.2."""
+    """On Monte-Carlo seeds 0-5, the k-3.3 torque's warm check (from the k-3 torque's): each
+    within its own standard error of the rate the same lines read with the secant steps run to
+    convergence, and the mean of warm less cold (the same lines from the own draw) within three
+    of its standard errors of nothing: the warm start adds no bias of its own. Before session 48
+    the warm start's first step was taken at the stale slope: +0.005 to +0.028 points above the
+    converged rate on every seed, where the cold check read +0.002 to +0.010, t = 4.2. Since
+    session 52 this torque is a draft the loop returned, whose lines cross the model's 0.63 N·m
+    jump at 2 pi: there the cold check too reads 0.000-0.010 points below the converged rate
+    (t = 4.6 over 12 seeds; 6 or 8 secant steps read the same), so the mean is taken against the
+    cold check."""
     near, base, torque, raised = near_and_raised
     heads = FusedHeads(NARROW)
-    gaps, errors = [], []
+    gaps, added, errors = [], [], []
     for seed in range(6):
         before = tail_check(heads, near, replace(base, mc_seed=seed), **WARM)
         at = replace(raised, mc_seed=seed)
         warm = tail_check(heads, torque, at, warm=before, **WARM)
+        cold = tail_check(heads, torque, at, **WARM)
         with monkeypatch.context() as converged:
             converged.setattr(lines, "SECANT_STEPS", 12)
             converged.setattr(lines, "ROOT_TOLERANCE", 1e-7)
             reference = tail_check(heads, torque, at, **WARM)
         gaps.append(warm.rate - reference.rate)
+        added.append(warm.rate - cold.rate)
         errors.append(warm.standard_error)
-    gaps = np.array(gaps)
-    assert abs(gaps.mean()) < 3 * gaps.std(ddof=1) / np.sqrt(len(gaps))
+    gaps, added = np.array(gaps), np.array(added)
+    assert abs(added.mean()) < 3 * added.std(ddof=1) / np.sqrt(len(added))
     assert np.all(np.abs(gaps) < np.array(errors))
 
 

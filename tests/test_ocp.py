@@ -93,8 +93,9 @@ def test_robust_torque_keeps_mean_minus_3_sigma(model: PPANN, ocp: NominalOCP) -
     assert result.robust.cost >= result.nominal.cost
     last = result.iterations[-1]
     np.testing.assert_array_less(np.abs(last.tightening - last.margin), 1e-4)
-    # drafts drive the iteration; the result is the full solve that confirmed the margin
-    assert not last.draft and result.robust.status == "Solve_Succeeded"
+    # drafts drive the iteration; the result is the last, settled with the torch model's own
+    # states (control/aware.py `exact`; a full solve where its crossing moved)
+    assert result.robust.status == "Solve_Succeeded"
     assert result.iterations[0].draft
     np.testing.assert_array_equal(result.robust.heights, 0.08 + last.margin)
     # the robust solution is a solution of eq. 15 with the raised heights, in the torch model
