@@ -13,6 +13,9 @@ torque's own (`exact`: it kept its warm start's 2 pi crossing, so the NLP's stat
 mean model's rollout of its torque, to the bit on the bench's models): it meets every
 constraint of the NLP to FEASIBILITY_TOLERANCE and its Monte-Carlo is its torque's, so it is a
 solution of the same fixed point, to IPOPT's draft tolerance rather than the full solve's. A
+draft that settles where its crossing moved (its states are then its torque's rollout, not the
+NLP's) is followed once by a draft with each theta_k bounded to the turn that rollout puts it
+on (`bounded`; exact by its bounds), returned if it settles; otherwise full solves follow. A
 full solve on the safe side everywhere but with more slack than the tolerance and no such rise
 is held, and a draft from it probes for one: where the draft shows it, the held solve is
 returned; otherwise a full solve follows from the held one. A solve that comes back, unsettled,
@@ -43,6 +46,10 @@ class Acceptance(Generic[Payload]):
         self._seen: list[tuple[bool, np.ndarray, np.ndarray]] = []
         """Every solve taken: whether a draft, its margin, its residual."""
         self._held: tuple[np.ndarray, np.ndarray, Payload] | None = None
+        self.bounded = False
+        """Whether the next solve is a draft with each theta_k bounded to its warm start's
+        turn: once, after a draft that settled where its crossing moved."""
+        self._bounded_once = False
 
     def settled(self, margin: np.ndarray, residual: np.ndarray) -> bool:
         """Within the tolerance at every sample, or on the safe side of a jump there: residual
@@ -62,14 +69,20 @@ class Acceptance(Generic[Payload]):
         return repeats(before, draft, margin, residual, tolerance=self.tolerance)
 
     def take(
-        self, margin: np.ndarray, residual: np.ndarray, payload: Payload, *, exact: bool = False
+        self,
+        margin: np.ndarray,
+        residual: np.ndarray,
+        payload: Payload,
+        *,
+        exact: bool = False,
+        moved: bool = False,
     ) -> Payload | None:
         """Take the solve just made (a draft if `self.draft` was; `exact`: a draft whose states
-        are its torque's own): `payload` if it is a full solve that settled, or an exact draft
-        that settled while no full solve is held, a held full solve's payload if this solve
-        showed the jump it sat by, else None, with `self.draft` and `self.start` set for the
-        next solve."""
-        draft = self.draft
+        are its torque's own; `moved`: a draft whose crossing moved): `payload` if it is a full
+        solve that settled, or an exact draft that settled while no full solve is held, a held
+        full solve's payload if this solve showed the jump it sat by, else None, with
+        `self.draft`, `self.bounded` and `self.start` set for the next solve."""
+        draft, self.bounded = self.draft, False
         # a draft while a solve is held is its probe: holding is the only way back to drafts
         # once a full solve was made, and the probe's answer always leaves the drafts
         probed = self._held if draft else None
@@ -86,6 +99,8 @@ class Acceptance(Generic[Payload]):
         safe = bool(np.all((residual <= 0) | (np.abs(residual) < self.tolerance)))
         if not draft and safe:  # its slack may be a jump's: a draft from it probes it
             self._held, self.draft = (margin, residual, payload), True
+        elif moved and not self._bounded_once and self.settled(margin, residual):
+            self.bounded = self._bounded_once = True  # a draft on its torque's own turns
         else:
             self.draft = draft and not self.settled(margin, residual)
         return None

@@ -26,12 +26,14 @@ since that point is not pushed off its bounds, control/ocp.py PRIMAL_BOUND_PUSH)
 Drafts follow while any residual is outside the tolerance. A draft that settles with its
 states its torque's own (it kept its warm start's 2 pi crossing: `exact`) is returned (since
 session 52: on 22 of the bench's 25 model-seed pairs, one full solve and its Monte-Carlo fewer,
-the same fixed point to IPOPT's draft tolerance); otherwise full solves follow until one is
-within it at every sample, or sits on the safe side of a jump there (`Acceptance`, in
-control/acceptance.py; control/fixed_point.py's "Jumps"): residual <= 0 where some solve,
-draft or full, at a margin within the tolerance had a residual more than the tolerance above it
-and above -tolerance, i.e. the map rose by more than the tolerance into the tolerance's band (or
-across it) within less than the tolerance of margin.
+the same fixed point to IPOPT's draft tolerance); one that settles where its crossing moved is
+followed once by a draft bounded to its torque's turns, returned if it settles (the three
+other pairs: 6-9 IPOPT iterations where the full solve took 13-14); otherwise full solves
+follow until one is within it at every sample, or sits on the safe side of a jump there
+(`Acceptance`, in control/acceptance.py; control/fixed_point.py's "Jumps"): residual <= 0 where
+some solve, draft or full, at a margin within the tolerance had a residual more than the
+tolerance above it and above -tolerance, i.e. the map rose by more than the tolerance into the
+tolerance's band (or across it) within less than the tolerance of margin.
 On the seed-3 and seed-4 models of session 27 the last draft settled (residual -0.009 and -0.024
 mm at sample 100) and the full solve from it, 0.004-0.009 mm of margin away on the plan's other
 2 pi crossing, kept 0.13-0.17 mm of slack: it is returned at once (until session 29 the rise
@@ -287,7 +289,11 @@ def iterate(
                 draft = acceptance.draft
                 try:
                     solution = aware.solve(
-                        base + unc.population, warm=current, draft=draft, multipliers=not fresh
+                        base + unc.population,
+                        warm=current,
+                        draft=draft,
+                        multipliers=not fresh,
+                        bounded=acceptance.bounded,
                     )
                 except OCPError as exc:
                     raise AwareError(f"solve failed: {exc}") from None
@@ -309,7 +315,8 @@ def iterate(
                 residual = unc.tightening - margin
                 final = draft and solution is own and acceptance.settled(margin, residual)
                 final = final and exact(aware, solution)  # the rollout only where it decides
-                accepted = acceptance.take(margin, residual, kept, exact=final)
+                moved = draft and solution is not own
+                accepted = acceptance.take(margin, residual, kept, exact=final, moved=moved)
                 if accepted is not None and draft:  # its Monte-Carlo at every sample
                     accepted = (accepted[0], slider_uncertainty(heads, solution, config))
                 if accepted is None and acceptance.cycling():

@@ -251,12 +251,15 @@ class NominalOCP:
         warm: Solution | None = None,
         draft: bool = False,
         multipliers: bool = True,
+        bounded: bool = False,
     ) -> Solution:
         """Solve with slider lower bounds `heights` at the constraint samples (default: the
         configured height everywhere), warm-started from `warm` if given. `draft=True`: one
         loose pass on the warm start's turns (module docstring); needs `warm`.
         `multipliers=False`: start from the warm start's primal point alone, as after a jump
         (its multipliers belong to another constraint function, control/aware.py).
+        `bounded=True` (a draft): its one pass with each theta_k bounded to the warm start's
+        turn, as a full solve's second pass, so that its states are its torque's own.
 
         Raises:
           OCPError: IPOPT failed, or its answer breaks a constraint by more than 1e-8.
@@ -294,7 +297,7 @@ class NominalOCP:
             tried.add(turns.tobytes())
             lower, upper = 2 * math.pi * turns + TURN_EDGE, 2 * math.pi * (turns + 1) - TURN_EDGE
             args["lbx"], args["ubx"] = self._lbx.copy(), self._ubx.copy()
-            if passes > 1:  # the first pass is free: it moves the crossing where it wants
+            if passes > 1 or bounded:  # a first pass is free: it moves the crossing
                 args["lbx"][thetas] = lower
                 args["ubx"][thetas] = upper
                 w0 = w0.copy()

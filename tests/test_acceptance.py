@@ -123,3 +123,24 @@ def test_a_settled_draft_is_returned_only_where_its_states_are_its_torques() -> 
     probed = _after_drafts()
     probed.take(*AWAY, "full")
     assert probed.take(_mm(10.484, 14.44), _mm(0.001, -0.02), "probe", exact=True) == "full"
+
+
+def test_a_draft_that_settled_where_its_crossing_moved_is_followed_by_a_bounded_one() -> None:
+    """Where the seed-3 model's last draft settled but its crossing moved (`moved`: its states
+    its torque's rollout, not the NLP's), the next solve is a draft bounded to its torque's
+    turns, returned where it settles (exact by its bounds). Once: after a bounded draft that
+    did not settle the drafts go on, and the next moved draft that settles is followed by a
+    full solve."""
+    acceptance: Acceptance[str] = Acceptance(1e-4)
+    for solve in DRAFTS[:-1]:
+        assert acceptance.take(*solve, "draft", moved=True) is None and not acceptance.bounded
+    assert acceptance.take(*DRAFTS[-1], "moved", moved=True) is None
+    assert acceptance.draft and acceptance.bounded
+    assert acceptance.take(*DRAFTS[-1], "bounded", exact=True) == "bounded"
+    once: Acceptance[str] = Acceptance(1e-4)
+    for solve in DRAFTS:
+        once.take(*solve, "draft", moved=True)
+    assert once.take(*DRAFTS[1], "bounded", exact=True) is None  # 0.24 mm: not settled
+    assert once.draft and not once.bounded
+    assert once.take(*DRAFTS[-1], "moved", moved=True) is None
+    assert not once.draft and not once.bounded  # a full solve next

@@ -154,7 +154,8 @@ def test_a_draft_whose_crossing_moved_takes_its_torques_states(model: PPANN) -> 
     (0.63 N·m off) and meet the heights, while its torque keeps the slider 0.85 mm below the
     height at sample 100 in the torch model. `torque_states` gives the torque's states (the
     torch model's to 1e-12); raised by 4 mm at both samples the crossing stays, and so do the
-    NLP's states."""
+    NLP's states. A draft bounded to the moved draft's own turns keeps them, its states its
+    torque's, and meets the heights."""
     ocp = NominalOCP(model, CONFIG)
     full = ocp.solve()
     n = CONFIG.horizon
@@ -178,6 +179,9 @@ def test_a_draft_whose_crossing_moved_takes_its_torques_states(model: PPANN) -> 
     stays = ocp.solve(full.heights + 0.004, warm=full, draft=True)
     assert torque_states(ocp, stays, warm=full) is stays
     assert exact(ocp, stays) and not exact(ocp, draft)  # what the scheme may return
+    bounded = ocp.solve(raised, warm=own, draft=True, bounded=True)  # on its torque's turns
+    np.testing.assert_array_equal(turns(bounded), turns(own))
+    assert exact(ocp, bounded) and np.all(bounded.slider[INDEX] >= raised - 1e-8)
 
 
 def test_where_it_cannot_settle_the_bracket_decides() -> None:
