@@ -228,7 +228,7 @@ def iterate(
     k: control/robust.py's `start`). `draft_check`: sees the first draft within NEAR tolerances of
     its Monte-Carlo's tightening at every sample, with that Monte-Carlo, and may answer a
     larger k: the scheme then goes on at that k from that draft, drafts first
-    (control/profiles.py: its own tail checked before the full solve). `beside`: whether that
+    (control/profiles.py: its own tail checked before the returned solve). `beside`: whether that
     check runs on a thread of its own while the scheme goes on (control/beside.py; None: where
     the process has more than one core for it); the same solves, records and result either way.
     Returns the accepted full solve, its `heights` the height plus that margin (the bounds

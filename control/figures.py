@@ -108,7 +108,7 @@ def robust_figure(ocp: OCPFile, name: str) -> Figure:
     checks = ocp.raw[name].get("tail_checks", [])
     tail = ""
     if checks:  # control/tail.py: the returned torque's own tail; the one before it, if re-solved
-        ahead = [c for c in checks if c.get("draft")]  # its loop's draft, before the full solve
+        ahead = [c for c in checks if c.get("draft")]  # its loop's draft, before the returned one
         checks = [c for c in checks if not c.get("draft")] or checks
         last = checks[-1]
         read = f"line sampling, {last['draws']} lines; " if last.get("sampling") == "lines" else ""

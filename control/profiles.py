@@ -22,9 +22,9 @@ Monte-Carlo at the raised k, and a full solve from its multipliers where it was 
 scheme's own: control/robust.py `solve_robust`; the same margins to the loop's tolerance as from
 the nominal, in fewer solves), then with the quantile tightening; the last torque is returned.
 
-Before the full solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise would
-follow, it is made inside the open-loop aware scheme, from its draft near the fixed point, so
-that the full solve is made once, at the raised k (on five default models × five Monte-Carlo
+Before the returned solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise
+would follow, it is made inside the open-loop aware scheme, from its draft near the fixed point,
+so that the loop settles once, at the raised k (on five default models × five Monte-Carlo
 seeds 16-17 of 25 decided within 3 nominal solves, from 8); the returned torque's check then
 starts from that draft check's lines (control/tail.py `warm`).
 """
@@ -99,7 +99,7 @@ def solve_decided(
     on_iteration: Callable[[Iteration], None] | None = None,
     heads: FusedHeads | None = None,
 ) -> RobustResult:
-    """`decide` (its open-loop aware loop's draft checked before the full solve, and k raised
+    """`decide` (its open-loop aware loop's draft checked before the returned solve, and k raised
     there where that check is clear: `_draft_raise`), then (OCPConfig.tail_check) the torque's
     own tail (`own_tail`, warm from the draft's check): where its own violation rate is above
     the target, the profile is decided again at the k its check's own trajectories predict to
@@ -194,7 +194,7 @@ def _draft_raise(
     at this k (control/raise_k.py `prediction`, `short`: the draft's margin is up to
     aware.NEAR tolerances short of its tightening) and, where that is TAIL_BAND of the lines'
     standard errors above the target (the returned torque's check would raise it), the k
-    predicted to bring it to the aim, so that the full solve is made once, at that k. `seen`
+    predicted to bring it to the aim, so that the loop settles once, at that k. `seen`
     collects each check; None where there is none to make (a tube, the bracketed loop, plain
     sampling, the quantile tightening, no check or no raise)."""
     if not (

@@ -79,7 +79,7 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
         checks = r.get("tail_checks", [])
         if checks:  # control/tail.py
             told = "; ".join(
-                f"{'its draft, before the full solve: ' if c.get('draft') else ''}"
+                f"{'its draft, before the returned solve: ' if c.get('draft') else ''}"
                 f"{c['tightening']} at k {c.get('k_sigma', k):g} {100 * c['rate']:.2f} % of "
                 f"{c['draws']}{' lines' if c.get('sampling') == 'lines' else ''} below "
                 f"(target {100 * c['target']:g} %)"
