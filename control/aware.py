@@ -243,7 +243,9 @@ def iterate(
     index = np.array(config.constraint_samples) - 1
     base = np.full(len(index), config.height)
     current, unc, fresh = nominal, nominal_unc, not multipliers
-    acceptance: Acceptance[tuple[Solution, Uncertainty]] = Acceptance(
+    # a payload: the solve, its Monte-Carlo, and whether that stops at the last constraint
+    # sample (a draft's)
+    acceptance: Acceptance[tuple[Solution, Uncertainty, bool]] = Acceptance(
         config.margin_tolerance, draft=draft
     )
     tolerance = config.margin_tolerance
@@ -311,14 +313,12 @@ def iterate(
                 if np.any(margin > cap):
                     raise AwareError("beyond the stroke share a margin may take")
                 # the bounds a margin solve of this torque would have had (constraint active)
-                kept = (replace(solution, heights=config.height + margin), unc)
+                kept = (replace(solution, heights=config.height + margin), unc, draft)
                 residual = unc.tightening - margin
                 final = draft and solution is own and acceptance.settled(margin, residual)
                 final = final and exact(aware, solution)  # the rollout only where it decides
                 moved = draft and solution is not own
                 accepted = acceptance.take(margin, residual, kept, exact=final, moved=moved)
-                if accepted is not None and draft:  # its Monte-Carlo at every sample
-                    accepted = (accepted[0], slider_uncertainty(heads, solution, config))
                 if accepted is None and acceptance.cycling():
                     raise AwareError(f"cycling: solve {solves} repeats an earlier one, unsettled")
             except AwareError:
@@ -328,10 +328,13 @@ def iterate(
             if pending is not None and settle():  # the draft beside it made: wait for it
                 continue
             if accepted is not None:
-                return (*accepted, config.k_sigma)
+                returned, its, partial = accepted
+                if partial:  # a draft's: its Monte-Carlo at every sample, as a full solve's
+                    its = slider_uncertainty(heads, returned, config)
+                return returned, its, config.k_sigma
             current, fresh = solution, False
             if acceptance.start is not None:
-                current, unc = acceptance.start
+                current, unc, _ = acceptance.start
             elif draft and draft_check is not None and np.all(np.abs(residual) < NEAR * tolerance):
                 check, draft_check = draft_check, None
                 if pool is not None:

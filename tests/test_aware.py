@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from control import aware as aware_module
+from control.acceptance import Acceptance
 from control.aware import AwareOCP, exact, torque_states
 from control.config import OCPConfig, OCPConfigError
 from control.ocp import NominalOCP, Solution
@@ -214,3 +215,31 @@ def test_a_cycling_scheme_hands_over_at_once(model: PPANN) -> None:
 def test_an_unknown_scheme_is_refused() -> None:
     with pytest.raises(OCPConfigError, match="margin_scheme must be one of aware, bracket"):
         OCPConfig(margin_scheme="fast")
+
+
+def test_the_returned_torques_monte_carlo_is_its_own(
+    model: PPANN, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whichever solve the scheme returns, its Monte-Carlo is its own torque's, at every sample:
+    the settled draft's (the one made for it stops at the last constraint sample), and an
+    earlier solve's where a later one returns it (as a probe returns a held full solve; forced
+    here by handing back the first draft when a solve settles)."""
+    heads = FusedHeads(model)
+
+    def assert_own(result) -> None:
+        own = slider_uncertainty(heads, result.robust, CONFIG)
+        np.testing.assert_array_equal(result.robust_uncertainty.tightening, own.tightening)
+        np.testing.assert_array_equal(result.robust_uncertainty.std, own.std)
+
+    assert_own(solve_robust(model, CONFIG))
+    taken, take = [], Acceptance.take
+
+    def handing_back_the_first(self, margin, residual, payload, **kwargs):
+        taken.append(payload)
+        settled = take(self, margin, residual, payload, **kwargs)
+        return None if settled is None else taken[0]
+
+    monkeypatch.setattr(Acceptance, "take", handing_back_the_first)
+    first = solve_robust(model, CONFIG)
+    assert first.robust.cost < taken[-1][0].cost  # the first draft's torque, not the last's
+    assert_own(first)
