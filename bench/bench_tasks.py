@@ -135,7 +135,8 @@ def main() -> None:
             print(
                 f"{task}, {name}: verdict {'/'.join(sorted(verdicts))} over the Monte-Carlo seeds"
             )
-    out = model.parent / args.out
+    out = model.parent / args.out  # beside the model, unless absolute
+    out.parent.mkdir(parents=True, exist_ok=True)
     record = {"runs": args.runs, "heldout_seed": args.heldout_seed, "profiles": list(profiles)}
     out.write_text(json.dumps(record | {"rows": rows}, indent=1))
     print(f"wrote {out}")
