@@ -12,7 +12,6 @@ call `run_chain` directly.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -29,7 +28,8 @@ from control.config import OCPConfig, loop_of
 from control.mpc_config import MPCConfig
 from control.robust import Iteration
 from crank import stages
-from crank.estimate import Span, run_time
+from crank.estimate import Span, left, run_time
+from crank.resume import STAGES_FILE, resumable
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.heldout import check_trajectories
@@ -38,8 +38,7 @@ from twin import MODEL_PATH, __version__
 from twin.dataset import GenerationConfig
 from twin.excitation import Excitation
 from twin.generation import check_generation_memory
-from twin.mcap_dataset import read_run
-from twin.physics import SliderCrank, load_model, model_sha256
+from twin.physics import SliderCrank, load_model
 from twin.plan_config import PlanConfig
 from twin.variability import Variability
 
@@ -210,11 +209,6 @@ class Hooks:
     """The estimated time of each stage (and "total"), once the inputs are checked."""
 
 
-STAGES_FILE = "stages.json"
-"""What each finished stage of an unfinished run returned (crank run --resume reads it); removed
-once report.json and report.md are written."""
-
-
 @writes("run_dir", all_or_nothing=False)
 def run_chain(
     config: RunConfig,
@@ -229,13 +223,15 @@ def run_chain(
     Files: config.json first, then each stage's outputs, report.json and report.md last, so a
     folder without report.md did not finish. After each stage what it returned goes into
     stages.json; with `resume`, `run_dir` is such an unfinished folder of this `config` (its
-    config.json), the stages recorded there are skipped and the rest run as they would have.
+    config.json, but for settings of the stages it has not run: crank/resume.py), the stages
+    recorded there are skipped and the rest run as they would have.
     A stage that was cut off mid-way is redone: its outputs are replaced.
     """
     hooks = hooks or Hooks()
     run_dir = Path(run_dir)
+    rewrite = False
     if resume:
-        resolved, done = _resumable(config, run_dir)
+        resolved, done, rewrite = resumable(config, run_dir, argv=argv)
     elif run_dir.exists():
         raise OutputError(f"run folder already exists: {run_dir}")
     else:
@@ -250,10 +246,10 @@ def run_chain(
         )
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     estimate = run_time(config)
-    if hooks.on_estimate is not None:
-        hooks.on_estimate(estimate)
+    if hooks.on_estimate is not None:  # a resumed run's: of the stages it has not made
+        hooks.on_estimate(left(estimate, done))
     stage = hooks.on_stage or (lambda _: None)
-    if not resume:
+    if not resume or rewrite:  # a resume that changes settings says so (crank/resume.py)
         check_writable(run_dir / "config.json")
         write_json(run_dir / "config.json", resolved, indent=2)
     steps: dict[str, float] = {}
@@ -340,49 +336,3 @@ def run_chain(
     )
     (run_dir / STAGES_FILE).unlink(missing_ok=True)
     return report
-
-
-def resumed_config(run_dir: str | Path) -> RunConfig:
-    """The configuration of the run folder `run_dir` (its config.json), to resume it.
-
-    Raises:
-      OutputError: not a run folder.
-      ConfigError: its config.json is not a run configuration.
-    """
-    return RunConfig.from_dict(_config_json(Path(run_dir)))
-
-
-def _config_json(run_dir: Path) -> dict[str, Any]:
-    """A run folder's config.json as written (the command, argv and version included)."""
-    path = run_dir / "config.json"
-    if not path.is_file():
-        raise OutputError(f"nothing to resume: {run_dir} is not a run folder (no config.json)")
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"{path}: not a run configuration ({exc})") from None
-
-
-def _resumable(config: RunConfig, run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
-    """An unfinished run folder of `config`: its config.json as written, and the results its
-    finished stages recorded (see run_chain).
-
-    Raises:
-      OutputError: no such folder, not a run folder, or a finished one.
-      ConfigError: its config.json is not `config`, or its twin's MJCF has changed since.
-    """
-    resolved = _config_json(run_dir)
-    if (run_dir / "report.md").exists():
-        raise OutputError(f"nothing to resume: {run_dir} finished (it has report.md)")
-    if RunConfig.from_dict(resolved) != config:
-        raise ConfigError(f"{run_dir}/config.json is another run's configuration")
-    stages = run_dir / STAGES_FILE
-    done = json.loads(stages.read_text()) if stages.is_file() else {}
-    if "generate" in done:
-        made_on = read_run(run_dir / "dataset.mcap")["mjcf_sha256"]
-        if made_on != model_sha256(config.model_path):
-            raise ConfigError(
-                f"the twin's MJCF {config.model_path} changed since {run_dir}/dataset.mcap was "
-                f"generated on it; start a new run"
-            )
-    return resolved, done

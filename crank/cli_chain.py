@@ -103,7 +103,8 @@ def run_command(
         Path | None,
         typer.Option(
             help="Continue an unfinished run folder with its own config.json, from the first "
-            "stage it has not finished (no other option may be given)."
+            "stage it has not finished; only --profiles, --pd, --confidence, --runs and the "
+            "--heldout-* options may be given, for the stages it has not made."
         ),
     ] = None,
     config: Annotated[
@@ -116,8 +117,8 @@ def run_command(
 ) -> None:
     """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
     them on the twin open and closed loop, report (report.json, report.md, figures)."""
-    from crank.chain import resumed_config
     from crank.config_file import build, defaults, merge, read_values
+    from crank.resume import resumed_config, with_settings
 
     given = {
         p: v
@@ -125,11 +126,16 @@ def run_command(
         if getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
     }
     if resume is not None:
-        others = [p for p in given if p != "resume"]
+        others = [p for p in given if p != "resume" and p not in RESUME_FLAGS]
         if others:
             option = "--" + others[0].replace("_", "-")
-            raise ConfigError(f"--resume continues with the folder's config.json; drop {option}")
-        _run(resumed_config(resume), resume, resume=True)
+            raise ConfigError(
+                f"--resume continues with the folder's config.json; drop {option} (only "
+                f"{', '.join('--' + f.replace('_', '-') for f in RESUME_FLAGS)} may change, for "
+                "the stages the run has not made)"
+            )
+        changes = flag_values({p: v for p, v in given.items() if p in RESUME_FLAGS})
+        _run(with_settings(resumed_config(resume), changes), resume, resume=True)
         return
     values = read_values(config) if config is not None else defaults()
     values = merge(values, flag_values(given), source="the command line")
@@ -156,6 +162,17 @@ FLAG_KEYS = {
     "plan_episodes": ("plan", "episodes"),
 }
 """Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
+RESUME_FLAGS = (
+    "profiles",
+    "pd",
+    "confidence",
+    "runs",
+    "heldout_runs",
+    "heldout_seed",
+    "heldout_trajectories",
+)
+"""The flags `crank run --resume` takes: settings of the solve, the replays and the held-out
+check, for the stages the run has not made (crank/resume.py)."""
 
 
 def pd_gains(text: str) -> tuple[float, float]:
@@ -212,6 +229,7 @@ def config_command(
 
 def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
     """run_chain with progress bars, stage lines, run.log and the summary tables."""
+    from control.records import RobustError
     from crank.chain import Hooks, run_chain
     from crank.estimate import describe
     from crank.report import train_summary
@@ -248,6 +266,13 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
             )
             try:
                 report = run_chain(config, run_dir, hooks=hooks, resume=resume)
+            except RobustError as exc:  # every profile refused: the closed loop is one resume away
+                if "robust-fb" not in config.ocp.profiles:
+                    exc.args = (
+                        f"{exc}; to try the closed loop on this run's model: crank run --resume "
+                        f"{run_dir} --profiles robust-fb",
+                    )
+                raise
             finally:
                 bars.close()
         print_summary(f"run {run_dir}: dataset", report["dataset"])

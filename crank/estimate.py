@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING
 from twin.physics import SAMPLE_RATE
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from crank.chain import RunConfig
     from ppann.train_config import TrainConfig
     from twin.dataset import GenerationConfig
@@ -157,15 +159,23 @@ def run_time(config: RunConfig) -> dict[str, Span]:
     return stages | {"total": total}
 
 
+def left(stages: dict[str, Span], done: Iterable[str]) -> dict[str, Span]:
+    """`run_time`'s stages but those `done` (a resumed run's), with their "total"."""
+    kept = {name: span for name, span in stages.items() if name not in {*done, "total"}}
+    total = Span(0.0, 0.0)
+    for span in kept.values():
+        total = total + span
+    return kept | {"total": total}
+
+
 def describe(stages: dict[str, Span], *, times: int = 1) -> str:
     """One line: the total (of `times` such runs) and its parts."""
     parts = ", ".join(f"{name} {span}" for name, span in stages.items() if name != "total")
     total = stages["total"] * times
     each = f"; each run: {parts}" if times > 1 else f" ({parts})"
-    return (
-        f"estimated time on an idle 2-core machine: {total}{each}; training stops early, the "
-        f"upper end is its epoch cap"
-    )
+    trains = any(name.startswith("train") for name in stages)
+    cap = "; training stops early, the upper end is its epoch cap" if trains else ""
+    return f"estimated time on an idle 2-core machine: {total}{each}{cap}"
 
 
 def _duration(seconds: float) -> str:

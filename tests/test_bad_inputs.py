@@ -379,6 +379,8 @@ CASES: list[tuple[str, str]] = [
     ("run --resume {folder} --seconds 5", "drop --seconds"),
     ("run --resume {folder} --no-drift", "drop --drift"),
     ("run --resume {folder} --config {cfg_range.toml}", "drop --config"),
+    ("run --resume {folder} --profiles robust-fb", "nothing to resume: "),
+    ("run --resume {folder} --pd 1,2,3", "--pd takes the gains as KP,KD"),
     ("run --logs L --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
     ("run --logs L --config {cfg_type.toml}", 'ocp.horizon must be an integer, got "x"'),
     ("run --logs L --config {cfg_range.toml}", "horizon must be >= 3 samples"),

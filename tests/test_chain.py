@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from common.atomic import OutputError
 from common.errors import ConfigError
 from common.jsonio import without_wall_clock
-from crank.chain import STAGES_FILE, Hooks, RunConfig, resumed_config, run_chain
+from crank.chain import STAGES_FILE, Hooks, RunConfig, run_chain
+from crank.resume import resumed_config
 from tests.conftest import LATE_MPC
 from twin.mcap_dataset import read_dataset
 

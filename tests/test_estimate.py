@@ -13,6 +13,7 @@ from crank.estimate import (
     WINDOW_STEP_EPOCH,
     Span,
     describe,
+    left,
     run_time,
     solve_time,
     train_time,
@@ -27,6 +28,12 @@ def test_stages_add_up_to_the_total() -> None:
     assert times["total"].low == pytest.approx(sum(s.low for s in parts))
     assert times["total"].high == pytest.approx(sum(s.high for s in parts))
     assert "heldout" not in run_time(RunConfig())
+    rest = left(times, ["generate", "train"])  # a resumed run's
+    assert list(rest) == ["solve", "replay", "heldout", "total"]
+    assert rest["total"].high == pytest.approx(
+        sum(rest[k].high for k in ("solve", "replay", "heldout"))
+    )
+    assert "epoch cap" in describe(times) and "epoch cap" not in describe(rest)
 
 
 def test_default_run_is_the_measured_few_minutes() -> None:

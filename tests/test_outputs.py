@@ -240,7 +240,9 @@ def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None
     resumed = crank("run", "--resume", str(run_dir))
     assert resumed.returncode == 2 and "Traceback" not in resumed.stderr
     assert "generating the dataset: done before, kept" in resumed.stderr
-    assert resumed.stderr.strip().splitlines()[-1].startswith("error: the model's tightening")
+    last = resumed.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: the model's tightening")
+    assert last.endswith(f"crank run --resume {run_dir} --profiles robust-fb")  # the next step
     assert (run_dir / "dataset.mcap").stat().st_mtime_ns == dataset
     log = (run_dir / "run.log").read_text()
     assert log.startswith(first_log) and "done before, kept" in log

@@ -1,0 +1,103 @@
+"""A run resumed with other settings for the stages it has not made (crank/resume.py): it goes on
+from its dataset and model, config.json says what changed and from which command, and a setting
+of a stage already made, or of the data or the training, is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from common.errors import ConfigError
+from control.ocp_file import read_ocp
+from crank.chain import STAGES_FILE, Hooks, run_chain
+from crank.resume import resumed_config, with_settings
+from tests.conftest import crank
+from tests.test_chain import SHORT
+
+
+class _StoppedError(Exception):
+    """Stands for a refused solve, Ctrl-C or a crash before the solve."""
+
+
+def _stop_at_solve(text: str) -> None:
+    if text == "solving the nominal and robust OCP":
+        raise _StoppedError
+
+
+@pytest.fixture(scope="module")
+def unsolved(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """SHORT stopped before its solve: dataset and model made, nothing after."""
+    run = tmp_path_factory.mktemp("resume") / "run"
+    with pytest.raises(_StoppedError):
+        run_chain(SHORT, run, argv=[], hooks=Hooks(on_stage=_stop_at_solve))
+    assert set(json.loads((run / STAGES_FILE).read_text())) == {"generate", "train"}
+    return run
+
+
+def _copy(run: Path, to: Path) -> Path:
+    shutil.copytree(run, to)
+    return to
+
+
+def test_a_resume_with_another_profile_goes_on_from_the_model(unsolved, tmp_path: Path) -> None:
+    run = _copy(unsolved, tmp_path / "run")
+    trained = (run / "model.pt").stat().st_mtime_ns
+    changed = with_settings(SHORT, {"ocp": {"profiles": ["robust-fb"]}, "replay": {"runs": 2}})
+    assert changed.ocp.profiles == ("robust-fb",) and changed.replay.runs == 2
+    stages: list[str] = []
+    run_chain(changed, run, argv=["resumed"], hooks=Hooks(on_stage=stages.append), resume=True)
+    assert stages[:3] == [
+        "generating the dataset: done before, kept",
+        "training the PPANN: done before, kept",
+        "solving the nominal and robust OCP",
+    ]
+    assert (run / "model.pt").stat().st_mtime_ns == trained  # not trained again
+    assert (run / "report.md").is_file() and not (run / STAGES_FILE).exists()
+    assert read_ocp(run / "ocp.json").robust_names == ("robust-fb",)
+    written = json.loads((run / "config.json").read_text())
+    assert written["ocp"]["profiles"] == ["robust-fb"] and written["replay"]["runs"] == 2
+    assert written["resumed"] == [{"argv": ["resumed"], "changed": ["ocp", "replay"]}]
+    assert written["argv"] == []  # the command that made the folder stays
+    assert resumed_config(run) == changed
+    stats = json.loads((run / "replay.stats.json").read_text())
+    assert stats["config"]["runs"] == 2
+
+
+def test_a_setting_of_a_stage_made_or_of_the_data_is_refused(unsolved, tmp_path: Path) -> None:
+    run = _copy(unsolved, tmp_path / "run")
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+    with pytest.raises(ConfigError, match="another run's configuration"):
+        run_chain(SHORT.with_seed(1), run, resume=True)
+    longer = with_settings(SHORT, {})
+    with pytest.raises(ConfigError, match="cannot change generation"):
+        with_settings(longer, {"generation": {"seconds": 20.0}})
+    done = json.loads((run / STAGES_FILE).read_text())
+    (run / STAGES_FILE).write_text(json.dumps(done | {"solve": {}}))  # as if it had solved
+    with pytest.raises(ConfigError, match="already solved its OCPs: its ocp settings cannot"):
+        run_chain(with_settings(SHORT, {"ocp": {"confidence": 0.5}}), run, resume=True)
+    after = {p.name: p.stat().st_mtime_ns for p in run.iterdir() if p.name != STAGES_FILE}
+    assert after == {k: v for k, v in before.items() if k != STAGES_FILE}  # nothing written
+
+
+def test_the_cli_resumes_with_other_profiles_and_names_what_it_takes(
+    unsolved, tmp_path: Path
+) -> None:
+    run = _copy(unsolved, tmp_path / "run")
+    refused = crank("run", "--resume", str(run), "--seconds", "5")
+    assert refused.returncode == 2 and "drop --seconds (only --profiles, --pd" in refused.stderr
+    bad = crank("run", "--resume", str(run), "--runs", "0")
+    assert bad.returncode == 2 and "runs must be an integer" in bad.stderr.strip().splitlines()[-1]
+    assert "resumed" not in json.loads((run / "config.json").read_text())
+    done = crank("run", "--resume", str(run), "--profiles", "robust-pd", "--heldout-runs", "10")
+    assert done.returncode == 0, done.stderr
+    assert "training the PPANN: done before, kept" in done.stderr
+    estimate = next(x for x in done.stderr.splitlines() if x.startswith("estimated time"))
+    assert "(solve " in estimate and "train" not in estimate  # what is left to make
+    written = json.loads((run / "config.json").read_text())
+    assert written["ocp"]["profiles"] == ["robust-pd"] and written["heldout_runs"] == 10
+    assert written["resumed"][0]["changed"] == ["ocp", "heldout_runs"]
+    assert written["resumed"][0]["argv"][-4:] == ["--profiles", "robust-pd", "--heldout-runs", "10"]
+    assert json.loads((run / "heldout.json").read_text())["runs"] == 10
