@@ -162,19 +162,20 @@ def run_time(config: RunConfig) -> dict[str, Span]:
             profiles=profiles,
             modes=len(config.heldout_modes),
         )
-    total = Span(0.0, 0.0)
-    for span in stages.values():
-        total = total + span
-    return stages | {"total": total}
+    return _with_total(stages)
 
 
 def left(stages: dict[str, Span], done: Iterable[str]) -> dict[str, Span]:
     """`run_time`'s stages but those `done` (a resumed run's), with their "total"."""
-    kept = {name: span for name, span in stages.items() if name not in {*done, "total"}}
+    return _with_total({name: s for name, s in stages.items() if name not in {*done, "total"}})
+
+
+def _with_total(stages: dict[str, Span]) -> dict[str, Span]:
+    """`stages` and their sum as "total"."""
     total = Span(0.0, 0.0)
-    for span in kept.values():
+    for span in stages.values():
         total = total + span
-    return kept | {"total": total}
+    return stages | {"total": total}
 
 
 def describe(stages: dict[str, Span], *, times: int = 1) -> str:
