@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from scipy import special
 
 import control.tail_lines as tl
 from control.config import OCPConfig
@@ -89,11 +88,10 @@ def main() -> None:
     def linear(draws: np.ndarray) -> np.ndarray:
         """Each line's probability below the height with the angle linear in u."""
         offset = found.origin - found.centre + (draws - np.outer(draws @ unit, unit)) @ gradient.T
-        slope = gradient @ unit
-        left = ((-reach - offset) / slope).max(axis=1)
-        right = ((reach - offset) / slope).min(axis=1)
-        q = special.ndtr(left) + special.ndtr(-right)
-        return np.where(left >= right, 1.0, np.minimum(q, 1.0))
+        slope = np.broadcast_to(gradient @ unit, offset.shape)
+        lower, upper = (-reach - offset) / slope, (reach - offset) / slope
+        # the lines' own union of the edges (control/tail_lines.py), on the linear edges
+        return tl.Crossings(lower, upper, slope, slope, offset, 0, 0).probabilities()
 
     q = linear(u)
     expected = np.mean([linear(tl.mirrored(rng, 200_000, size)).mean() for _ in range(5)])
