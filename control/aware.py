@@ -231,8 +231,9 @@ def iterate(
     (control/profiles.py: its own tail checked before the returned solve). `beside`: whether that
     check runs on a thread of its own while the scheme goes on (control/beside.py; None: where
     the process has more than one core for it); the same solves, records and result either way.
-    Returns the accepted full solve, its `heights` the height plus that margin (the bounds
-    under which the bracketed loop's NLP has this solution), its Monte-Carlo and the k it was
+    Returns the accepted solve (a full solve, or a draft whose states are its torque's own:
+    `Acceptance`), its `heights` the height plus that margin (the bounds under which the
+    bracketed loop's NLP has this solution), its Monte-Carlo at every sample and the k it was
     solved at.
 
     Raises:
