@@ -77,6 +77,7 @@ def main() -> None:
                 mc_seed=mc_seed,
                 mc_samples=args.mc_samples,
                 profiles=profiles,
+                fallback=(),  # the verdicts of the profiles asked for, as before session 54
                 tail_sampling=args.tail_sampling,
             )
             ocp_path = work / f"task{t}-mc{mc_seed}.json"

@@ -4,6 +4,7 @@ validated config, and the normal-law helpers the tightening is sized with."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -54,6 +55,13 @@ def loop_of(profile: str) -> str:
     """The loop a profile's robust claim is about: "closed" for a profile tightened for a closed
     loop (robust-fb, robust-pd), else "open" (the paper's experiment)."""
     return ROBUST_PROFILES.get(profile, "open")
+
+
+def loops_of(profiles: Iterable[str]) -> tuple[str, ...]:
+    """The loops the robust claims of `profiles` are about (`loop_of`), "open" first: what a
+    held-out check plays."""
+    loops = {loop_of(profile) for profile in profiles}
+    return tuple(loop for loop in ("open", "closed") if loop in loops)
 
 
 def law_of(profile: str) -> str:
@@ -111,6 +119,12 @@ class OCPConfig:
     for the open loop, the paper's eq. 16), "robust-fb" (the Monte-Carlo runs each machine
     under the time-varying LQR law along the plan, saturated at the torque limit: a tube) and
     "robust-pd" (the same under the fixed PD pd_kp, pd_kd)."""
+    fallback: tuple[str, ...] = ("robust-fb",)
+    """Robust profiles solved from the same nominal plan only where every one of `profiles` is
+    refused (ROBUST_PROFILES; those already in `profiles` are not tried twice; () for none):
+    on a line whose spread no open-loop torque keeps above the height, the LQR tube the machine
+    can run instead, so that the run ends with a torque that holds and the refusal beside it
+    (beyond the paper; ocp.json's `fallback` names what was solved so)."""
     pd_kp: float = PD_GAINS[0]
     """robust-pd: the fixed PD's gain on the angle error, N·m/rad."""
     pd_kd: float = PD_GAINS[1]
@@ -185,6 +199,13 @@ class OCPConfig:
                 f"profiles must be distinct names among {', '.join(ROBUST_PROFILES)}, "
                 f"got {', '.join(self.profiles) or 'none'}"
             )
+        object.__setattr__(self, "fallback", tuple(self.fallback))
+        unknown = [p for p in self.fallback if p not in ROBUST_PROFILES]
+        if unknown or len(set(self.fallback)) != len(self.fallback):
+            raise OCPConfigError(
+                f"fallback must be distinct names among {', '.join(ROBUST_PROFILES)} (or none), "
+                f"got {', '.join(self.fallback) or 'none'}"
+            )
         check_choice("margin_scheme", self.margin_scheme, MARGIN_SCHEMES, error=OCPConfigError)
         check_choice("tightening", self.tightening, TIGHTENINGS, error=OCPConfigError)
         check_choice("tail_remedy", self.tail_remedy, TAIL_REMEDIES, error=OCPConfigError)
@@ -220,4 +241,11 @@ class OCPConfig:
         out = asdict(self)
         out["constraint_samples"] = list(self.constraint_samples)
         out["profiles"] = list(self.profiles)
+        out["fallback"] = list(self.fallback)
         return out
+
+    @property
+    def fallback_profiles(self) -> tuple[str, ...]:
+        """The fallback profiles tried where every one of `profiles` is refused: `fallback`
+        without those already asked for."""
+        return tuple(p for p in self.fallback if p not in self.profiles)

@@ -20,6 +20,8 @@ Top-level keys (stable; `version` changes if any meaning does):
   robust-pd                  each profile listed (below)
   refused                    {profile: the one-line reason} for each asked-for robust profile
                              that has no robust torque (e.g. open loop on a wide line)
+  fallback                   the robust profiles solved only because every one asked for was
+                             refused (config.fallback; absent before session 54: none)
   variability                the training dataset's variability scenario (replays draw from it)
   robust_iterations          one entry per robust solve: profile, margin, tightening,
                              tightening_se (m, per constraint sample: k sigma or plan - quantile,
@@ -163,6 +165,8 @@ class OCPFile:
     refused: dict[str, str]
     """Each asked-for robust profile that has none: why."""
     raw: dict[str, Any]
+    fallback: tuple[str, ...] = ()
+    """The robust profiles solved because every one asked for was refused (OCPConfig.fallback)."""
 
     @property
     def horizon(self) -> int:
@@ -245,9 +249,20 @@ def read_ocp(path: str | Path) -> OCPFile:
     refused = raw.get("refused", {})
     if not isinstance(refused, dict) or not all(isinstance(v, str) for v in refused.values()):
         raise OCPFileError(f"{path}: refused must map profiles to reasons, got {refused!r}")
+    fallback = raw.get("fallback", [])
+    if not isinstance(fallback, list) or not set(fallback) <= set(names[1:]):
+        raise OCPFileError(
+            f"{path}: fallback must list robust profiles of the file, got {fallback!r}"
+        )
     profiles = {name: _profile(path, name, raw[name], config) for name in names}
     return OCPFile(
-        config=config, geometry=geometry, dt=dt, profiles=profiles, refused=refused, raw=raw
+        config=config,
+        geometry=geometry,
+        dt=dt,
+        profiles=profiles,
+        refused=refused,
+        raw=raw,
+        fallback=tuple(fallback),
     )
 
 

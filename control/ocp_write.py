@@ -155,9 +155,10 @@ def write_ocp(
     engine: str = "vm",
 ) -> dict[str, Any]:
     """Write ocp.json atomically and return what was written: the nominal profile (its bands in
-    the loop of the first robust profile solved), each robust profile solved and why the others
-    were refused. `variability` is the training dataset's scenario (from the checkpoint), which
-    replays draw their machines from; `engine` what evaluated the NLP (compiled or vm)."""
+    the loop of the first robust profile solved), each robust profile solved (those solved as
+    the fallback named) and why the others were refused. `variability` is the training
+    dataset's scenario (from the checkpoint), which replays draw their machines from; `engine`
+    what evaluated the NLP (compiled or vm)."""
     first_name, first = next(iter(solved.results.items()))
     robust = {
         name: {
@@ -172,6 +173,7 @@ def write_ocp(
         **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
         "profiles": ["nominal", *robust],
         "refused": {name: str(exc) for name, exc in solved.refused.items()},
+        "fallback": list(solved.fallback),
         # the nominal plan's bands in the loop of the first robust profile solved
         "nominal": _part(first, "nominal", config=config, dt=dt, loop=loop_of(first_name)),
         **robust,

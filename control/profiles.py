@@ -76,11 +76,12 @@ crossings then start that stage's secants (control/tail.py, a warm check)."""
 
 @dataclass(frozen=True)
 class Solved:
-    """The robust profiles of config.profiles on one nominal plan: those solved and, for those
-    refused, why."""
+    """The robust profiles of config.profiles on one nominal plan: those solved, why the others
+    were refused, and which solved ones are config.fallback's (every one asked refused)."""
 
     results: dict[str, RobustResult]
     refused: dict[str, RobustError]
+    fallback: tuple[str, ...] = ()
 
 
 def undecided(tightening: np.ndarray, se: np.ndarray, cap: float) -> bool:
@@ -233,17 +234,15 @@ def _draft_raise(
 
 def _of(check: TailCheck) -> str:
     """What a check's rate was read from, in words."""
-    if check.sampling == "lines":
-        return f"by line sampling on {check.draws} lines"
-    return f"of {check.draws} trajectories"
+    lines = check.sampling == "lines"
+    return f"by line sampling on {check.draws} lines" if lines else f"of {check.draws} trajectories"
 
 
 def _raise_inputs(
     heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPConfig, method: str
 ) -> dict[str, Any]:
-    """What control/raise_k.py predicts from: a torque's mean-model crank angle, its
-    tightening and that tightening's parts for the Monte-Carlo's finite sample and for the
-    line's mean at each constraint sample (its Monte-Carlo `unc`), and the mechanism."""
+    """What control/raise_k.py predicts from: a torque's mean-model crank angle, its tightening
+    and its parts for the Monte-Carlo's sample and the line's mean (`unc`), the mechanism."""
     index = np.array(config.constraint_samples) - 1
     return {
         "geometry": heads.geometry,
@@ -365,28 +364,37 @@ def solve_profiles(
     on_iteration: Callable[[Iteration], None] | None = None,
 ) -> Solved:
     """The nominal plan once, then each robust profile of `config.profiles` from it
-    (solve_decided). A profile that has no robust torque is refused and the others go on.
+    (solve_decided). A profile that has no robust torque is refused and the others go on; where
+    every one is refused, the profiles of `config.fallback` not asked for are solved the same
+    way (`Solved.fallback`: on a wide line, the LQR tube beside the open loop's refusal).
 
     Raises:
       OCPError: the nominal OCP itself fails.
-      RobustError: every profile was refused: the first one's error, naming the others', with
-        `partials` (each profile's Partial).
+      RobustError: every profile, fallback included, was refused: the first one's error, naming
+        the others', with `partials` (each profile's Partial).
     """
     ocp = ocp or NominalOCP(model, config)
     nominal = ocp.solve()
     results: dict[str, RobustResult] = {}
     refused: dict[str, RobustError] = {}
-    for profile in config.profiles:
+
+    def attempt(profile: str) -> None:
         try:
             results[profile] = solve_decided(
                 model, config, profile=profile, ocp=ocp, nominal=nominal, on_iteration=on_iteration
             )
         except RobustError as exc:
             refused[profile] = exc
+
+    for profile in config.profiles:
+        attempt(profile)
+    fallback = () if results else config.fallback_profiles
+    for profile in fallback:
+        attempt(profile)
     if not results:
         first = next(iter(refused.values()))
         if len(refused) > 1:
             first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
         first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
         raise first
-    return Solved(results=results, refused=refused)
+    return Solved(results, refused, fallback=tuple(p for p in fallback if p in results))

@@ -54,9 +54,10 @@ def solve_file(
     checkpoint and write ocp.json and figures.
 
     A robust profile without a robust torque is refused (ocp.json says why) while another one
-    is solved; nothing is written at `out` unless the nominal and at least one robust solve
-    succeed. When every robust profile fails, the nominal plan and the margin histories go to
-    <stem>.failed.json (`failed_path`) and the error says so.
+    is solved; where every one is refused, `config.fallback`'s are solved (control/profiles.py
+    solve_profiles). Nothing is written at `out` unless the nominal and at least one robust
+    solve succeed. When every robust profile fails, the nominal plan and the margin histories go
+    to <stem>.failed.json (`failed_path`) and the error says so.
 
     Raises:
       CheckpointError: unreadable checkpoint, or not a PPANN (the black box has no physics).

@@ -24,7 +24,7 @@ from common.atomic import OutputError, check_writable, writes
 from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
-from control.config import OCPConfig, loop_of
+from control.config import OCPConfig, loops_of
 from control.mpc_config import MPCConfig
 from control.robust import Iteration
 from crank import stages
@@ -87,7 +87,8 @@ class RunConfig:
         if self.replay.variability != self.generation.variability:
             raise ConfigError("replays must draw from the dataset's variability scenario")
         pd = (self.ocp.pd_kp, self.ocp.pd_kd)
-        if "robust-pd" in self.ocp.profiles and pd != (self.replay.kp, self.replay.kd):
+        tubes = (*self.ocp.profiles, *self.ocp.fallback_profiles)
+        if "robust-pd" in tubes and pd != (self.replay.kp, self.replay.kd):
             raise ConfigError(
                 f"robust-pd's tube is sized for the PD Kp {pd[0]:g}, Kd {pd[1]:g} (ocp.pd_kp, "
                 f"pd_kd) but the replays' PD is Kp {self.replay.kp:g}, Kd {self.replay.kd:g} "
@@ -129,10 +130,9 @@ class RunConfig:
 
     @property
     def heldout_modes(self) -> tuple[str, ...]:
-        """The loops the held-out check plays: those the robust profiles' claims are about
-        (control.config.loop_of), open first."""
-        loops = {loop_of(profile) for profile in self.ocp.profiles}
-        return tuple(m for m in ("open", "closed") if m in loops)
+        """The loops the held-out check plays where no fallback is solved: those the robust
+        profiles' claims are about (control.config.loops_of), open first."""
+        return loops_of(self.ocp.profiles)
 
     def with_seed(self, seed: int) -> RunConfig:
         """The same run under another root seed (the seed study); the replay seed follows."""
@@ -241,9 +241,8 @@ def run_chain(
     horizon = config.ocp.horizon
     check_campaign_memory(config.replay.runs, modes=len(config.replay.modes), horizon=horizon)
     if config.heldout_runs:
-        check_campaign_memory(
-            config.heldout_runs, modes=len(config.heldout_modes), horizon=horizon, held_out=True
-        )
+        most = loops_of((*config.ocp.profiles, *config.ocp.fallback_profiles))  # a fallback's too
+        check_campaign_memory(config.heldout_runs, modes=len(most), horizon=horizon, held_out=True)
     SliderCrank(load_model(config.model_path)[0])  # a bad MJCF is refused before the folder
     estimate = run_time(config)
     if hooks.on_estimate is not None:  # a resumed run's: of the stages it has not made

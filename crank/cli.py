@@ -16,12 +16,14 @@ import typer
 
 from control.config import OCPConfig, OCPConfigError
 from crank.console import (
+    DEFAULT_FALLBACK,
     DEFAULT_PROFILES,
     Amplitude,
     Confidence,
     Drift,
     EpisodeSeconds,
     EpochBars,
+    FallbackOption,
     ModelPath,
     ProfilesOption,
     Progress,
@@ -29,6 +31,7 @@ from crank.console import (
     Seed,
     VariabilityOption,
     app,
+    fallback_list,
     one_line_errors,
     print_summary,
     profiles_list,
@@ -294,6 +297,7 @@ def solve_command(
         ),
     ] = OCPConfig.tail_remedy,
     profiles: ProfilesOption = DEFAULT_PROFILES,
+    fallback: FallbackOption = DEFAULT_FALLBACK,
     torque_limit: Annotated[float, typer.Option(help="|τ| bound, N·m.")] = OCPConfig.torque_limit,
     theta_start: Annotated[float, typer.Option(help="θ_1, rad.")] = OCPConfig.theta_start,
     theta_end: Annotated[float, typer.Option(help="θ_N, rad.")] = OCPConfig.theta_end,
@@ -329,6 +333,7 @@ def solve_command(
         tail_check=tail_check,
         tail_remedy=tail_remedy,
         profiles=tuple(profiles_list(profiles)),
+        fallback=tuple(fallback_list(fallback)),
         torque_limit=torque_limit,
         theta_start=theta_start,
         theta_end=theta_end,

@@ -13,6 +13,7 @@ import typer
 from common.errors import ConfigError
 from control.config import OCPConfig
 from crank.console import (
+    DEFAULT_FALLBACK,
     DEFAULT_PROFILES,
     HELDOUT_RUNS,
     HELDOUT_SEED,
@@ -20,6 +21,7 @@ from crank.console import (
     Drift,
     EpisodeSeconds,
     EpochBars,
+    FallbackOption,
     ModelPath,
     ProfilesOption,
     Progress,
@@ -27,6 +29,7 @@ from crank.console import (
     Seed,
     VariabilityOption,
     app,
+    fallback_list,
     one_line_errors,
     print_heldout,
     print_replay,
@@ -69,6 +72,7 @@ def run_command(
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
+    fallback: FallbackOption = DEFAULT_FALLBACK,
     pd: PDOption = None,
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
@@ -103,8 +107,8 @@ def run_command(
         Path | None,
         typer.Option(
             help="Continue an unfinished run folder with its own config.json, from the first "
-            "stage it has not finished; only --profiles, --pd, --confidence, --runs and the "
-            "--heldout-* options may be given, for the stages it has not made."
+            "stage it has not finished; only --profiles, --fallback, --pd, --confidence, --runs "
+            "and the --heldout-* options may be given, for the stages it has not made."
         ),
     ] = None,
     config: Annotated[
@@ -154,6 +158,7 @@ FLAG_KEYS = {
     "variability": ("generation", "variability"),
     "confidence": ("ocp", "confidence"),
     "profiles": ("ocp", "profiles"),
+    "fallback": ("ocp", "fallback"),
     "runs": ("replay", "runs"),
     "heldout_runs": ("heldout_runs",),
     "heldout_seed": ("heldout_seed",),
@@ -164,6 +169,7 @@ FLAG_KEYS = {
 """Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
 RESUME_FLAGS = (
     "profiles",
+    "fallback",
     "pd",
     "confidence",
     "runs",
@@ -201,8 +207,8 @@ def flag_values(given: dict[str, Any]) -> dict[str, Any]:
         table = out
         for t in tables:
             table = table.setdefault(t, {})
-        if flag == "profiles":
-            value = profiles_list(value)
+        if flag in ("profiles", "fallback"):
+            value = (profiles_list if flag == "profiles" else fallback_list)(value)
         table[key] = str(value) if isinstance(value, Path) else value
     return out
 
@@ -267,7 +273,7 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
             try:
                 report = run_chain(config, run_dir, hooks=hooks, resume=resume)
             except RobustError as exc:  # every profile refused: the closed loop is one resume away
-                if "robust-fb" not in config.ocp.profiles:
+                if "robust-fb" not in (*config.ocp.profiles, *config.ocp.fallback):
                     exc.args = (
                         f"{exc}; to try the closed loop on this run's model: crank run --resume "
                         f"{run_dir} --profiles robust-fb",

@@ -233,6 +233,22 @@ def profiles_list(text: str) -> list[str]:
     return [part.strip() for part in text.split(",") if part.strip()]
 
 
+FallbackOption = Annotated[
+    str,
+    typer.Option(
+        help="Comma-separated robust profiles solved only where every one of --profiles is "
+        "refused (on a line no open-loop torque holds: the LQR tube beside the refusal), or "
+        "none."
+    ),
+]
+DEFAULT_FALLBACK = ",".join(OCPConfig.fallback) or "none"
+
+
+def fallback_list(text: str) -> list[str]:
+    """--fallback text as a list ("none": empty); OCPConfig says what is wrong with it."""
+    return [] if text.strip() == "none" else profiles_list(text)
+
+
 Confidence = Annotated[
     float,
     typer.Option(

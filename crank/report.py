@@ -90,6 +90,8 @@ def solve_summary(payload: dict[str, Any]) -> dict[str, Any]:
             rows[f"{name}: its own tail"] = told
     for name, why in payload.get("refused", {}).items():
         rows[name] = f"refused: {why}"
+    if payload.get("fallback"):
+        rows["fallback"] = f"{', '.join(payload['fallback'])}: every profile asked was refused"
     return rows
 
 
@@ -118,8 +120,11 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
     runs = stats["config"]["runs"]
     samples = ", ".join(str(k) for k in stats["ocp"]["constraint_samples"])
     premiums = stats["ocp"]["premiums"]
+    refused, fallback = report["refused"], report.get("fallback", [])
     if claim["holds"] is None:
         verdict = "The robust torque was not replayed open loop: the paper's claim was not checked."
+        if "robust" in refused:
+            verdict = f"No robust torque: {refused['robust']}"
     else:
         word = "**holds**" if claim["holds"] else "**does not hold**"
         verdict = (
@@ -139,8 +144,14 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
             f"the height in {c['violating_runs']} of {c['runs']} runs (cost premium "
             f"{premiums[name]:+.1%})."
         )
-    for name, why in report["refused"].items():
-        verdicts.append(f"No {name} torque: {why}")
+    verdicts += [f"No {name} torque: {why}" for name, why in refused.items() if name != "robust"]
+    if fallback:  # control/profiles.py solve_profiles
+        verdicts.insert(
+            1,
+            f"Every profile asked for ({', '.join(config['ocp']['profiles'])}) was refused, so "
+            f"the fallback {', '.join(fallback)} was solved from the same plan (`[ocp] fallback`, "
+            "`--fallback none` to stop at the refusal).",
+        )
     lines = [
         f"# crank run `{run_dir.name.removesuffix('.partial')}`",  # a sweep step's folder
         "",

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from common.jsonio import write_json
+from control.config import loops_of
 from control.ocp_file import read_ocp
 from control.records import RobustError
 from control.solve import failed_path, solve_file
@@ -79,11 +80,13 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
     own-tail check on (control/tail.py), the loop's torque without the check is played instead;
     the summary keeps the refusal under "tail_refused", its files as `out`/ocp.tail_refused.json
     (bench/refused_k3.md: such refusals were the first round's over-predicted spread, which the
-    round corrected on the paper task). The second round's solve checks its own torque as always.
+    round corrected on the paper task). The second round's solve checks its own torque as always
+    (and solves the fallback where it refuses; the first is played, so it has none).
 
     Raises:
       RobustError: the first solve refused even without the check (its own error).
     """
+    config = replace(config, ocp=replace(config.ocp, fallback=()))
     try:
         return solve(config, model, out, hooks=hooks)
     except RobustError as exc:
@@ -159,7 +162,7 @@ def replay(
 
 def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, Any]:
     """Every profile of `ocp` on `config.heldout_runs` held-out machines, in the loops its
-    robust profiles were tightened for: `out`/heldout.json."""
+    robust profiles (a fallback's included) were tightened for: `out`/heldout.json."""
     return heldout_file(
         ocp,
         out / HELDOUT,
@@ -168,7 +171,7 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         seed=config.heldout_seed,
         variability=config.generation.variability,
         max_start_time=config.replay.max_start_time,
-        modes=config.heldout_modes,
+        modes=loops_of(read_ocp(ocp).robust_names),  # a fallback's loop too
         kp=config.replay.kp,  # recorded beside the own-law loops (a robust-pd's gains are this PD)
         kd=config.replay.kd,
         model_path=config.model_path,
@@ -197,6 +200,7 @@ def write_report(
         "ppann": trained,
         "ocp": solve_summary(solved),
         "refused": solved["refused"],  # robust profiles asked for that have no torque: why
+        "fallback": solved.get("fallback", []),  # solved because every one asked was refused
         "replay": {
             "claim": stats["claim"],
             "claims": stats["claims"],

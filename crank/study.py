@@ -68,17 +68,19 @@ def seed_rows(seed: int, run_dir: Path) -> list[dict[str, Any]]:
 
 def run_rows(leaf: Path, ocp_path: Path) -> list[dict[str, Any]]:
     """The figures of a finished chain, one row per robust profile it asked for (a refused one:
-    its reason as the row's error): its report.json and replay stats in `leaf`, and the ocp.json
-    it played (a sweep keeps them in separate step folders)."""
+    its reason as the row's error) and per fallback it solved (`fallback` true): its report.json
+    and replay stats in `leaf`, and the ocp.json it played (a sweep keeps them in separate step
+    folders)."""
     report = json.loads((leaf / "report.json").read_text())
     stats = json.loads((leaf / report["replay"]["stats"]).read_text())
     ocp = json.loads(ocp_path.read_text())
     rows = []
-    for name in ocp["config"]["profiles"]:
+    fallback = ocp.get("fallback", [])
+    for name in [*ocp["config"]["profiles"], *fallback]:
         if name in ocp.get("refused", {}):
             rows.append({"profile": name, "error": ocp["refused"][name]})
         else:
-            rows.append(_profile_row(name, report, stats, ocp))
+            rows.append(_profile_row(name, report, stats, ocp) | {"fallback": name in fallback})
     return rows
 
 

@@ -263,6 +263,11 @@ CASES: list[tuple[str, str]] = [
         "solve --model {m.pt} --out o/ocp.json --profiles ,",
         "profiles must be distinct names among robust, robust-fb, robust-pd, got none",
     ),
+    (
+        "solve --model {m.pt} --out o/ocp.json --fallback robust-fb,open",
+        "fallback must be distinct names among robust, robust-fb, robust-pd (or none), got "
+        "robust-fb, open",
+    ),
     ("solve --model {m.pt} --out o/ocp.json --torque-limit 0", "torque_limit must be > 0"),
     ("solve --model {m.pt} --out o/ocp.json --pd-kp -1", "pd_kp must be >= 0"),
     ("solve --model {m.pt} --out o/ocp.json --pd-kd nan", "pd_kd must be a finite"),
@@ -372,6 +377,7 @@ CASES: list[tuple[str, str]] = [
         "run --logs L --profiles pid",
         "profiles must be distinct names among robust, robust-fb, robust-pd",
     ),
+    ("run --logs L --fallback pid", "fallback must be distinct names among robust, robust-fb"),
     ("run --logs L --model {garbage.xml}", "invalid MJCF"),
     ("run --logs {file}", "cannot write"),
     ("run --resume {folder}", "nothing to resume: "),

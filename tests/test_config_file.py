@@ -13,7 +13,7 @@ from common.errors import CrankError
 from crank.chain import RunConfig
 from crank.cli_chain import FLAG_KEYS, flag_values, run_command
 from crank.config_file import build, defaults, merge, read_values, to_toml
-from crank.console import HELDOUT_RUNS, HELDOUT_SEED, profiles_list
+from crank.console import HELDOUT_RUNS, HELDOUT_SEED, fallback_list, profiles_list
 from twin import MODEL_PATH
 
 
@@ -32,8 +32,8 @@ def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
         for key in path:
             value = value[key]
         default = signature[flag].default
-        if flag == "profiles":  # given as comma-separated text
-            default = profiles_list(default)
+        if flag in ("profiles", "fallback"):  # given as comma-separated text
+            default = (profiles_list if flag == "profiles" else fallback_list)(default)
         assert (str(default) if isinstance(default, Path) else default) == value, flag
 
 
@@ -44,8 +44,8 @@ def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
         "[ocp]\nheight = 0.085\nconstraint_samples = [60, 90, 120]\n[train]\nsigma_block = 5\n"
         "[replay]\nmodes = ['closed']\n"
     )
-    values = merge(read_values(path), flag_values({"seconds": 12.0}), source="flags")
-    config = build(values, source=str(path))
+    flags = flag_values({"seconds": 12.0, "fallback": "none"})
+    config = build(merge(read_values(path), flags, source="flags"), source=str(path))
     assert config.seed == config.train.seed == config.ocp.mc_seed == config.replay.seed == 4
     assert config.generation.seconds == 12.0  # the flag wins over the file's 30
     assert config.generation.variability.name == "line-15"
@@ -53,6 +53,7 @@ def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
     assert config.replay.variability == config.generation.variability
     assert config.ocp.height == 0.085 and config.ocp.constraint_samples == (60, 90, 120)
     assert config.train.sigma_block == 5 and config.replay.modes == ("closed",)
+    assert config.ocp.fallback == ()  # --fallback none
     assert config.heldout_runs == HELDOUT_RUNS  # untouched keys keep their defaults
 
 

@@ -204,6 +204,8 @@ def test_impossible_height_is_a_typed_error(model: PPANN) -> None:
         ({"height": float("nan")}, "height"),
         ({"mc_samples": 1}, "mc_samples"),
         ({"mc_mode": "sometimes"}, "Monte-Carlo mode"),
+        ({"fallback": ("open",)}, "fallback must be distinct names among"),
+        ({"fallback": ("robust-fb", "robust-fb")}, "fallback must be distinct names among"),
     ],
 )
 def test_bad_settings(change: dict, match: str) -> None:
@@ -263,8 +265,9 @@ def test_each_profile_is_the_one_solved_alone(model: PPANN, solved: Path) -> Non
 
 def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
     """On a line whose open-loop spread exceeds the stroke, `robust` is refused with its reason
-    and `robust-fb` (the LQR tube) is written alone; asked for alone, `robust` fails the solve
-    and leaves only ocp.failed.json."""
+    and `robust-fb` (the LQR tube) is written alone; asked for alone, `robust` is refused and
+    its fallback, that tube, solved; without a fallback it fails the solve and leaves only
+    ocp.failed.json."""
     wide = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.2, 0.35, 0.35))
     save(tmp_path / "wide.pt", wide, kind="ppann", extra={})
     config = OCPConfig(confidence=0.0, profiles=("robust", "robust-fb"))
@@ -280,8 +283,19 @@ def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
     assert "open loop cannot keep this spread" in loaded.refused["robust"]
     assert loaded.nominal.loop == "closed"  # its bands are of the first profile solved
     assert not (tmp_path / "ocp.robust.png").exists()
+    assert loaded.fallback == ()  # a profile asked for was solved
+    # asked for alone: the fallback (OCPConfig.fallback), the tube, is solved from the same
+    # plan, and is the tube asked for beside it to the last bit
+    solve_file(tmp_path / "wide.pt", tmp_path / "fell.json", config=OCPConfig(confidence=0.0))
+    fell = read_ocp(tmp_path / "fell.json")
+    assert fell.names == ("nominal", "robust-fb") and fell.fallback == ("robust-fb",)
+    assert fell.refused == loaded.refused
+    np.testing.assert_array_equal(fell.profiles["robust-fb"].tau, loaded.profiles["robust-fb"].tau)
+    assert fell.raw["config"]["profiles"] == ["robust"]
+    # and without one the solve fails, leaving only its failure's file
+    alone = OCPConfig(confidence=0.0, fallback=())
     with pytest.raises(BeyondStrokeError):
-        solve_file(tmp_path / "wide.pt", tmp_path / "alone.json", config=OCPConfig(confidence=0.0))
+        solve_file(tmp_path / "wide.pt", tmp_path / "alone.json", config=alone)
     assert not (tmp_path / "alone.json").exists()
     failed = json.loads((tmp_path / "alone.failed.json").read_text())
     assert {it["profile"] for it in failed["robust_iterations"]} == {"robust"}
@@ -304,6 +318,7 @@ def _broken(solved: Path, tmp_path: Path, edit) -> Path:
         (lambda r: r.__setitem__("profiles", ["robust"]), "profiles must be 'nominal' then"),
         (lambda r: r["robust-fb"].__setitem__("loop", "mpc"), "robust-fb.loop must be open or"),
         (lambda r: r.__setitem__("refused", {"robust": 3}), "refused must map profiles to"),
+        (lambda r: r.__setitem__("fallback", ["robust-pd"]), "fallback must list robust profiles"),
         (lambda r: r["nominal"].pop("tau"), "missing key 'nominal.tau'"),
         (lambda r: r["robust"]["tau"].pop(), "robust.tau has 149 values, expected 150"),
         (

@@ -14,6 +14,7 @@ from common.errors import ConfigError
 from control.ocp_file import read_ocp
 from crank.chain import STAGES_FILE, Hooks, run_chain
 from crank.resume import resumed_config, with_settings
+from crank.study import run_rows
 from tests.conftest import crank
 from tests.test_chain import SHORT
 
@@ -87,7 +88,9 @@ def test_the_cli_resumes_with_other_profiles_and_names_what_it_takes(
 ) -> None:
     run = _copy(unsolved, tmp_path / "run")
     refused = crank("run", "--resume", str(run), "--seconds", "5")
-    assert refused.returncode == 2 and "drop --seconds (only --profiles, --pd" in refused.stderr
+    assert refused.returncode == 2 and "drop --seconds (only --profiles, --fallback, --pd" in (
+        refused.stderr
+    )
     bad = crank("run", "--resume", str(run), "--runs", "0")
     assert bad.returncode == 2 and "runs must be an integer" in bad.stderr.strip().splitlines()[-1]
     assert "resumed" not in json.loads((run / "config.json").read_text())
@@ -101,3 +104,31 @@ def test_the_cli_resumes_with_other_profiles_and_names_what_it_takes(
     assert written["resumed"][0]["changed"] == ["ocp", "heldout_runs"]
     assert written["resumed"][0]["argv"][-4:] == ["--profiles", "robust-pd", "--heldout-runs", "10"]
     assert json.loads((run / "heldout.json").read_text())["runs"] == 10
+
+
+def test_a_refused_open_loop_ends_with_the_fallback_tube_and_its_report(
+    unsolved, tmp_path: Path
+) -> None:
+    """SHORT's model asked for the open loop alone at k 2 with the centred tightening: its
+    Monte-Carlo's spread needs more than the stroke (refused), so the run solves the fallback
+    tube from the same plan and goes on to its replays, its held-out check in the tube's loop
+    and a report that says both (resumed from the same model to save a training)."""
+    run = _copy(unsolved, tmp_path / "run")
+    wide = {"tightening": "centred", "k_sigma": 2.0, "profiles": ["robust"]}
+    report = run_chain(with_settings(SHORT, {"ocp": wide}), run, argv=[], resume=True)
+    ocp = read_ocp(run / "ocp.json")
+    assert ocp.robust_names == ("robust-fb",) and ocp.fallback == ("robust-fb",)
+    assert "open loop cannot keep this spread" in ocp.refused["robust"]
+    assert report["refused"] == ocp.refused and report["fallback"] == ["robust-fb"]
+    heldout = json.loads((run / "heldout.json").read_text())
+    assert heldout["modes"] == ["closed"] and set(heldout["profiles"]) == {"nominal", "robust-fb"}
+    stats = json.loads((run / "replay.stats.json").read_text())
+    assert set(stats["claims"]) == {"robust-fb"} and stats["claim"]["holds"] is None
+    text = (run / "report.md").read_text()
+    assert f"No robust torque: {ocp.refused['robust']}" in text
+    assert "(robust) was refused, so the fallback robust-fb was solved" in text
+    rows = run_rows(run, run / "ocp.json")
+    assert [(r["profile"], r["error"] is None, r.get("fallback")) for r in rows] == [
+        ("robust", False, None),
+        ("robust-fb", True, True),
+    ]
