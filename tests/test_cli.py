@@ -44,9 +44,10 @@ def test_generate_writes_a_contract_dataset(tmp_path: Path) -> None:
 
 
 def test_run_writes_config_and_report(tmp_path: Path) -> None:
-    """2 s of data (from a config file) train a PPANN too uncertain for a robust profile: the
-    chain runs to the robust OCP and stops there with one line naming why, leaving no ocp.json or
-    report; config.json holds the file's values under the flags given."""
+    """2 s of data (from a config file) train a PPANN too uncertain for a robust profile, the
+    open loop's and its fallback tube's alike: the chain runs to the robust OCP and stops there
+    with one line naming both reasons, leaving no ocp.json or report; config.json holds the
+    file's values under the flags given."""
     settings = tmp_path / "crank.toml"  # a config file, and a flag that overrides it
     settings.write_text(
         "heldout_runs = 50\nheldout_trajectories = 500\n[generation]\nseconds = 2.0\n"
@@ -55,7 +56,10 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     args = ["--config", str(settings), "--heldout-runs", "7", "--logs", str(tmp_path)]
     result = crank("run", *args, "--name", "r1")
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1].startswith("error: the model's tightening")
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: robust: the model's tightening")
+    assert "; robust-fb: the model's tightening" in last and "the closed loop cannot keep" in last
+    assert "to try the closed loop" not in last  # the fallback was that closed loop
     run_dir = tmp_path / "r1"
     config = json.loads((run_dir / "config.json").read_text())
     assert config["seed"] == 0 and config["generation"]["seconds"] == 2.0
@@ -69,6 +73,7 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     assert not (run_dir / "ocp.json").exists() and not (run_dir / "report.json").exists()
     failed = json.loads((run_dir / "ocp.failed.json").read_text())  # what the solve had
     assert failed["status"] == "failed" and len(failed["nominal"]["tau"]) == 150
+    assert {it["profile"] for it in failed["robust_iterations"]} == {"robust", "robust-fb"}
     log = (run_dir / "run.log").read_text()  # what the terminal showed, without bar frames
     first, second = log.splitlines()[:2]  # said before the work starts
     assert first.startswith("estimated time on an idle 2-core machine: ") and "train " in first

@@ -57,7 +57,7 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
 
 def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
     """k_sigma 3 on a 12 s model: no robust profile; the study records it and goes on."""
-    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0, profiles=("robust",)))
+    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0, profiles=("robust",), fallback=()))
     study = run_study(failing, (0,), tmp_path / "study")
     (row,) = study["rows"]
     assert row["seed"] == 0 and "no robust profile" in row["error"]

@@ -219,7 +219,7 @@ def test_a_solve_without_a_robust_torque_is_refused_not_failed(tmp_path: Path) -
     step is recorded as refused with the model's reason, the leaf after it is not run because
     the solve has no robust torque, and the row counts as refused, not failed."""
     base = _spec_tables()["base"]
-    base["ocp"] = {"confidence": 0.0}  # k 3, 1000 mixed trajectories
+    base["ocp"] = {"confidence": 0.0, "fallback": []}  # k 3, 1000 mixed trajectories, no tube
     leaves = leaves_of({"base": base, "grid": {"seed": [0]}}, source="test")
     nodes = graph(leaves)
     out = tmp_path / "out"
