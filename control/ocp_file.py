@@ -20,6 +20,11 @@ Top-level keys (stable; `version` changes if any meaning does):
   robust-pd                  each profile listed (below)
   refused                    {profile: the one-line reason} for each asked-for robust profile
                              that has no robust torque (e.g. open loop on a wide line)
+  refused_spread             {profile: {sample, tightening, se, available, line}} for each
+                             refusal beyond the stroke: the tightening it would need at that
+                             constraint sample, its standard error, the stroke above the height
+                             a margin may take, the share of it for the line's mean (m; absent
+                             before session 54)
   fallback                   the robust profiles solved only because every one asked for was
                              refused (config.fallback; absent before session 54: none)
   variability                the training dataset's variability scenario (replays draw from it)

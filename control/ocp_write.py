@@ -17,6 +17,7 @@ from control.config import OCPConfig, loop_of
 from control.ocp import Solution
 from control.ocp_file import FAILED_FORMAT, FORMAT, INDEX_CONVENTION, VERSION
 from control.profiles import Solved
+from control.records import BeyondStrokeError
 from control.robust import Partial, RobustResult
 from control.tightening import Uncertainty
 from twin import __version__
@@ -173,6 +174,12 @@ def write_ocp(
         **_header(config, dt=dt, model=model, geometry=geometry, variability=variability),
         "profiles": ["nominal", *robust],
         "refused": {name: str(exc) for name, exc in solved.refused.items()},
+        "refused_spread": {  # what a refusal beyond the stroke measured (a study's figure)
+            name: {"sample": int(exc.sample)}
+            | {k: float(getattr(exc, k)) for k in ("tightening", "se", "available", "line")}
+            for name, exc in solved.refused.items()
+            if isinstance(exc, BeyondStrokeError)
+        },
         "fallback": list(solved.fallback),
         # the nominal plan's bands in the loop of the first robust profile solved
         "nominal": _part(first, "nominal", config=config, dt=dt, loop=loop_of(first_name)),

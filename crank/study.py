@@ -78,7 +78,11 @@ def run_rows(leaf: Path, ocp_path: Path) -> list[dict[str, Any]]:
     fallback = ocp.get("fallback", [])
     for name in [*ocp["config"]["profiles"], *fallback]:
         if name in ocp.get("refused", {}):
-            rows.append({"profile": name, "error": ocp["refused"][name]})
+            spread = ocp.get("refused_spread", {}).get(name, {})  # as run_study's failed seed
+            rows.append(
+                {"profile": name, "error": ocp["refused"][name]}
+                | {f"refused_{k}": v for k, v in spread.items() if k != "se"}
+            )
         else:
             rows.append(_profile_row(name, report, stats, ocp) | {"fallback": name in fallback})
     return rows
@@ -326,7 +330,8 @@ def _recurring(rows: list[dict[str, Any]]) -> list[str]:
 
 def figure(rows: list[dict[str, Any]]) -> Figure:
     """Violation rates (held-out, with the 95 % bound) and cost premium against seed; where a
-    seed has no robust profile, the tightening its model asked for against the stroke left."""
+    profile was refused beyond the stroke, the tightening its model asked for against the
+    stroke left (a seed red where no profile, nor a fallback, has a torque)."""
     ok = [r for r in rows if r.get("error") is None and "robust_heldout_rate" in r]
     refused = [r for r in rows if "refused_tightening" in r]
     panels = 2 + bool(refused)
@@ -348,7 +353,8 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
         bottom.bar(x, [100 * r["premium"] for r in mine], width, color=color, label=label)
     top.scatter([], [], color="k", marker="_", label="95 % upper bound")
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1, label="target 0.5 %")
-    failed = sorted({r["seed"] for r in rows if r.get("error")})
+    # a seed whose every profile was refused (a fallback's torque is a profile)
+    failed = sorted({r["seed"] for r in rows if r.get("error")} - {r["seed"] for r in ok})
     for s in failed:
         top.axvline(s, color="C3", alpha=0.3, lw=8)
     top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.05)
@@ -382,7 +388,8 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
             s=400,
             label="stroke above the height",
         )
-        axis.set_ylabel(f"no profile: sample {refused[0]['refused_sample']} [mm]")
+        what = "/".join(dict.fromkeys(r["profile"] for r in refused))
+        axis.set_ylabel(f"{what} refused: sample {refused[0]['refused_sample']} [mm]")
         axis.legend(fontsize=8)
     axes[-1].set_xticks(sorted({r["seed"] for r in rows}))
     axes[-1].set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))

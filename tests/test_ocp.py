@@ -290,6 +290,11 @@ def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
     fell = read_ocp(tmp_path / "fell.json")
     assert fell.names == ("nominal", "robust-fb") and fell.fallback == ("robust-fb",)
     assert fell.refused == loaded.refused
+    spread = fell.raw["refused_spread"]["robust"]  # the figures the refusal's words give
+    assert spread["sample"] in (50, 100) and spread["tightening"] > spread["available"] > 0
+    assert (
+        f"sample {spread['sample']} ({1e3 * spread['tightening']:.1f} mm" in fell.refused["robust"]
+    )
     np.testing.assert_array_equal(fell.profiles["robust-fb"].tau, loaded.profiles["robust-fb"].tau)
     assert fell.raw["config"]["profiles"] == ["robust"]
     # and without one the solve fails, leaving only its failure's file

@@ -132,3 +132,5 @@ def test_a_refused_open_loop_ends_with_the_fallback_tube_and_its_report(
         ("robust", False, None),
         ("robust-fb", True, True),
     ]
+    # the refusal's figures, as a study's failed seed has them (crank/study.py's third panel)
+    assert rows[0]["refused_tightening"] > rows[0]["refused_available"] > 0
