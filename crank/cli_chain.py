@@ -323,6 +323,7 @@ def study_command(
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
     profiles: ProfilesOption = DEFAULT_PROFILES,
+    fallback: FallbackOption = DEFAULT_FALLBACK,
     pd: PDOption = None,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
@@ -349,6 +350,7 @@ def study_command(
             "tightening": tightening,
             "confidence": confidence,
             "profiles": profiles_list(profiles),
+            "fallback": fallback_list(fallback),
             "pd_kp": kp,
             "pd_kd": kd,
         },
@@ -363,11 +365,12 @@ def study_command(
         return Hooks(on_stage=lambda text: typer.echo(f"  seed {seed}: {text}", err=True))
 
     def show(row: dict[str, Any]) -> None:
+        name = f"{row['profile']}{' (fallback)' if row.get('fallback') else ''}"
         if row.get("error"):
-            typer.echo(f"seed {row['seed']}: error: {row['error']}")
+            typer.echo(f"seed {row['seed']}: {name}: error: {row['error']}")
         elif "robust_heldout_rate" in row:
             typer.echo(
-                f"seed {row['seed']}: robust {row['robust_100']}/100 {row['loop']} loop, held-out "
+                f"seed {row['seed']}: {name} {row['robust_100']}/100 {row['loop']} loop, held-out "
                 f"{100 * row['robust_heldout_rate']:.2f} % (95 % bound "
                 f"{100 * row['robust_heldout_upper_95']:.2f} %), "
                 f"premium {100 * row['premium']:.1f} %"

@@ -412,6 +412,7 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-", "--seeds takes a range like 0-9"),
     ("study --out S --seeds 5-2", "runs backwards"),
     ("study --out S --seeds 1,1", "repeats a seed"),
+    ("study --out S --fallback robust,pid", "fallback must be distinct names among robust"),
     ("study --out S --seeds x", "--seeds takes a range like 0-9"),
     ("study --out S --seeds -1", "--seeds takes a range like 0-9"),
     ("study --out S --seeds 0-5000", "--seeds must name 1..1000 seeds"),
