@@ -390,12 +390,14 @@ def test_recorded_paths_are_relative_inside_the_artifacts_folder(tmp_path: Path)
 def test_a_failed_robust_solve_keeps_the_nominal_plan_and_the_margin_history(
     tmp_path: Path,
 ) -> None:
-    """A line far wider than the stroke: no ocp.json, one error line that names what was kept,
-    and <stem>.failed.json with the nominal profile (as ocp.json has it) and every iteration."""
+    """A line far wider than the stroke, the open loop asked for without a fallback (its tube
+    would hold: tests/test_ocp.py): no ocp.json, one error line that names what was kept, and
+    <stem>.failed.json with the nominal profile (as ocp.json has it) and every iteration."""
     model = tmp_path / "wide.pt"
     wide = _constant_checkpoint(model, z_sigma=(0.3, 0.5, 0.5))
     out = tmp_path / "ocp.json"
-    result = crank("solve", "--model", str(model), "--out", str(out), "--confidence", "0")
+    args = ["--out", str(out), "--confidence", "0", "--fallback", "none"]
+    result = crank("solve", "--model", str(model), *args)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("error: the model's tightening of the slider at sample ")
