@@ -24,9 +24,8 @@ the nominal, in fewer solves), then with the quantile tightening; the last torqu
 
 Before the returned solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise
 would follow, it is made inside the open-loop aware scheme, from its draft near the fixed point,
-so that the loop settles once, at the raised k (on five default models × five Monte-Carlo
-seeds 16-17 of 25 decided within 3 nominal solves, from 8); the returned torque's check then
-starts from that draft check's lines (control/tail.py `warm`).
+so that the loop settles once, at the raised k (16-17 of 25 default models × Monte-Carlo seeds
+within 3 nominal solves, from 8); the returned torque's check starts from that draft's lines.
 """
 
 from __future__ import annotations
@@ -65,10 +64,8 @@ MAX_ESCALATIONS = 2
 control/config.py MAX_MC_SAMPLES (the quantile tightening's 14 816 at k = 3 escalate once, to
 59 264, then to the cap)."""
 
-
 TAIL_STEPS = 2
-"""At most this many re-decisions at a raised k (control/raise_k.py `raised_k`) before the
-quantile tightening."""
+"""At most this many re-decisions at a raised k (raise_k.py `raised_k`) before the quantile."""
 DRAFT_LINES = tail_lines.LINE_STAGES[0]
 """Lines of the draft's check (`_draft_raise`): the returned torque's first stage, whose
 crossings then start that stage's secants (control/tail.py, a warm check)."""
@@ -287,10 +284,9 @@ def _bare(
     heads: FusedHeads, result: RobustResult, last: TailCheck, config: OCPConfig, *, profile: str
 ) -> str:
     """What a refusal adds about its last checked torque (`result`, checked by `last`): its
-    rate on the same draws without the allowances for config.confidence, i.e. what the model
-    alone predicts (bench/refused_h200.md: two refusals whose torques held on the twin, 11 of
-    4000, where the model alone said 0.37-0.40 % and the check 0.57-0.61 %). Nothing at a
-    confidence of 0 (no allowances)."""
+    rate on the same draws without config.confidence's allowances, the model's alone
+    (bench/refused_h200.md: two refused torques held on the twin, 11 of 4000, where the model
+    alone said 0.37-0.40 % and the check 0.57-0.61 %). Nothing at a confidence of 0."""
     if config.confidence <= 0:
         return ""
     bare = own_tail(heads, result, config, profile=profile, allowances=False, draws=last.draws)
@@ -362,11 +358,13 @@ def solve_profiles(
     *,
     ocp: NominalOCP | None = None,
     on_iteration: Callable[[Iteration], None] | None = None,
+    on_fallback: Callable[[str], None] | None = None,
 ) -> Solved:
     """The nominal plan once, then each robust profile of `config.profiles` from it
     (solve_decided). A profile that has no robust torque is refused and the others go on; where
     every one is refused, the profiles of `config.fallback` not asked for are solved the same
-    way (`Solved.fallback`: on a wide line, the LQR tube beside the open loop's refusal).
+    way (`Solved.fallback`: on a wide line, the LQR tube beside the open loop's refusal), after
+    `on_fallback` is told so in words.
 
     Raises:
       OCPError: the nominal OCP itself fails.
@@ -389,6 +387,8 @@ def solve_profiles(
     for profile in config.profiles:
         attempt(profile)
     fallback = () if results else config.fallback_profiles
+    if fallback and on_fallback is not None:
+        on_fallback(f"{', '.join(refused)} refused: solving the fallback {', '.join(fallback)}")
     for profile in fallback:
         attempt(profile)
     if not results:

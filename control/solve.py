@@ -49,15 +49,17 @@ def solve_file(
     *,
     config: OCPConfig,
     on_iteration: Callable[[Iteration], None] | None = None,
+    on_fallback: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Solve the nominal OCP and each robust profile of `config.profiles` on a PPANN
     checkpoint and write ocp.json and figures.
 
     A robust profile without a robust torque is refused (ocp.json says why) while another one
     is solved; where every one is refused, `config.fallback`'s are solved (control/profiles.py
-    solve_profiles). Nothing is written at `out` unless the nominal and at least one robust
-    solve succeed. When every robust profile fails, the nominal plan and the margin histories go
-    to <stem>.failed.json (`failed_path`) and the error says so.
+    solve_profiles; `on_fallback` is told before). Nothing is written at `out` unless the
+    nominal and at least one robust solve succeed. When every robust profile fails, the nominal
+    plan and the margin histories go to <stem>.failed.json (`failed_path`) and the error says
+    so.
 
     Raises:
       CheckpointError: unreadable checkpoint, or not a PPANN (the black box has no physics).
@@ -86,7 +88,9 @@ def solve_file(
     ocp = NominalOCP(model, config)
     build_s = time.perf_counter() - started
     try:
-        solved = solve_profiles(model, config, ocp=ocp, on_iteration=on_iteration)
+        solved = solve_profiles(
+            model, config, ocp=ocp, on_iteration=on_iteration, on_fallback=on_fallback
+        )
     except RobustError as exc:
         if exc.partials:  # keep the nominal plan and the margin history
             failed = failed_path(out)

@@ -342,7 +342,13 @@ def solve_command(
         pd_kp=pd_kp,
         pd_kd=pd_kd,
     )
-    payload = solve_file(model, out, config=config, on_iteration=show_iteration)
+    payload = solve_file(
+        model,
+        out,
+        config=config,
+        on_iteration=show_iteration,
+        on_fallback=lambda text: typer.echo(f"{text} ...", err=True),
+    )
     figures = ", ".join(str(p) for p in figure_paths(out, tuple(payload["profiles"])).values())
     print_summary(f"wrote {out} and {figures}", solve_summary(payload) | solve_timing(payload))
 

@@ -71,7 +71,13 @@ def train(
 
 def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
     """The nominal and robust OCP of `config.ocp` on `model`: `out`/ocp.json and its figures."""
-    return solve_file(model, out / OCP, config=config.ocp, on_iteration=hooks.on_iteration)
+    return solve_file(
+        model,
+        out / OCP,
+        config=config.ocp,
+        on_iteration=hooks.on_iteration,
+        on_fallback=hooks.on_stage,  # e.g. "robust refused: solving the fallback robust-fb"
+    )
 
 
 def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:

@@ -286,7 +286,10 @@ def test_a_refused_profile_leaves_the_other(tmp_path: Path) -> None:
     assert loaded.fallback == ()  # a profile asked for was solved
     # asked for alone: the fallback (OCPConfig.fallback), the tube, is solved from the same
     # plan, and is the tube asked for beside it to the last bit
-    solve_file(tmp_path / "wide.pt", tmp_path / "fell.json", config=OCPConfig(confidence=0.0))
+    told: list[str] = []
+    config = OCPConfig(confidence=0.0)
+    solve_file(tmp_path / "wide.pt", tmp_path / "fell.json", config=config, on_fallback=told.append)
+    assert told == ["robust refused: solving the fallback robust-fb"]
     fell = read_ocp(tmp_path / "fell.json")
     assert fell.names == ("nominal", "robust-fb") and fell.fallback == ("robust-fb",)
     assert fell.refused == loaded.refused

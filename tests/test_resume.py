@@ -115,7 +115,11 @@ def test_a_refused_open_loop_ends_with_the_fallback_tube_and_its_report(
     and a report that says both (resumed from the same model to save a training)."""
     run = _copy(unsolved, tmp_path / "run")
     wide = {"tightening": "centred", "k_sigma": 2.0, "profiles": ["robust"]}
-    report = run_chain(with_settings(SHORT, {"ocp": wide}), run, argv=[], resume=True)
+    stages: list[str] = []
+    config = with_settings(SHORT, {"ocp": wide})
+    report = run_chain(config, run, argv=[], hooks=Hooks(on_stage=stages.append), resume=True)
+    solving = stages.index("solving the nominal and robust OCP")  # said as it happens:
+    assert stages[solving + 1] == "robust refused: solving the fallback robust-fb"
     ocp = read_ocp(run / "ocp.json")
     assert ocp.robust_names == ("robust-fb",) and ocp.fallback == ("robust-fb",)
     assert "open loop cannot keep this spread" in ocp.refused["robust"]
