@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from common.errors import ConfigError, CrankError
-from control.config import TAIL_SAMPLINGS, OCPConfig
+from control.config import TAIL_SAMPLINGS, OCPConfig, loops_of
 from control.solve import solve_file
 from crank.console import HELDOUT_SEED
 from crank.study import parse_seeds
@@ -97,7 +97,7 @@ def main() -> None:
                 runs=args.runs,
                 seed=args.heldout_seed,
                 variability=ocp_variability(ocp_path),
-                modes=tuple(m for m in ("open", "closed") if m in loops.values()),
+                modes=loops_of(loops),
             )
             for name in profiles:
                 row = {"task": task, "mc_seed": mc_seed, "profile": name}

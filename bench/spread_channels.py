@@ -36,19 +36,25 @@ OFF = -50.0
 so the network gives its floor."""
 
 
+def switch_off(model: PPANN, names: str) -> None:
+    """Hold the sigma networks of the white channels in `names` ("J", "B", "K") at their floor,
+    in place."""
+    with torch.no_grad():
+        for name in names:
+            last = model.sigma_nets[name][-1]
+            last.weight.zero_()
+            last.bias.fill_(OFF)
+
+
 def white_only(model: PPANN, keep: str | None) -> PPANN:
     """`model` with only the white channel `keep` ("J", "B", "K" or "F" for the slider force;
     None: all of them)."""
     if keep is None:
         return model
     out = copy.deepcopy(model)
-    with torch.no_grad():
-        for name in Z_NAMES:
-            if name != keep:
-                last = out.sigma_nets[name][-1]
-                last.weight.zero_()
-                last.bias.fill_(OFF)
-        if keep != "F" and hasattr(out, "lever_sigma"):
+    switch_off(out, "".join(name for name in Z_NAMES if name != keep))
+    if keep != "F" and hasattr(out, "lever_sigma"):
+        with torch.no_grad():
             out.lever_sigma.zero_()
     return out
 

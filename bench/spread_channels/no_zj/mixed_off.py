@@ -6,11 +6,12 @@ line's observed σ on development root 999 (bench/seeds_10_14/parts_dev/).
     PYTHONPATH=.:bench python bench/spread_channels/no_zj/mixed_off.py
 """
 
+import copy
 import json
 from pathlib import Path
 
 import numpy as np
-from spread_channels import OFF
+from spread_channels import switch_off
 
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load
@@ -20,16 +21,8 @@ from ppann.montecarlo import monte_carlo
 
 def without(model: PPANN, off: str) -> PPANN:
     """A copy of `model` with the white channels named in `off` at their floor."""
-    import copy
-
-    import torch
-
     out = copy.deepcopy(model)
-    with torch.no_grad():
-        for name in off:
-            last = out.sigma_nets[name][-1]
-            last.weight.zero_()
-            last.bias.fill_(OFF)
+    switch_off(out, off)
     return out
 
 

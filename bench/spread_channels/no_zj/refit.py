@@ -2,7 +2,9 @@
 channels off (their sigma networks held at their floor), the mean and everything else as
 trained, warm from the trained sigma networks.
 
-    python bench/spread_channels/no_zj/refit.py SEED CHANNELS OUT_DIR   # e.g. 11 J /work/r54/nj
+    PYTHONPATH=.:bench python bench/spread_channels/no_zj/refit.py SEED CHANNELS OUT_DIR
+
+(e.g. 11 J /work/r54/nj)
 
 reads /work/r53/models/s<SEED>/{model.pt,dataset.mcap} (session 53's default models) and writes
 OUT_DIR/s<SEED>/model.pt.
@@ -12,14 +14,13 @@ import sys
 from pathlib import Path
 
 import torch
+from spread_channels import switch_off
 
 from ppann.checkpoint import load, save
 from ppann.train import History, make_splits, train_sigma
 from ppann.train_config import TrainConfig
 from twin.mcap_dataset import read_dataset
 
-OFF = -50.0
-"""A sigma network's last-layer bias (weights zeroed) that holds it at its floor."""
 KEPT = ("format", "version", "kind", "config", "state_dict", "geometry")
 """The checkpoint keys `save` writes itself."""
 
@@ -30,11 +31,7 @@ def main() -> None:
     model, payload = load(f"/work/r53/models/s{seed}/model.pt")
     dataset = read_dataset(f"/work/r53/models/s{seed}/dataset.mcap")
     config = TrainConfig(seed=seed)
-    with torch.no_grad():
-        for name in off:
-            last = model.sigma_nets[name][-1]
-            last.weight.zero_()
-            last.bias.fill_(OFF)
+    switch_off(model, off)
     history = History()
     train_sigma(model, dataset, make_splits(dataset, config), config, history=history)
     was = payload["state_dict"]

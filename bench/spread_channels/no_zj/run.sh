@@ -1,6 +1,6 @@
 #!/bin/bash
 cd /work/main
-export PYTHONPATH=/work/main OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 CRANK_ROLLOUT_THREADS=1
+export PYTHONPATH=/work/main:/work/main/bench OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 CRANK_ROLLOUT_THREADS=1
 one() {
   s=$1; D=/work/r54/nj/s$s
   .venv/bin/python bench/spread_channels/no_zj/refit.py $s J /work/r54/nj > /work/r54/nj/refit_$s.log 2>&1
