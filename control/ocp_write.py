@@ -180,7 +180,7 @@ def write_ocp(
             for name, exc in solved.refused.items()
             if isinstance(exc, BeyondStrokeError)
         },
-        "fallback": list(solved.fallback),
+        "fallback": [name for name in solved.results if name not in config.profiles],
         # the nominal plan's bands in the loop of the first robust profile solved
         "nominal": _part(first, "nominal", config=config, dt=dt, loop=loop_of(first_name)),
         **robust,

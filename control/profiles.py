@@ -73,12 +73,11 @@ crossings then start that stage's secants (control/tail.py, a warm check)."""
 
 @dataclass(frozen=True)
 class Solved:
-    """The robust profiles of config.profiles on one nominal plan: those solved, why the others
-    were refused, and which solved ones are config.fallback's (every one asked refused)."""
+    """The robust profiles of config.profiles on one nominal plan: those solved and, for those
+    refused, why (a solved profile not in config.profiles is config.fallback's)."""
 
     results: dict[str, RobustResult]
     refused: dict[str, RobustError]
-    fallback: tuple[str, ...] = ()
 
 
 def undecided(tightening: np.ndarray, se: np.ndarray, cap: float) -> bool:
@@ -363,7 +362,7 @@ def solve_profiles(
     """The nominal plan once, then each robust profile of `config.profiles` from it
     (solve_decided). A profile that has no robust torque is refused and the others go on; where
     every one is refused, the profiles of `config.fallback` not asked for are solved the same
-    way (`Solved.fallback`: on a wide line, the LQR tube beside the open loop's refusal), after
+    way (on a wide line, the LQR tube beside the open loop's refusal), after
     `on_fallback` is told so in words.
 
     Raises:
@@ -397,4 +396,4 @@ def solve_profiles(
             first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
         first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
         raise first
-    return Solved(results, refused, fallback=tuple(p for p in fallback if p in results))
+    return Solved(results=results, refused=refused)
