@@ -232,12 +232,13 @@ def heldout_command(
         typer.Option(help="Scenario or range file (default: the one in ocp.json)."),
     ] = None,
     modes: Annotated[
-        str,
+        str | None,
         typer.Option(
             help="Comma-separated loops to play every profile in: open, closed (each profile's "
-            "LQR gains from ocp.json), mpc (the online MPC on --model)."
+            "LQR gains from ocp.json), mpc (the online MPC on --model). Default: the loops the "
+            "file's robust profiles were tightened for (open for robust, closed for the tubes)."
         ),
-    ] = "open",
+    ] = None,
     mjcf: Annotated[Path, typer.Option("--mjcf", help="The slider-crank MJCF.")] = MODEL_PATH,
     feedback: Annotated[
         str,
@@ -267,7 +268,9 @@ def heldout_command(
         slider_limit=mpc_slider_limit,
     )
     # validates runs, seed and modes before any file is read
-    ReplayConfig(runs=runs, seed=seed, modes=_modes(modes), feedback=feedback, kp=kp, kd=kd)
+    loops = None if modes is None else _modes(modes)  # None: the file's (heldout_file)
+    checked = ("open",) if loops is None else loops
+    ReplayConfig(runs=runs, seed=seed, modes=checked, feedback=feedback, kp=kp, kd=kd)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     result = heldout_file(
         ocp,
@@ -276,7 +279,7 @@ def heldout_command(
         runs=runs,
         seed=seed,
         variability=chosen,
-        modes=_modes(modes),
+        modes=loops,
         feedback=feedback,
         kp=kp,
         kd=kd,

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from common.jsonio import write_json
-from control.config import loops_of
 from control.ocp_file import read_ocp
 from control.records import RobustError
 from control.solve import failed_path, solve_file
@@ -177,7 +176,6 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         seed=config.heldout_seed,
         variability=config.generation.variability,
         max_start_time=config.replay.max_start_time,
-        modes=loops_of(read_ocp(ocp).robust_names),  # a fallback's loop too
         kp=config.replay.kp,  # recorded beside the own-law loops (a robust-pd's gains are this PD)
         kd=config.replay.kd,
         model_path=config.model_path,

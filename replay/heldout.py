@@ -76,7 +76,7 @@ from common import streams
 from common.atomic import check_writable, writes
 from common.checks import check_count
 from common.jsonio import recorded_path, write_json
-from control.config import PD_GAINS, OCPConfig, lower_tail
+from control.config import PD_GAINS, OCPConfig, loops_of, lower_tail
 from control.mpc_config import MPCConfig, check_fits
 from control.ocp_file import Profile, read_ocp
 from control.tail import crank_angles, lowered_sliders, share_below
@@ -351,7 +351,7 @@ def heldout_file(
     seed: int,
     variability: Variability,
     max_start_time: float = OPERATING_SECONDS,
-    modes: tuple[str, ...] = ("open",),
+    modes: tuple[str, ...] | None = None,
     model_path: str | Path = MODEL_PATH,
     mpc: MPCConfig | None = None,
     feedback: str = "lqr",
@@ -360,13 +360,15 @@ def heldout_file(
     mc_samples: int = CALIBRATION_TRAJECTORIES,
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json); the
-    model's own rate from TAIL_DRAWS per CALIBRATION_TRAJECTORIES of `mc_samples` (20 000 at
-    the default 10 000)."""
+    """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json), in `modes`
+    or (None) the loops of the file's robust profiles, a fallback's too ("open" if none); its
+    model's own rate from TAIL_DRAWS per CALIBRATION_TRAJECTORIES of `mc_samples` trajectories."""
     check_trajectories("trajectories", mc_samples)
     tail_draws = TAIL_DRAWS * mc_samples // CALIBRATION_TRAJECTORIES
     check_writable(out)
-    horizon = read_ocp(ocp_path).horizon
+    solved = read_ocp(ocp_path)
+    modes = (loops_of(solved.robust_names) or ("open",)) if modes is None else modes
+    horizon = solved.horizon
     check_campaign_memory(runs, modes=len(modes), horizon=horizon, held_out=True)
     if "mpc" in modes:
         check_fits(mpc if mpc is not None else MPCConfig(), horizon)

@@ -90,4 +90,3 @@ def write_ocp(path: Path, physics: SliderCrank) -> Path:
         payload[name] = _profile(tau, nominal_twin_trajectory(physics, tau), sigma)
     path.write_text(json.dumps(payload))
     return path
-    return path

@@ -4,6 +4,7 @@ and the statistics (the synthetic ocp.json: tests/replay_ocp.py)."""
 from __future__ import annotations
 
 import copy
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,12 +18,13 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp_file import OCPFile
 from control.tightening import sigma_relative_se
+from ppann.checkpoint import save
 from ppann.heads import FusedHeads
 from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
-from replay.heldout import heldout_check, model_rate
+from replay.heldout import heldout_check, heldout_file, model_rate
 from replay.placement import placement
 from replay.spread_interval import ratio_interval
 from replay.statistics import campaign_statistics, replay_statistics
@@ -383,3 +385,25 @@ def test_statistics_count_what_the_runs_did(physics: SliderCrank, ocp: OCPFile) 
         run_campaign(physics, ocp, config=config).replays["robust", "open"], ocp
     )
     assert again == stats["profiles"]["robust"]["open"]
+
+
+def test_heldout_file_plays_the_loops_its_robust_profiles_were_tightened_for(
+    tmp_path: Path, ocp_path: Path
+) -> None:
+    """Without modes the held-out file plays each robust profile in its own loop: open for
+    robust, closed for a tube (a fallback's file has only the tube, which open loop would go
+    unchecked)."""
+    model = tmp_path / "m.pt"
+    constant = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    save(model, constant, kind="ppann", extra={"history": {}})
+    tube = json.loads(ocp_path.read_text())
+    tube["robust-fb"] = tube.pop("robust") | {"loop": "closed"}
+    tube["profiles"] = ["nominal", "robust-fb"]
+    (tmp_path / "tube.json").write_text(json.dumps(tube))
+    cases = ((ocp_path, "robust", ["open"]), (tmp_path / "tube.json", "robust-fb", ["closed"]))
+    for path, robust, loops in cases:
+        kwargs = {"model": model, "runs": 2, "seed": 3, "mc_samples": 100}
+        line = Variability.scenario("paper")
+        result = heldout_file(path, tmp_path / "h.json", variability=line, **kwargs)
+        assert result["modes"] == loops
+        assert list(result["profiles"][robust]) == list(result["profiles"]["nominal"]) == loops
