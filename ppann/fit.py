@@ -131,6 +131,8 @@ def new_model(
         ppann_config = replace(ppann_config or PPANNConfig(), coulomb=True)
     if kind == "ppann" and config.machine_terms != PPANNConfig.machine_terms:
         ppann_config = replace(ppann_config or PPANNConfig(), machine_terms=config.machine_terms)
+    if kind == "ppann" and config.white_inertia != PPANNConfig.white_inertia:
+        ppann_config = replace(ppann_config or PPANNConfig(), white_inertia=config.white_inertia)
     model = spec.new(ppann_config if kind == "ppann" else None)
     if hasattr(model, "geometry"):
         model.geometry = dataset.geometry

@@ -47,6 +47,7 @@ class FusedHeads:
         self.omega_scale, self.sigma_floor = c.omega_scale, c.sigma_floor
         self.use_networks = c.use_networks
         self.machine_prior = c.machine_terms == "prior"
+        self.linear_inertia = c.white_inertia == "linear"
         self.j, self.b, self.k = (float(v) for v in model.physical.detach())
         self.coulomb = [float(v) for v in model.coulomb.detach()] if c.coulomb else None
         self.coulomb_speed = c.coulomb_speed
@@ -148,6 +149,7 @@ class FusedHeads:
         z: np.ndarray,
         *,
         factors: np.ndarray | None = None,
+        inertia_noise: np.ndarray | None = None,
     ) -> np.ndarray:
         """Eq. 14 in NumPy, as `PPANN.acceleration`, except that a sampled inertia factor
         1 + z_J is kept >= INERTIA_FACTOR_FLOOR: a drawn machine cannot have zero or negative
@@ -157,6 +159,8 @@ class FusedHeads:
         terms (ppann/montecarlo.py, modes "machine" and "mixed"), or with `machine_terms`
         "prior" the prior's part of them (f - 1 added to 1 + z); the damping factor multiplies
         the prior's Coulomb friction in either case; None means 1.
+        inertia_noise: z_J's white draw sigma_J eps, taken to first order about z's (its mean:
+        `PPANNConfig.white_inertia` "linear"); None: z holds it (eq. 14's quotient).
         """
         angle = np.remainder(theta, 2 * math.pi)
         if self.coulomb is not None:  # a machine's damping factor scales its whole friction
@@ -173,11 +177,13 @@ class FusedHeads:
         scale = 1 + z
         if factors is not None and self.machine_prior:
             scale = scale + factors - 1
-        inertia = self.j * np.maximum(scale[:, 0], INERTIA_FACTOR_FLOOR)
+        floored = np.maximum(scale[:, 0], INERTIA_FACTOR_FLOOR)
+        inertia = self.j * floored
         damping = self.b * scale[:, 1] * omega
         stiffness = self.k * scale[:, 2] * angle
         if factors is not None and not self.machine_prior:
             inertia = inertia * factors[:, 0]
             damping = damping * factors[:, 1]
             stiffness = stiffness * factors[:, 2]
-        return (tau - damping - stiffness) / inertia
+        alpha = (tau - damping - stiffness) / inertia
+        return alpha if inertia_noise is None else alpha * (1 - inertia_noise / floored)

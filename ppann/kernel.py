@@ -188,6 +188,7 @@ def rollout(
                 heads.coulomb_speed,
                 heads.geometry.crank_length,
                 heads.geometry.rod_length,
+                float(heads.linear_inertia),
             ]
         )
     )

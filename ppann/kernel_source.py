@@ -60,7 +60,8 @@ int crank_rollout(
     const double *x0, const double *tau, const double *eps, const double *factors,
     const double *plan, const double *gains, double limit,
     const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets,
-                          machine_prior, coulomb motor, coulomb load, coulomb_speed, l1, l2 */
+                          machine_prior, coulomb motor, coulomb load, coulomb_speed, l1, l2,
+                          linear_inertia */
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
@@ -75,6 +76,7 @@ int crank_rollout(
     /* the prior's Coulomb friction (ppann/friction.py): motor torque, slider force */
     const double cmotor = prm[10], cload = prm[11], cspeed = prm[12], l1 = prm[13], l2 = prm[14];
     const int coulomb = cmotor != 0.0 || cload != 0.0;
+    const int linear = prm[15] != 0.0;  /* z_J's white draw to first order (PPANNConfig) */
     const double two_pi = 6.283185307179586;
     const int np = (n + LANES - 1) / LANES * LANES;
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
@@ -171,13 +173,15 @@ int crank_rollout(
             const int src = s < n ? s : n - 1;  /* a padding lane repeats the last sample */
             double z0 = use_nets ? out[s] : 0.0, z1 = use_nets ? out[np + s] : 0.0;
             double z2 = use_nets ? out[2 * np + s] : 0.0;
+            double d0 = 0.0;  /* z_J's white draw */
             if (e) {
-                z0 += out[3 * np + s] * e[3 * src]; z1 += out[4 * np + s] * e[3 * src + 1];
+                d0 = out[3 * np + s] * e[3 * src]; z1 += out[4 * np + s] * e[3 * src + 1];
                 z2 += out[5 * np + s] * e[3 * src + 2];
             } else if (use_key) {
-                z0 += out[3 * np + s] * w[s]; z1 += out[4 * np + s] * w[np + s];
+                d0 = out[3 * np + s] * w[s]; z1 += out[4 * np + s] * w[np + s];
                 z2 += out[5 * np + s] * w[2 * np + s];
             }
+            if (!linear) z0 += d0;
             double u = tau[k];
             if (plan) {
                 u = tau[k] - gains[2 * k] * (th[s] - plan[2 * k])
@@ -206,7 +210,8 @@ int crank_rollout(
                 f0 += factors[3 * src] - 1; f1 += factors[3 * src + 1] - 1;
                 f2 += factors[3 * src + 2] - 1;
             }
-            double inertia = jm * (f0 > ifloor ? f0 : ifloor);
+            const double floored = f0 > ifloor ? f0 : ifloor;
+            double inertia = jm * floored;
             double damping = bm * f1 * om[s];
             double stiffness = km * f2 * ang[s];
             if (factors && !machine_prior) {
@@ -214,7 +219,9 @@ int crank_rollout(
                 stiffness *= factors[3 * src + 2];
             }
             double next = th[s] + dt * om[s];
-            om[s] = om[s] + dt * (u - damping - stiffness) / inertia;
+            double alpha = (u - damping - stiffness) / inertia;
+            if (linear) alpha *= 1 - d0 / floored;  /* about the mean: zero-mean in eps */
+            om[s] = om[s] + dt * alpha;
             th[s] = next;
         }
         for (int s = 0, r = slot[k + 1]; s < n; ++s) {

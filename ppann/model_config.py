@@ -10,6 +10,9 @@ from common.errors import CrankError
 
 MACHINE_TERMS = ("augmented", "prior")
 """What the machine-level log-factors scale (`PPANNConfig.machine_terms`)."""
+WHITE_INERTIA = ("quotient", "linear")
+"""How a Monte-Carlo draw of z_J's white noise enters the acceleration
+(`PPANNConfig.white_inertia`)."""
 
 
 class ModelConfigError(CrankError, ValueError):
@@ -82,6 +85,18 @@ class PPANNConfig:
     """Motor speed over which the Coulomb torques' tanh turns, rad/s: smooth for the OCP, and
     with forward Euler at dt stable for C / (coulomb_speed J) dt < 1."""
 
+    white_inertia: str = "quotient"
+    """How the Monte-Carlo's draw of z_J's white noise enters the acceleration (the mean model
+    and training are the same either way). "quotient", the paper's eq. 14 with z drawn (eq. 11):
+    alpha = (tau - ...) / (J_m (1 + z_J)), whose average over the draws is not the mean model's
+    alpha: E[1 / (1 + mu + sigma eps)] = (1 + rho^2 + ...) / (1 + mu), rho = sigma / (1 + mu),
+    3-7 % at the rho of 0.15-0.24 a trained model has over top dead centre, where phase 1 fitted
+    the mean networks to the data's average acceleration; the draws so move the Monte-Carlo's
+    mean and widen its spread. "linear" (beyond the paper): the draw to first order about the
+    mean, alpha(mu) (1 - sigma eps / (1 + mu)), zero-mean, the spread eq. 9 fitted (its
+    residual is linear in z at the observed acceleration). A checkpoint without this key is
+    "quotient"."""
+
     def __post_init__(self) -> None:
         positive = ("j_m", "b_m", "omega_scale", "dt", "sigma_floor")
         positive += ("coulomb_m", "coulomb_load", "coulomb_speed")
@@ -92,6 +107,7 @@ class PPANNConfig:
             if getattr(self, name) < 1:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
         check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=ModelConfigError)
+        check_choice("white_inertia", self.white_inertia, WHITE_INERTIA, error=ModelConfigError)
         if self.sigma_wrap and self.sigma_speed:
             raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
 

@@ -254,6 +254,9 @@ def rollout(
         for k in range(steps):
             mean, sigma = heads(theta, omega)
             z = mean if eps is None else mean + sigma * eps[k if per_step else 0]
+            noise = None
+            if eps is not None and heads.linear_inertia:  # z_J's draw to first order
+                noise, z[:, 0] = z[:, 0] - mean[:, 0], mean[:, 0]
             u: float | np.ndarray = tau[k]
             if feedback is not None:
                 ref, gain = feedback.plan[k], feedback.gains[k]
@@ -262,7 +265,7 @@ def rollout(
             if lever_eps is not None:  # a load disturbance: after the law's saturation
                 force = lever_eps[k if per_step else 0]
                 u = u + lever_torque_sigma(heads.lever_table, heads.cell, theta) * force
-            alpha = heads.acceleration(theta, omega, u, z, factors=factors)
+            alpha = heads.acceleration(theta, omega, u, z, factors=factors, inertia_noise=noise)
             theta, omega = theta + dt * omega, omega + dt * alpha
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
     return samples if at is None else samples[:, at]

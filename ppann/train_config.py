@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
-from ppann.model_config import MACHINE_TERMS
+from ppann.model_config import MACHINE_TERMS, WHITE_INERTIA
 
 EARLY_STOPPING = ("tail", "machines")
 """What phase 1's early stopping scores (TrainConfig.early_stopping)."""
@@ -95,6 +95,10 @@ class TrainConfig:
     machine_terms: str = "augmented"
     """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
     eq. 14's whole terms; "prior", the prior's physical motor terms alone."""
+    white_inertia: str = "quotient"
+    """How the model's Monte-Carlo draws z_J's white noise (`PPANNConfig.white_inertia`):
+    "quotient", eq. 14 with z drawn (the paper's); "linear", to first order about the mean.
+    Recorded in the checkpoint; training is the same either way."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -115,6 +119,7 @@ class TrainConfig:
             raise TrainConfigError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
         check_choice("early_stopping", self.early_stopping, EARLY_STOPPING, error=TrainConfigError)
         check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=TrainConfigError)
+        check_choice("white_inertia", self.white_inertia, WHITE_INERTIA, error=TrainConfigError)
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"

@@ -20,8 +20,8 @@ from tests.test_kernel import _trained_like
 KEY = key_of(np.random.SeedSequence(20261127))
 
 
-def _lever_model() -> PPANN:
-    model = _trained_like(PPANNConfig(sigma_lever=True))
+def _lever_model(white_inertia: str = "quotient") -> PPANN:
+    model = _trained_like(PPANNConfig(sigma_lever=True, white_inertia=white_inertia))
     with torch.no_grad():
         model.lever_sigma.fill_(15.0)
     return model
@@ -89,12 +89,14 @@ needs_kernel = pytest.mark.skipif(kernel.load() is None, reason="no C compiler")
 
 
 @needs_kernel
+@pytest.mark.parametrize("white_inertia", ["quotient", "linear"])
 @pytest.mark.parametrize("held", [False, True])
-def test_the_kernel_generates_numpys_counter_normals(held: bool) -> None:
+def test_the_kernel_generates_numpys_counter_normals(held: bool, white_inertia: str) -> None:
     """With a key the kernel's rollout equals NumPy's rollout on counter_normals' arrays (to the
     float32 rounding of the speed networks), a draw per step and per trajectory, the slider
-    force's channel and machine factors included, over the 2 pi wrap."""
-    heads = FusedHeads(_lever_model())
+    force's channel and machine factors included, over the 2 pi wrap; z_J's draw in either
+    form (PPANNConfig.white_inertia)."""
+    heads = FusedHeads(_lever_model(white_inertia))
     n, steps = 300, 250
     tau = 1.5 * np.sin(np.linspace(0, 9, steps)) + 0.4
     factors = np.exp(0.05 * np.random.default_rng(4).standard_normal((n, 3)))

@@ -38,6 +38,8 @@ CASES = {
     "machine_prior": PPANNConfig(machine_terms="prior"),
     "coulomb": PPANNConfig(coulomb=True, sigma_wrap=True),
     "mean_wrap": PPANNConfig(mean_wrap=True, sigma_wrap=True),
+    "linear_inertia": PPANNConfig(white_inertia="linear", sigma_wrap=True),
+    "linear_inertia_prior": PPANNConfig(white_inertia="linear", machine_terms="prior"),
 }
 
 
