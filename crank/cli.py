@@ -222,6 +222,13 @@ def train_command(
         bool,
         typer.Option(help="Give the PPANN's prior a Coulomb friction torque, fitted in phase 1."),
     ] = TrainConfig.coulomb,
+    white_inertia: Annotated[
+        str,
+        typer.Option(
+            help="How the Monte-Carlo draws z_J's white noise: quotient (eq. 14 with z drawn) or "
+            "linear (to first order about the mean: zero-mean)."
+        ),
+    ] = TrainConfig.white_inertia,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -239,6 +246,7 @@ def train_command(
         machine_terms=machine_terms,
         coulomb=coulomb,
         mean_wrap=mean_wrap,
+        white_inertia=white_inertia,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)
