@@ -95,10 +95,15 @@ class TrainConfig:
     machine_terms: str = "augmented"
     """What the machine-level log-factors scale (`PPANNConfig.machine_terms`): "augmented",
     eq. 14's whole terms; "prior", the prior's physical motor terms alone."""
-    white_inertia: str = "quotient"
+    white_inertia: str = "linear"
     """How the model's Monte-Carlo draws z_J's white noise (`PPANNConfig.white_inertia`):
-    "quotient", eq. 14 with z drawn (the paper's); "linear", to first order about the mean.
-    Recorded in the checkpoint; training is the same either way."""
+    "linear", to first order about the mean (zero-mean: the mean model's acceleration on
+    average, eq. 9's spread); "quotient", eq. 14 with z drawn (the paper's), whose draws move
+    the Monte-Carlo's mean by 1 + rho^2 + ... of acceleration. Recorded in the checkpoint;
+    training is the same either way. The default since session 55, by bench/white_inertia.md's
+    rule (roots 20261220-20261222): on the paper task, seeds 0-4, 4000 machines each, nine of
+    the ten σ ratios lower (1.055-1.225 against 1.074-1.229), 0-1 below per seed either way;
+    seeds 5-14 at most 1 of 1000; every task torque returned as before and at most 2 of 1000."""
 
     def __post_init__(self) -> None:
         for name in (

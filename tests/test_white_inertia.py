@@ -84,14 +84,14 @@ def test_the_linear_draw_keeps_the_mean_models_acceleration_and_the_quotient_doe
 
 
 def test_the_option_reaches_the_model_and_the_checkpoint(tmp_path: Path) -> None:
-    """[train] white_inertia builds the PPANN with it; a checkpoint keeps it, and one written
-    before the option (no key) reads as eq. 14's quotient; unknown forms are refused."""
+    """[train] white_inertia builds the PPANN with it ("linear" by default); a checkpoint keeps
+    it, and one written before the option (no key) reads as eq. 14's quotient; unknown forms
+    are refused."""
     data = Dataset(*(np.zeros(4) for _ in range(6)))
-    model = fit.new_model(data, kind="ppann", config=TrainConfig(white_inertia="linear"))
+    model = fit.new_model(data, kind="ppann", config=TrainConfig())  # the default since s. 55
     assert isinstance(model, PPANN) and model.config.white_inertia == "linear"
-    assert fit.new_model(data, kind="ppann", config=TrainConfig()).config.white_inertia == (
-        "quotient"
-    )
+    paper = TrainConfig(white_inertia="quotient")
+    assert fit.new_model(data, kind="ppann", config=paper).config.white_inertia == "quotient"
     save(tmp_path / "m.pt", model, kind="ppann", extra={"history": {}})
     assert load(tmp_path / "m.pt")[0].config.white_inertia == "linear"
     payload = torch.load(tmp_path / "m.pt", weights_only=True)
