@@ -90,7 +90,7 @@ class PPANNConfig:
     and training are the same either way). "quotient", the paper's eq. 14 with z drawn (eq. 11):
     alpha = (tau - ...) / (J_m (1 + z_J)), whose average over the draws is not the mean model's
     alpha: E[1 / (1 + mu + sigma eps)] = (1 + rho^2 + ...) / (1 + mu), rho = sigma / (1 + mu),
-    2-4 % at the rho of 0.13-0.19 a default model has over top dead centre (3-7 % at a plan
+    2-4 % at the rho of up to 0.16-0.20 a default model has over top dead centre (3-7 % at a plan
     round's 0.15-0.24), where phase 1 fitted the mean networks to the data's average
     acceleration; the draws so move the Monte-Carlo's mean and widen its spread. "linear"
     (beyond the paper; `TrainConfig.white_inertia`'s default since session 55): the draw to
