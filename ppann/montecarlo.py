@@ -253,10 +253,11 @@ def rollout(
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(steps):
             mean, sigma = heads(theta, omega)
-            z = mean if eps is None else mean + sigma * eps[k if per_step else 0]
+            draw = None if eps is None else sigma * eps[k if per_step else 0]
+            z = mean if draw is None else mean + draw
             noise = None
-            if eps is not None and heads.linear_inertia:  # z_J's draw to first order
-                noise, z[:, 0] = z[:, 0] - mean[:, 0], mean[:, 0]
+            if draw is not None and heads.linear_inertia:  # z_J's draw to first order
+                z[:, 0], noise = mean[:, 0], draw[:, 0]
             u: float | np.ndarray = tau[k]
             if feedback is not None:
                 ref, gain = feedback.plan[k], feedback.gains[k]
