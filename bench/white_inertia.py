@@ -10,6 +10,7 @@ Issue 11, session 55 (bench/white_inertia.md).
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from ppann.checkpoint import load, save
@@ -23,9 +24,9 @@ def main() -> None:
     parser.add_argument("--form", choices=WHITE_INERTIA, default="linear")
     args = parser.parse_args()
     model, payload = load(args.model)
-    model.config = type(model.config)(**{**model.config.as_dict(), "white_inertia": args.form})
-    extra = {k: v for k, v in payload.items() if k not in ("format", "version", "kind", "config")}
-    extra.pop("state_dict")
+    model.config = replace(model.config, white_inertia=args.form)
+    written = ("format", "version", "kind", "config", "state_dict")  # save() writes these anew
+    extra = {k: v for k, v in payload.items() if k not in written}
     save(args.out, model, kind=payload["kind"], extra=extra)
     print(f"wrote {args.out} (white_inertia {args.form})")
 
