@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 
 from crank.cli import main
-from ppann.checkpoint import save
-from ppann.model import constant_ppann
+from tests.checkpoints import constant_checkpoint
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
@@ -85,12 +84,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     ds = d / "ds.mcap"
     generate_file(GenerationConfig(seconds=2.0, episode_seconds=1.0), out=ds, figures=False)
     model = d / "m.pt"
-    save(
-        model,
-        constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05)),
-        kind="ppann",
-        extra={"history": {}},
-    )
+    constant_checkpoint(model)
     ocp = d / "ocp.json"
     ocp.write_bytes(ocp_path.read_bytes())
     (d / "text.txt").write_text("not a file of any of ours\n")

@@ -19,11 +19,12 @@ from control.lqr import LQRWeights, riccati
 from control.mpc import SliderLimit, TrackingMPC, prediction_function
 from control.mpc_config import MPCConfig, MPCConfigError
 from control.ocp_file import OCPFile, read_ocp
-from ppann.checkpoint import CheckpointError, save
+from ppann.checkpoint import CheckpointError
 from ppann.model import constant_ppann
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig
 from replay.files import replay_file
+from tests.checkpoints import constant_checkpoint
 from tests.conftest import LATE
 from twin.physics import SliderCrank
 
@@ -241,9 +242,8 @@ def test_mpc_mode_replays_on_the_twin_and_logs_every_step(
     checkpoint is another file is refused before anything is written."""
     from mcap.reader import make_reader
 
-    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
     checkpoint = tmp_path / "m.pt"
-    save(checkpoint, model, kind="ppann", extra={"history": {}})
+    constant_checkpoint(checkpoint)
     raw = json.loads(ocp_path.read_text())
     raw["model"] = {
         "path": "m.pt",

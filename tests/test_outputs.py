@@ -23,9 +23,8 @@ from control.ocp import NominalOCP
 from control.ocp_file import FAILED_FORMAT, OCPFileError, read_ocp
 from control.solve import failed_path
 from crank.chain import STAGES_FILE
-from ppann.checkpoint import save
-from ppann.model import PPANN, constant_ppann
 from replay.config import ReplayConfig
+from tests.checkpoints import constant_checkpoint
 from tests.conftest import Written, crank
 from twin.mcap_dataset import read_run
 
@@ -160,15 +159,6 @@ def test_an_output_over_an_input_is_refused(
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def _constant_checkpoint(
-    path: Path, *, z_sigma: tuple[float, float, float] = (0.03, 0.05, 0.05)
-) -> PPANN:
-    """A PPANN with constant networks (z_mean 0, 0, -0.9) saved at `path`; returned."""
-    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=z_sigma)
-    save(path, model, kind="ppann", extra={"history": {}})
-    return model
-
-
 def _kill_mid_step(
     args: list[str], out: Path, *, after: float, until: Callable[[], bool] | None = None
 ) -> None:
@@ -204,7 +194,7 @@ def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Pa
     assert model.is_file() and (tmp_path / "m.report.json").is_file()
 
     ppann = tmp_path / "c.pt"
-    _constant_checkpoint(ppann)
+    constant_checkpoint(ppann)
     ocp = tmp_path / "ocp.json"
     slow = ["--mc-samples", "50000"]  # ~2 s per Monte-Carlo: killed inside the robust loop
     _kill_mid_step(["solve", "--model", str(ppann), "--out", str(ocp), *slow], ocp, after=2.0)
@@ -344,7 +334,7 @@ def test_a_read_only_filesystem_is_one_line_for_every_writer(
     """Every command that writes, pointed at a read-only mount (root's permissions do not stop
     it, as a chmod would not): one line naming the file and the cause, exit 2."""
     model = tmp_path / "m.pt"
-    _constant_checkpoint(model)
+    constant_checkpoint(model)
     ro = str(read_only)
     commands = [
         ["generate", "--seconds", "1", "--out", f"{ro}/d.mcap"],
@@ -368,7 +358,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_output(tmp_path: Path, full_disk:
     _one_line(result, f"cannot write {full_disk / 'd.mcap'}: No space left on device")
     assert not any(full_disk.iterdir())
     model = tmp_path / "m.pt"
-    _constant_checkpoint(model)
+    constant_checkpoint(model)
     result = crank("solve", "--model", str(model), "--out", str(full_disk / "ocp.json"))
     assert result.returncode == 2 and "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]  # after the robust loop's progress lines
@@ -394,7 +384,7 @@ def test_a_failed_robust_solve_keeps_the_nominal_plan_and_the_margin_history(
     would hold: tests/test_ocp.py): no ocp.json, one error line that names what was kept, and
     <stem>.failed.json with the nominal profile (as ocp.json has it) and every iteration."""
     model = tmp_path / "wide.pt"
-    wide = _constant_checkpoint(model, z_sigma=(0.3, 0.5, 0.5))
+    wide = constant_checkpoint(model, z_sigma=(0.3, 0.5, 0.5))
     out = tmp_path / "ocp.json"
     args = ["--out", str(out), "--confidence", "0", "--fallback", "none"]
     result = crank("solve", "--model", str(model), *args)

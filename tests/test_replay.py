@@ -18,7 +18,6 @@ from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, tracking_gains
 from control.ocp_file import OCPFile
 from control.tightening import sigma_relative_se
-from ppann.checkpoint import save
 from ppann.heads import FusedHeads
 from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
@@ -28,6 +27,7 @@ from replay.heldout import heldout_check, heldout_file, model_rate
 from replay.placement import placement
 from replay.spread_interval import ratio_interval
 from replay.statistics import campaign_statistics, replay_statistics
+from tests.checkpoints import constant_checkpoint
 from tests.conftest import LATE_MPC
 from tests.replay_ocp import N, nominal_twin_trajectory, twin_state
 from twin.geometry import PAPER
@@ -394,8 +394,7 @@ def test_heldout_file_plays_the_loops_its_robust_profiles_were_tightened_for(
     robust, closed for a tube (a fallback's file has only the tube, which open loop would go
     unchecked)."""
     model = tmp_path / "m.pt"
-    constant = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
-    save(model, constant, kind="ppann", extra={"history": {}})
+    constant_checkpoint(model)
     tube = json.loads(ocp_path.read_text())
     tube["robust-fb"] = tube.pop("robust") | {"loop": "closed"}
     tube["profiles"] = ["nominal", "robust-fb"]
