@@ -8,7 +8,8 @@ on. A study run again with `resume=True` keeps every seed folder that has its re
 redoes the rest.
 
 Files in `<out>/`: `study.json` (config and rows), `study.csv`, `study.md` (the table and the
-verdict against the targets), `study.png` (violation rates and premium against seed).
+verdict against the targets), `study.png` (crank/study_figure.py: violation rates, premium and
+calibration against seed).
 """
 
 from __future__ import annotations
@@ -24,17 +25,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from matplotlib.figure import Figure
-
 from common.atomic import atomic_path, writes
 from common.errors import ConfigError, CrankError
 from common.figures import save_figure
 from common.jsonio import write_json
 from control.config import loop_of
-from control.figures import COLORS
 from control.robust import BeyondStrokeError
 from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
+from crank.study_figure import figure
 from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
 
 MAX_SEEDS = 1000
@@ -326,72 +325,3 @@ def _recurring(rows: list[dict[str, Any]]) -> list[str]:
         f"  - the same held-out machines below under several seeds' torques: {named}; the "
         "seeds' counts are not independent (each seed's heldout.json places them in the line)"
     ]
-
-
-def figure(rows: list[dict[str, Any]]) -> Figure:
-    """Violation rates (held-out, with the 95 % bound) and cost premium against seed; where a
-    profile was refused beyond the stroke, the tightening its model asked for against the
-    stroke left (a seed red where no profile, nor a fallback, has a torque)."""
-    ok = [r for r in rows if r.get("error") is None and "robust_heldout_rate" in r]
-    refused = [r for r in rows if "refused_tightening" in r]
-    panels = 2 + bool(refused)
-    fig = Figure(figsize=(10, 3 * panels), layout="constrained")
-    axes = fig.subplots(panels, 1, sharex=True)
-    top, bottom = axes[0], axes[1]
-    names = list(dict.fromkeys(r["profile"] for r in ok))
-    width = 0.8 / max(1, len(names))
-    upper: list[float] = []
-    for i, name in enumerate(names):  # side by side per seed
-        mine = [r for r in ok if r["profile"] == name]
-        x = [r["seed"] + (i - (len(names) - 1) / 2) * width for r in mine]
-        bounds = [100 * r["robust_heldout_upper_95"] for r in mine]
-        upper += bounds
-        color = COLORS[name]
-        label = f"{name} ({loop_of(name)} loop)"
-        top.bar(x, [100 * r["robust_heldout_rate"] for r in mine], width, color=color, label=label)
-        top.scatter(x, bounds, color="k", marker="_", s=200 * width)
-        bottom.bar(x, [100 * r["premium"] for r in mine], width, color=color, label=label)
-    top.scatter([], [], color="k", marker="_", label="95 % upper bound")
-    top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1, label="target 0.5 %")
-    # a seed whose every profile was refused (a fallback's torque is a profile)
-    failed = sorted({r["seed"] for r in rows if r.get("error")} - {r["seed"] for r in ok})
-    for s in failed:
-        top.axvline(s, color="C3", alpha=0.3, lw=8)
-    top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.05)
-    top.set_ylabel("held-out violations [%]")
-    top.legend(fontsize=8)
-    bottom.set_ylim(bottom=0)
-    bottom.set_ylabel("robust cost premium [%]")
-    if not ok:
-        for axis in (top, bottom):
-            axis.text(
-                0.5,
-                0.5,
-                "no seed has a robust profile",
-                transform=axis.transAxes,
-                ha="center",
-                va="center",
-                color="C3",
-            )
-    if refused:
-        axis = axes[2]
-        x = [r["seed"] for r in refused]
-        asked = [1e3 * r["refused_tightening"] for r in refused]
-        line = [1e3 * r["refused_line"] for r in refused]
-        axis.bar(x, asked, color="C3", alpha=0.6, label="tightening the model asks for")
-        axis.bar(x, line, color="C4", label="of which for the line's mean")
-        axis.scatter(
-            x,
-            [1e3 * r["refused_available"] for r in refused],
-            color="k",
-            marker="_",
-            s=400,
-            label="stroke above the height",
-        )
-        what = "/".join(dict.fromkeys(r["profile"] for r in refused))
-        axis.set_ylabel(f"{what} refused: sample {refused[0]['refused_sample']} [mm]")
-        axis.legend(fontsize=8)
-    axes[-1].set_xticks(sorted({r["seed"] for r in rows}))
-    axes[-1].set_xlabel("seed" + (" (red: no robust profile)" if failed else ""))
-    fig.suptitle("Robust torque per training seed")
-    return fig

@@ -5,7 +5,6 @@ intervals per option group, one dot per seed)."""
 
 from __future__ import annotations
 
-import re
 import textwrap
 from collections import defaultdict
 from pathlib import Path
@@ -16,10 +15,9 @@ from matplotlib.figure import Figure
 from common.atomic import atomic_path
 from common.figures import save_figure
 from crank import stages
-from crank.report_heldout import diverged
 from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
+from crank.study_figure import calibration_frame, calibration_marks
 from crank.sweep_spec import KINDS, Leaf
-from ppann.figures import CALIBRATION_BAND
 
 Records = list[tuple[Leaf, list[dict[str, Any]]]]
 
@@ -213,7 +211,7 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
         )
         bottom.scatter(spread, [100 * r["premium"] for r in good], color="C1", s=18)
         for at, row in zip(spread, good, strict=True):
-            _calibration_marks(calibration, at, row, samples)
+            calibration_marks(calibration, at, row, samples)
         if len(good) < len(members):
             top.scatter([x], [0], color="C3", marker="x", s=80)
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1)
@@ -242,40 +240,12 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
         counts = ((bad - refused, "failed"), (refused, "refused"))
         notes = [f"{n} {word}" for n, word in counts if n]
         ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
-    calibration.axhspan(*CALIBRATION_BAND, color="0.9", zorder=0)
-    calibration.axhline(1.0, color="k", lw=0.8)
-    calibration.set_ylabel("predicted / observed σ,\nslider (OCP's mode)")
-    calibration.legend(
-        handles=[
-            calibration.errorbar([], [], yerr=[], color=c, fmt="o", ms=4, label=f"sample {k}")
-            for k, c in samples.items()
-        ]
-        + [calibration.fill_between([], [], color="0.9", label="0.8-1.25")],
-        fontsize=8,
-        loc="upper left",  # beside the panel: with many tasks' samples it covered their points
-        bbox_to_anchor=(1.005, 1.0),
-    )
+    calibration_frame(calibration, samples)
     calibration.set_xticks(range(len(grouped)), ticks, fontsize=8)
     calibration.set_xlim(-0.5, len(grouped) - 0.5)
     calibration.set_xlabel(" / ".join(names) or "every leaf")
     fig.suptitle("Sweep: robust torque per option group (one dot per seed)")
     return fig
-
-
-def _calibration_marks(ax: Any, at: float, row: dict[str, Any], samples: dict[str, str]) -> None:
-    """A leaf's slider ratio at each of its constraint samples with its 95 % interval (sweep.csv
-    ratio_<k>, ratio_<k>_low, ratio_<k>_high; a ratio without an interval alone, none where it
-    diverged, crank/report_heldout.py's rule), side by side at `at`."""
-    ks = [key[len("ratio_") :] for key in row if re.fullmatch(r"ratio_\d+", key)]
-    for i, k in enumerate(ks):
-        value = row.get(f"ratio_{k}")
-        if diverged(value):
-            continue
-        colour = samples.setdefault(k, f"C{2 + len(samples) % 8}")
-        low, high = row.get(f"ratio_{k}_low"), row.get(f"ratio_{k}_high")
-        error = None if low is None or high is None else [[value - low], [high - value]]
-        x = at + 0.04 * (i - (len(ks) - 1) / 2)
-        ax.errorbar([x], [value], yerr=error, color=colour, fmt="o", ms=4, capsize=2)
 
 
 def write_results(out: Path, sweep: dict[str, Any], records: Records) -> list[dict[str, Any]]:

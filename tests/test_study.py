@@ -141,3 +141,55 @@ def test_machines_below_under_several_seeds_are_named() -> None:
     )
     study["rows"] = [row(5, [1]), row(6, None), row(7, [2])]
     assert "several seeds" not in markdown(study)
+
+
+def test_the_figure_puts_each_seeds_calibration_with_its_interval_on_the_band() -> None:
+    """study.png's third panel: each seed's slider ratio at each constraint sample at that seed
+    (the samples side by side), its bar the held-out interval, the 0.8-1.25 band behind; a ratio
+    that diverged is left out, not drawn at 1e38."""
+    from crank.study_figure import figure
+
+    def row(seed: int, at50: float, at100: float) -> dict:
+        return {
+            "seed": seed,
+            "profile": "robust",
+            "error": None,
+            "robust_heldout_rate": 0.0,
+            "robust_heldout_upper_95": 0.0007,
+            "premium": 0.31,
+            "ratio_50": at50,
+            "ratio_50_low": at50 - 0.03,
+            "ratio_50_high": at50 + 0.04,
+            "ratio_100": at100,
+            "ratio_100_low": at100 - 0.05,
+            "ratio_100_high": at100 + 0.06,
+        }
+
+    fig = figure([row(0, 1.15, 1.22), row(4, 1.14, 1.27), row(9, 1.13, 1e38)])
+    assert len(fig.axes) == 3  # rates, premium, calibration (no seed refused)
+    calibration = fig.axes[2]
+    marks = {}
+    for container in calibration.containers:
+        if not len(container.lines[0].get_xdata()):  # the legend's handles
+            continue
+        (x,), (y,) = container.lines[0].get_data()
+        if container.lines[2]:  # the interval's bar: from its low to its high end
+            (segment,) = container.lines[2][0].get_segments()
+            marks[round(x, 3)] = (y, segment[0][1], segment[1][1])
+    assert sorted(marks) == [-0.02, 0.02, 3.98, 4.02, 8.98]  # seed 9's sample 100: no mark
+    expected = {
+        -0.02: (1.15, 1.12, 1.19),
+        0.02: (1.22, 1.17, 1.28),
+        3.98: (1.14, 1.11, 1.18),
+        4.02: (1.27, 1.22, 1.33),
+        8.98: (1.13, 1.10, 1.17),
+    }
+    for x, (value, low, high) in expected.items():
+        assert marks[x] == pytest.approx((value, low, high), abs=1e-12)
+    assert calibration.patches[0].get_y() == pytest.approx(0.8)  # the band
+    assert calibration.patches[0].get_height() == pytest.approx(0.45)
+    assert [t.get_text() for t in calibration.get_legend().get_texts()] == [
+        "sample 50",
+        "sample 100",
+        "0.8-1.25",
+    ]
