@@ -128,11 +128,11 @@ def compare_command(
     """Play every profile of each run's ocp.json open loop, under the fixed PD, under its LQR
     law and under the online MPC, on campaign and held-out machines of the run's scenario;
     write compare.md (a table per scenario), compare.json and compare.png."""
-    from crank.compare import compare_runs, merge_compares
+    from crank.compare import compare_runs, counted, merge_compares
 
     if merge:
         result = merge_compares(run_dirs, out)
-        typer.echo(f"wrote {out / 'compare.md'} ({len(result['scenarios'])} scenarios)")
+        typer.echo(f"wrote {out / 'compare.md'} ({counted(result)})")
         return
     result = compare_runs(
         run_dirs,
@@ -144,5 +144,5 @@ def compare_command(
     )
     typer.echo(
         f"wrote {out / 'compare.md'}, compare.json, compare.png "
-        f"({len(result['scenarios'])} scenarios, {result['wall_s'] / 60:.1f} min)"
+        f"({counted(result)}, {result['wall_s'] / 60:.1f} min)"
     )

@@ -355,6 +355,14 @@ def merge_compares(folders: list[Path], out: str | Path) -> dict[str, Any]:
     return merged
 
 
+def counted(compare: dict[str, Any]) -> str:
+    """What a compare holds, for the terminal: "3 runs of 1 scenario" (compare.json's
+    `scenarios` has an entry per run; several seeds of one scenario are several entries)."""
+    runs = len(compare["scenarios"])
+    kinds = len({entry["scenario"] for entry in compare["scenarios"]})
+    return f"{runs} run{'s' * (runs != 1)} of {kinds} scenario{'s' * (kinds != 1)}"
+
+
 def _write(compare: dict[str, Any], out: Path) -> None:
     """compare.json, compare.md and compare.png into the new folder `out`."""
     from common.figures import save_figure

@@ -307,7 +307,7 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
 def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> None:
     """Two compare folders (the same run made twice: a straight, b resumed) merge into one with
     both scenarios, row for row as compared apart; other settings or one folder are refused."""
-    from crank.compare import compare_runs, merge_compares
+    from crank.compare import compare_runs, counted, merge_compares
 
     a, b, _ = two_runs
     kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3, "mpc": LATE_MPC}
@@ -318,6 +318,10 @@ def test_compare_folders_made_apart_merge_into_one(two_runs, tmp_path: Path) -> 
         r["heldout_rate"] for r in parts[1][0]["rows"]
     ]  # the same run, resumed, plays the same
     assert "## Every run pooled" in (tmp_path / "ab" / "compare.md").read_text()
+    assert counted(merged) == "2 runs of 1 scenario"  # the terminal's line: not "2 scenarios"
+    assert counted({"scenarios": parts[0]}) == "1 run of 1 scenario"
+    three = [{"scenario": name} for name in ("paper", "line-15", "paper")]
+    assert counted({"scenarios": three}) == "3 runs of 2 scenarios"
     # a folder compared with 3 runs: the merge reads only compare.json, so one is made by hand
     other = json.loads((tmp_path / "a" / "compare.json").read_text()) | {"runs": 3}
     (tmp_path / "other").mkdir()
