@@ -92,7 +92,7 @@ from control.acceptance import Acceptance
 from control.beside import Pending, wanted
 from control.config import OCPConfig
 from control.ocp import FEASIBILITY_TOLERANCE, NominalOCP, OCPError, Solution
-from control.tightening import Uncertainty, slider_uncertainty
+from control.tightening import Uncertainty, at_k, slider_uncertainty
 from ppann.heads import FusedHeads
 from ppann.model import PPANN
 
@@ -253,11 +253,12 @@ def iterate(
     pending: Pending | None = None
     solves = 0
 
-    def at_draft(solution: Solution, k: float) -> None:
-        """The scheme from the checked draft `solution` at the raised k, drafts first."""
+    def at_draft(solution: Solution, its: Uncertainty, k: float) -> None:
+        """The scheme from the checked draft `solution` (its Monte-Carlo `its`) at the raised
+        k, drafts first: the same draws at that k, so its Monte-Carlo is not drawn again."""
         nonlocal config, unc, acceptance, current, fresh
-        config = replace(config, k_sigma=k)  # the same draws at that k
-        unc = slider_uncertainty(heads, solution, config, constraints_only=True)
+        config = replace(config, k_sigma=k)
+        unc = at_k(heads, solution, its, config)
         acceptance = Acceptance(config.margin_tolerance, draft=True)
         current, fresh = solution, False
 
@@ -270,7 +271,7 @@ def iterate(
         raised = checked.answer()
         if raised is not None and raised > config.k_sigma:
             solves = checked.solves
-            at_draft(checked.draft[0], raised)
+            at_draft(*checked.draft, raised)
             return True
         for held in checked.held:
             record(*held)
@@ -343,4 +344,4 @@ def iterate(
                     continue
                 raised = check(solution, unc)
                 if raised is not None and raised > config.k_sigma:
-                    at_draft(solution, raised)
+                    at_draft(solution, unc, raised)

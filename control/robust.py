@@ -75,7 +75,7 @@ from control.records import (
     RobustResult,
     iteration,
 )
-from control.tightening import Uncertainty, slider_uncertainty
+from control.tightening import Uncertainty, at_k, slider_uncertainty
 from ppann.heads import FusedHeads
 from ppann.model import PPANN
 
@@ -201,8 +201,11 @@ def solve_robust(
 
         first, first_unc, again = nominal, nominal_unc, False
         if start is not None:  # a raise: from the torque before, its Monte-Carlo at this k
-            first = start.robust
-            first_unc = slider_uncertainty(heads, first, config)
+            first, drawn = start.robust, start.robust_uncertainty
+            if drawn.samples == config.mc_samples:  # the same draws: not drawn again
+                first_unc = at_k(heads, first, drawn, config)
+            else:  # the verdict drew more (control/profiles.py)
+                first_unc = slider_uncertainty(heads, first, config)
             again = bool(start.iterations) and start.iterations[-1].scheme == "aware"
         try:
             found = aware.iterate(

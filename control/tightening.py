@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -312,21 +312,64 @@ def slider_uncertainty(
             slider = heads.geometry.slider_position(every)
         constrained = slider[:, index]
         mean, std = slider.mean(axis=0), slider.std(axis=0, ddof=1)
+    population = population_margin(heads, solution, config, z, feedback=feedback)
+    unc = Uncertainty(
+        mean,
+        std,
+        0.0,
+        tightening=population,
+        tightening_se=np.zeros_like(population),
+        population=population,
+        sampling=np.zeros_like(population),
+        samples=n,
+        angles=angle,
+    )
+    return _tightened(heads, solution, unc, config, z, constrained=constrained, started=started)
+
+
+def at_k(heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPConfig) -> Uncertainty:
+    """`unc`, `slider_uncertainty`'s of `solution` under a configuration that differs from
+    `config` in k alone, at config.k_sigma: the same draws give the same sliders and the line's
+    mean allowance (`population`) does not depend on k, so only the tightening, its standard
+    error and the sampling allowance are computed again, from `unc.angles` (the aware loop's
+    raise at a draft, control/aware.py: one Monte-Carlo fewer). Equal to
+    `slider_uncertainty` at that k to the last bit (tests/test_tightening.py)."""
+    if unc.samples != config.mc_samples:
+        raise ValueError(
+            f"a Monte-Carlo of {unc.samples} draws moved to k {config.k_sigma:g}, where the "
+            f"configuration draws {config.mc_samples}"
+        )
+    return _tightened(heads, solution, unc, config, line_allowance(heads, config)[1])
+
+
+def _tightened(
+    heads: FusedHeads,
+    solution: Solution,
+    unc: Uncertainty,
+    config: OCPConfig,
+    z: float,
+    *,
+    constrained: np.ndarray | None = None,
+    started: float | None = None,
+) -> Uncertainty:
+    """`unc` with its tightening at config.k_sigma from its population and its sliders at the
+    constraint samples (`constrained`, default from its angles); its wall time from `started`
+    (default: `unc`'s, and this call's added)."""
+    began = time.perf_counter()
+    index = np.array(config.constraint_samples) - 1
+    if constrained is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            constrained = heads.geometry.slider_position(unc.angles)
     plan = solution.slider
     columns = [(constrained[:, j], plan[k]) for j, k in enumerate(index)]
     options = {"k_sigma": config.k_sigma, "method": config.tightening}
     margins = [tightening(x, at, **options) for x, at in columns]
     sampling = np.array([sampling_allowance(x, at, **options, z=z) for x, at in columns])
-    population = population_margin(heads, solution, config, z, feedback=feedback)
-    standard_error = np.array([se for _, se in margins])
-    return Uncertainty(
-        mean,
-        std,
-        time.perf_counter() - started,
-        tightening=np.array([m for m, _ in margins]) + population + sampling,
-        tightening_se=standard_error,
-        population=population,
+    spent = time.perf_counter() - (began if started is None else started)
+    return replace(
+        unc,
+        wall_time=spent + (unc.wall_time if started is None else 0.0),
+        tightening=np.array([m for m, _ in margins]) + unc.population + sampling,
+        tightening_se=np.array([se for _, se in margins]),
         sampling=sampling,
-        samples=n,
-        angles=angle,
     )

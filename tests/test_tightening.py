@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from control.fixed_point import Bracket
 from control.ocp import NominalOCP
 from control.robust import STROKE_SHARE, BeyondStrokeError, solve_robust
 from control.tightening import (
+    at_k,
     line_allowance,
     population_margin,
     sampling_allowance,
@@ -257,6 +259,32 @@ def test_tightening_is_k_sigma_plus_the_line_and_sampling_allowances(method: str
     if method == "centred":
         k_sigma += solution.slider[index] - unc.mean[index]
     assert unc.tightening == pytest.approx(k_sigma + unc.population + unc.sampling, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["centred", "gaussian"])
+@pytest.mark.parametrize("draft", [True, False])
+def test_a_monte_carlo_moved_to_another_k_is_the_one_drawn_there(method: str, draft: bool) -> None:
+    """The aware loop's raise at a draft (control/aware.py, the tightenings a raise predicts)
+    takes the draft's Monte-Carlo to the raised k without drawing it again (`at_k`): the same
+    draws, so every field is the one `slider_uncertainty` gives at that k, to the last bit; and
+    the tightening did move. Where the count of draws is not the configuration's (the quantile
+    tightening's follows k), it refuses."""
+    model = _line_model()
+    config = OCPConfig(confidence=0.95, tightening=method)
+    solution = NominalOCP(model, config).solve()
+    heads = FusedHeads(model)
+    at_three = slider_uncertainty(heads, solution, config, constraints_only=draft)
+    raised = replace(config, k_sigma=3.4)
+    drawn = slider_uncertainty(heads, solution, raised, constraints_only=draft)
+    moved = at_k(heads, solution, at_three, raised)
+    for name in ("tightening", "tightening_se", "population", "sampling", "angles"):
+        assert np.array_equal(getattr(moved, name), getattr(drawn, name)), name
+    for name in ("mean", "std"):
+        assert np.array_equal(getattr(moved, name), getattr(drawn, name), equal_nan=True), name
+    assert moved.samples == drawn.samples
+    assert np.all(moved.tightening > at_three.tightening + 1e-4)
+    with pytest.raises(ValueError, match="1000 draws"):
+        at_k(heads, solution, at_three, replace(raised, mc_samples=2000))
 
 
 def test_population_margin_is_the_largest_drop_over_the_confidence_ellipsoid() -> None:
