@@ -313,18 +313,18 @@ def slider_uncertainty(
         constrained = slider[:, index]
         mean, std = slider.mean(axis=0), slider.std(axis=0, ddof=1)
     population = population_margin(heads, solution, config, z, feedback=feedback)
-    unc = Uncertainty(
+    tightened, standard_error, sampling = _tightened(solution, constrained, population, config, z)
+    return Uncertainty(
         mean,
         std,
-        0.0,
-        tightening=population,
-        tightening_se=np.zeros_like(population),
+        time.perf_counter() - started,
+        tightening=tightened,
+        tightening_se=standard_error,
         population=population,
-        sampling=np.zeros_like(population),
+        sampling=sampling,
         samples=n,
         angles=angle,
     )
-    return _tightened(heads, solution, unc, config, z, constrained=constrained, started=started)
 
 
 def at_k(heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPConfig) -> Uncertainty:
@@ -339,37 +339,37 @@ def at_k(heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPCon
             f"a Monte-Carlo of {unc.samples} draws moved to k {config.k_sigma:g}, where the "
             f"configuration draws {config.mc_samples}"
         )
-    return _tightened(heads, solution, unc, config, line_allowance(heads, config)[1])
+    started = time.perf_counter()
+    with np.errstate(over="ignore", invalid="ignore"):
+        constrained = heads.geometry.slider_position(unc.angles)
+    z = line_allowance(heads, config)[1]
+    tightened, standard_error, sampling = _tightened(
+        solution, constrained, unc.population, config, z
+    )
+    return replace(
+        unc,
+        wall_time=unc.wall_time + time.perf_counter() - started,
+        tightening=tightened,
+        tightening_se=standard_error,
+        sampling=sampling,
+    )
 
 
 def _tightened(
-    heads: FusedHeads,
     solution: Solution,
-    unc: Uncertainty,
+    constrained: np.ndarray,
+    population: np.ndarray,
     config: OCPConfig,
     z: float,
-    *,
-    constrained: np.ndarray | None = None,
-    started: float | None = None,
-) -> Uncertainty:
-    """`unc` with its tightening at config.k_sigma from its population and its sliders at the
-    constraint samples (`constrained`, default from its angles); its wall time from `started`
-    (default: `unc`'s, and this call's added)."""
-    began = time.perf_counter()
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tightening at config.k_sigma (population and sampling allowance included), its
+    standard error and the sampling allowance, from the sliders at the constraint samples
+    (`constrained`, (draws, constraint samples)), m."""
     index = np.array(config.constraint_samples) - 1
-    if constrained is None:
-        with np.errstate(over="ignore", invalid="ignore"):
-            constrained = heads.geometry.slider_position(unc.angles)
     plan = solution.slider
     columns = [(constrained[:, j], plan[k]) for j, k in enumerate(index)]
     options = {"k_sigma": config.k_sigma, "method": config.tightening}
     margins = [tightening(x, at, **options) for x, at in columns]
     sampling = np.array([sampling_allowance(x, at, **options, z=z) for x, at in columns])
-    spent = time.perf_counter() - (began if started is None else started)
-    return replace(
-        unc,
-        wall_time=spent + (unc.wall_time if started is None else 0.0),
-        tightening=np.array([m for m, _ in margins]) + unc.population + sampling,
-        tightening_se=np.array([se for _, se in margins]),
-        sampling=sampling,
-    )
+    tightened = np.array([m for m, _ in margins]) + population + sampling
+    return tightened, np.array([se for _, se in margins]), sampling
