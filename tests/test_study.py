@@ -193,3 +193,34 @@ def test_the_figure_puts_each_seeds_calibration_with_its_interval_on_the_band() 
         "sample 100",
         "0.8-1.25",
     ]
+
+
+def test_the_figure_names_each_rate_as_machines_below_out_of_those_played() -> None:
+    """study.png's first panel says "k/n" over each bound's mark, so a rate of 0 (a bar of no
+    height) still reads as what it was measured on; upright where profiles stand side by side,
+    and nothing for a row that does not say how many machines it played."""
+    from crank.study_figure import figure
+
+    def row(seed: int, profile: str, below: int, runs: int | None) -> dict:
+        entry = {
+            "seed": seed,
+            "profile": profile,
+            "error": None,
+            "robust_heldout_rate": below / (runs or 1000),
+            "robust_heldout_upper_95": 0.0015,
+            "premium": 0.05,
+        }
+        return entry if runs is None else entry | {"heldout_runs": runs}
+
+    one = figure(
+        [row(0, "robust-pd", 0, 2000), row(1, "robust-pd", 3, 4000), row(2, "robust-pd", 1, None)]
+    )
+    texts = [(t.get_text(), t.get_rotation()) for t in one.axes[0].texts]
+    assert texts == [("0/2000", 0.0), ("3/4000", 0.0)]
+    (label,) = [t for t in one.axes[0].texts if t.get_text() == "3/4000"]
+    assert label.xy == pytest.approx((1.0, 0.15))  # over the bound's mark, in %
+    two = figure([row(0, "robust", 7, 4000), row(0, "robust-fb", 0, 1000)])
+    assert [(t.get_text(), t.get_rotation()) for t in two.axes[0].texts] == [
+        ("7/4000", 90.0),
+        ("0/1000", 90.0),
+    ]
