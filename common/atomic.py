@@ -204,6 +204,26 @@ def check_suffix(path: str | Path, suffix: str) -> None:
         raise OutputError(f"the output is {suffix[1:]}: it must end in {suffix}, got {path}")
 
 
+def check_output(
+    name: str,
+    out: str | Path,
+    *,
+    suffix: str | None,
+    inputs: dict[str, str | Path | None],
+) -> None:
+    """What `writes` refuses before its step starts, in its order: an output `name` whose suffix
+    is not `suffix` (if given), then one that is one of `inputs` (None: not given). The CLI calls
+    it before it imports the step's modules, so that a bad output is one line in about a second
+    rather than after torch, CasADi and MuJoCo are loaded.
+
+    Raises:
+      OutputError: the first of the two faults found.
+    """
+    if suffix is not None:
+        check_suffix(out, suffix)
+    check_distinct({name: out}, {n: path for n, path in inputs.items() if path is not None})
+
+
 _STEPS: list[list[Path]] = []
 """The files each running `writes` step has put in place so far, innermost step last."""
 
@@ -237,10 +257,7 @@ def writes(
             bound = signature.bind(*args, **kwargs)
             bound.apply_defaults()
             out = bound.arguments[output]
-            if suffix is not None:
-                check_suffix(out, suffix)
-            sources = {n: bound.arguments[n] for n in inputs if bound.arguments[n] is not None}
-            check_distinct({output: out}, sources)
+            check_output(output, out, suffix=suffix, inputs={n: bound.arguments[n] for n in inputs})
             with output_lock(out):
                 _STEPS.append([])
                 try:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from common.atomic import check_output
 from control.config import OCPConfig, OCPConfigError
 from crank.console import (
     DEFAULT_FALLBACK,
@@ -117,6 +118,7 @@ def generate_command(
     ] = OPERATING_SECONDS,
 ) -> None:
     """Simulate the twin under semi-random torque and write a 500 Hz dataset MCAP."""
+    check_output("out", out, suffix=".mcap", inputs={"model_path": model})
     config = _config(
         seconds=seconds,
         seed=seed,
@@ -232,6 +234,7 @@ def train_command(
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
+    check_output("out", out, suffix=".pt", inputs={"data_path": data})
     from crank.report import train_summary
 
     config = TrainConfig(
@@ -326,6 +329,7 @@ def solve_command(
     ] = OCPConfig.pd_kd,
 ) -> None:
     """Nominal OCP (eqs. 10, 15) and robust OCP (eq. 16) on a PPANN; write ocp.json + figures."""
+    check_output("out", out, suffix=".json", inputs={"model_path": model})
     from control.solve import figure_paths, solve_file
     from crank.report import solve_summary, solve_timing
 

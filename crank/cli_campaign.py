@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from common.atomic import check_suffix
+from common.atomic import check_output
 from control.mpc_config import MPCConfig, MPCConfigError
 from crank.console import (
     HELDOUT_SEED,
@@ -167,9 +167,12 @@ def replay_command(
     """Play the nominal and robust torques on freshly drawn twins, open and closed loop (and
     under the online MPC with --modes …,mpc): the campaign MCAP, <stem>.stats.json, <stem>.png
     (Fig. 12) and <stem>.rrd (Rerun)."""
+    # before ocp.json is read for its scenario, and before the campaign's modules are loaded
+    check_output(
+        "out", out, suffix=".mcap", inputs={"ocp_path": ocp, "model_path": model, "ppann": ppann}
+    )
     from replay.files import ocp_variability
 
-    check_suffix(out, ".mcap")  # before ocp.json is read for its scenario
     mpc = mpc_config(
         horizon=mpc_horizon,
         weights=mpc_weights,
@@ -257,10 +260,13 @@ def heldout_command(
     """Every torque of an ocp.json, open or closed loop or under the MPC, on held-out machines:
     violation rates with exact 95 % bounds, and predicted against observed spread for every
     Monte-Carlo mode."""
+    # before ocp.json is read for its scenario, and before the check's modules are loaded
+    check_output(
+        "out", out, suffix=".json", inputs={"ocp_path": ocp, "model": model, "model_path": mjcf}
+    )
     from replay.files import ocp_variability
     from replay.heldout import heldout_file
 
-    check_suffix(out, ".json")  # before ocp.json is read for its scenario
     mpc = mpc_config(
         horizon=mpc_horizon,
         weights=mpc_weights,
@@ -302,6 +308,7 @@ def recover_command(
     fixed: Annotated[Path, typer.Argument(help="Indexed MCAP to write.")],
 ) -> None:
     """Rebuild a readable, indexed MCAP from what a crashed campaign writer left."""
+    check_output("fixed", fixed, suffix=".mcap", inputs={"broken": broken})
     from replay.recover import recover
 
     result = recover(broken, fixed)
