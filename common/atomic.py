@@ -214,7 +214,7 @@ def check_output(
     """What `writes` refuses before its step starts, in its order: an output `name` whose suffix
     is not `suffix` (if given), then one that is one of `inputs` (None: not given). The CLI calls
     it before it imports the step's modules, so that a bad output is one line in about a second
-    rather than after torch, CasADi and MuJoCo are loaded.
+    rather than after torch, CasADi and matplotlib are loaded.
 
     Raises:
       OutputError: the first of the two faults found.
