@@ -342,7 +342,7 @@ def at_k(heads: FusedHeads, solution: Solution, unc: Uncertainty, config: OCPCon
     started = time.perf_counter()
     with np.errstate(over="ignore", invalid="ignore"):
         constrained = heads.geometry.slider_position(unc.angles)
-    z = line_allowance(heads, config)[1]
+    z = confidence_quantile(config.confidence)  # line_allowance's z, without its machine spread
     tightened, standard_error, sampling = _tightened(
         solution, constrained, unc.population, config, z
     )
