@@ -15,8 +15,9 @@ no bound active, on a linear system, this is the TV-LQR law exactly, for any H.
 Solver: a real-time iteration (SQP-RTI, Gauss-Newton, Diehl et al. 2005). From the measured
 state, the previous solution shifted by one sample is rolled out through f; one CasADi function
 returns the predicted states and their sensitivities to the H torques (the condensed QP's
-matrices, computed from the per-step Jacobians), compiled to C once per plan (1-2 s; 3-4x
-faster than CasADi's virtual machine, which is the fallback without a C compiler); the box QP
+matrices, computed from the per-step Jacobians), compiled to C once per model and horizon in a
+process (1-2 s; 3-4x faster than CasADi's virtual machine, which is the fallback without a C
+compiler; the MPCs of one model's profiles share it: `shared_prediction`); the box QP
 (control/boxqp.py) gives the new torques, of which the first is applied. One iteration per
 sample, warm-started: the Newton iterations of a plain SQP are spread over the samples.
 
@@ -33,7 +34,10 @@ of the late one, as a real-time controller would have to.
 
 from __future__ import annotations
 
+import hashlib
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import casadi as ca
@@ -86,6 +90,35 @@ def prediction_function(
         except RuntimeError:  # no C compiler here: the virtual machine
             pass
     return ca.Function("mpc_prediction", [x0, u], outputs).expand(), "vm"
+
+
+PREDICTIONS_KEPT = 4
+"""Prediction functions `shared_prediction` keeps in a process (the oldest is dropped): a
+campaign, a held-out check or a compare plays every profile of one model, one or two horizons."""
+
+_kept: OrderedDict[tuple[str, int, bool], tuple[ca.Function, str, Workshop | None]] = OrderedDict()
+_kept_lock = threading.Lock()
+
+
+def shared_prediction(
+    step: ca.Function, horizon: int, *, compiled: bool
+) -> tuple[ca.Function, str, Workshop | None]:
+    """`prediction_function` of `step`, built once in this process for every step of the same
+    content (CasADi's serialisation of it: the same weights, tables, time step and geometry),
+    horizon and engine asked for; with the workshop that holds its compiled code, which lives
+    as long as the function is kept or used. The MPCs of one model's profiles (1-2 s each to
+    build, most of it the C compile) then share one function; it is pure (its inputs give its
+    outputs), so sharing it changes no number (tests/test_mpc.py)."""
+    key = (hashlib.sha256(step.serialize().encode()).hexdigest(), horizon, compiled)
+    with _kept_lock:
+        if key not in _kept:
+            workshop = Workshop() if compiled else None
+            function, engine = prediction_function(step, horizon, workshop=workshop)
+            _kept[key] = (function, engine, workshop if engine == "compiled" else None)
+            while len(_kept) > PREDICTIONS_KEPT:
+                _kept.popitem(last=False)
+        _kept.move_to_end(key)
+        return _kept[key]
 
 
 @dataclass(frozen=True)
@@ -146,8 +179,9 @@ class TrackingMPC:
         self.limit = float(torque_limit)
         self.n = n
         h = config.horizon
-        self.workshop = Workshop() if config.compiled else None
-        self.predict, self.engine = prediction_function(step, h, workshop=self.workshop)
+        self.predict, self.engine, self.workshop = shared_prediction(
+            step, h, compiled=config.compiled
+        )
         _, a, b = (
             np.asarray(m)
             for m in jacobians(step, self.states[:-1], self.tau[: n - 1])  # (N-1, ...)
@@ -239,4 +273,12 @@ def jacobians(
     return np.asarray(f).T, a, np.asarray(b).T
 
 
-__all__ = ["MPCConfig", "MPCConfigError", "SliderLimit", "Step", "TrackingMPC", "jacobians"]
+__all__ = [
+    "MPCConfig",
+    "MPCConfigError",
+    "SliderLimit",
+    "Step",
+    "TrackingMPC",
+    "jacobians",
+    "shared_prediction",
+]

@@ -7,12 +7,14 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
+from collections import OrderedDict
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 
+import control.mpc as mpc_module
 from control.compiled import Workshop
 from control.dynamics import CasadiPPANN
 from control.lqr import LQRWeights, riccati
@@ -157,6 +159,47 @@ def test_compiled_prediction_equals_the_virtual_machine_and_falls_back_without_a
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12)
     monkeypatch.setenv("PATH", "/nonexistent")  # no C compiler to be found
     assert prediction_function(dynamics.step, 12, workshop=Workshop())[1] == "vm"
+
+
+def test_the_mpcs_of_one_model_share_one_prediction_and_play_the_same(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Two plans of one model (two CasadiPPANN of it: the same content), one horizon: one
+    prediction function built; another model or horizon builds its own. An MPC on the shared
+    function steps bit for bit as one on a function of its own."""
+    monkeypatch.setattr(mpc_module, "_kept", OrderedDict())
+    built: list[int] = []
+
+    def counted(step, horizon, *, workshop=None):
+        built.append(horizon)
+        return prediction_function(step, horizon, workshop=workshop)
+
+    monkeypatch.setattr(mpc_module, "prediction_function", counted)
+    model = constant_ppann(z_mean=(0.1, -0.2, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    first, second = CasadiPPANN(model), CasadiPPANN(model)
+    config = MPCConfig(horizon=8, compiled=False, deadline=LATE)
+    states, tau = _ppann_plan(first, 60)
+    mpcs = [
+        TrackingMPC(d.step, states=s, tau=t, torque_limit=100.0, config=config)
+        for d, (s, t) in ((first, (states, tau)), (second, (states[::-1], tau[::-1])))
+    ]
+    assert built == [8] and mpcs[0].predict is mpcs[1].predict
+    other = CasadiPPANN(constant_ppann(z_mean=(0.2, -0.2, -0.9), z_sigma=(0.03, 0.05, 0.05)))
+    TrackingMPC(other.step, states=states, tau=tau, torque_limit=100.0, config=config)
+    shorter = MPCConfig(horizon=5, compiled=False, deadline=LATE)
+    TrackingMPC(first.step, states=states, tau=tau, torque_limit=100.0, config=shorter)
+    assert built == [8, 8, 5]
+    own = TrackingMPC(first.step, states=states, tau=tau, torque_limit=100.0, config=config)
+    own.predict, _ = prediction_function(first.step, 8)
+    assert own.predict is not mpcs[0].predict
+    x, guesses = states[0] + [0.2, -1.0], [mpcs[0].start(), own.start()]
+    for k in range(59):
+        (a, guesses[0]), (b, guesses[1]) = (
+            m.step(k, x, g) for m, g in zip((mpcs[0], own), guesses, strict=True)
+        )
+        assert (a.torque, a.qp_iterations) == (b.torque, b.qp_iterations), k
+        assert np.array_equal(guesses[0], guesses[1]), k
+        x = first.step(x, a.torque).full().ravel()
 
 
 def test_mpc_respects_the_torque_limit_and_the_deadline_rule() -> None:
