@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from common import streams
-from common.atomic import OutputError, check_writable, writes
+from common.atomic import check_writable, writes
 from common.checks import check_count, check_seed
 from common.errors import ConfigError
 from common.jsonio import write_json
@@ -29,7 +29,7 @@ from control.mpc_config import MPCConfig
 from control.robust import Iteration
 from crank import stages
 from crank.estimate import Span, left, run_time
-from crank.resume import STAGES_FILE, resumable
+from crank.resume import STAGES_FILE, check_new_run, resumable
 from ppann.train_config import TrainConfig
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.heldout import check_trajectories
@@ -232,9 +232,8 @@ def run_chain(
     rewrite = False
     if resume:
         resolved, done, rewrite = resumable(config, run_dir, argv=argv)
-    elif run_dir.exists():
-        raise OutputError(f"run folder already exists: {run_dir}")
     else:
+        check_new_run(run_dir)
         done = {}
         resolved = config.resolved(command="crank run", argv=sys.argv[1:] if argv is None else argv)
     check_generation_memory(config.generation)

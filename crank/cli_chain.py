@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from common.atomic import check_creatable
 from common.errors import ConfigError
 from control.config import OCPConfig
 from crank.console import (
@@ -122,7 +123,7 @@ def run_command(
     """The whole chain into logs/<run>/: generate, train and validate, solve the OCPs, replay
     them on the twin open and closed loop, report (report.json, report.md, figures)."""
     from crank.config_file import build, defaults, merge, read_values
-    from crank.resume import resumed_config, with_settings
+    from crank.resume import check_new_run, resumed_config, with_settings
 
     given = {
         p: v
@@ -143,9 +144,12 @@ def run_command(
         return
     values = read_values(config) if config is not None else defaults()
     values = merge(values, flag_values(given), source="the command line")
-    run_config = build(values, source=str(config) if config is not None else "command line")
     if name is not None and (name in ("", ".", "..") or Path(name).name != name or "\\" in name):
         raise ConfigError(f"--name must be a plain folder name inside --logs, got {name!r}")
+    if name is not None:  # before the chain's modules load (build's): a line in about a second
+        check_new_run(logs / name)
+    check_creatable(logs)
+    run_config = build(values, source=str(config) if config is not None else "command line")
     name = name or datetime.now(UTC).strftime("%Y%m%d-%H%M%S") + f"-seed{run_config.seed}"
     _run(run_config, logs / name, resume=False)
 
@@ -332,6 +336,7 @@ def study_command(
 ) -> None:
     """The chain once per seed, each robust torque checked on held-out machines: study.md,
     study.csv, study.json and study.png (violation rate and premium against seed)."""
+    check_creatable(out)  # before the chain's modules load
     from crank.chain import Hooks, RunConfig
     from crank.estimate import Span, describe
     from crank.study import parse_seeds, run_study

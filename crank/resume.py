@@ -43,6 +43,16 @@ CHANGEABLE = {
 a folder that finished that stage did)."""
 
 
+def check_new_run(run_dir: Path) -> None:
+    """A new run's folder must not exist yet (an unfinished one is continued with --resume).
+
+    Raises:
+      OutputError: naming the folder.
+    """
+    if run_dir.exists():
+        raise OutputError(f"run folder already exists: {run_dir}")
+
+
 def resumed_config(run_dir: str | Path) -> RunConfig:
     """The configuration of the run folder `run_dir` (its config.json), to resume it.
 

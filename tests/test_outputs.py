@@ -204,6 +204,35 @@ def test_a_bad_output_is_refused_before_the_steps_modules_load(
     assert line.startswith("error: ") and ("must end in" in line or "would overwrite" in line)
 
 
+def test_a_run_or_study_that_cannot_start_is_refused_before_the_chain_loads(
+    tmp_path: Path, read_only: Path
+) -> None:
+    """`crank run` into a run folder that exists, `crank run` and `crank study` into a
+    read-only place: exit 2 with one line before the chain's modules load (torch, CasADi,
+    matplotlib, Rerun: 8 s of imports on a 2-core machine), and nothing written."""
+    logs = tmp_path / "logs"
+    (logs / "r").mkdir(parents=True)
+    cases = [
+        (["run", "--logs", str(logs), "--name", "r"], f"run folder already exists: {logs / 'r'}"),
+        (["run", "--logs", f"{read_only}/logs", "--name", "r"], "Read-only file system"),
+        (["study", "--seeds", "0", "--out", f"{read_only}/s"], "Read-only file system"),
+    ]
+    for command, match in cases:
+        result = subprocess.run(
+            [sys.executable, "-c", _LOADED, *command],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            timeout=120,
+            check=False,
+        )
+        assert result.stdout.split() == ["2", "none"], (command, result.stdout, result.stderr)
+        (line,) = result.stderr.strip().splitlines()
+        assert line.startswith("error: ") and match in line, line
+    assert list(logs.iterdir()) == [logs / "r"] and not any((logs / "r").iterdir())
+    assert not any(read_only.iterdir())
+
+
 def _kill_mid_step(
     args: list[str], out: Path, *, after: float, until: Callable[[], bool] | None = None
 ) -> None:
