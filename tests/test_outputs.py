@@ -172,6 +172,23 @@ print(code, ",".join(heavy) or "none")
 """
 
 
+def _refused_before_loading(command: list[str], *, cwd: Path) -> str:
+    """Run `crank COMMAND` in a fresh interpreter; assert exit 2 with torch, CasADi,
+    matplotlib and Rerun never imported, and one error line; return that line."""
+    result = subprocess.run(
+        [sys.executable, "-c", _LOADED, *command],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=120,
+        check=False,
+    )
+    assert result.stdout.split() == ["2", "none"], (command, result.stdout, result.stderr)
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("error: "), line
+    return line
+
+
 @pytest.mark.parametrize(
     "command",
     [
@@ -191,17 +208,8 @@ def test_a_bad_output_is_refused_before_the_steps_modules_load(
     refusal from inside the step took 6-9 s of imports on a 2-core machine)."""
     for name in ("d.mcap", "m.pt", "o.json", "b.mcap"):
         (tmp_path / name).write_bytes(b"input")
-    result = subprocess.run(
-        [sys.executable, "-c", _LOADED, *command],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        timeout=120,
-        check=False,
-    )
-    assert result.stdout.split() == ["2", "none"], (result.stdout, result.stderr)
-    (line,) = result.stderr.strip().splitlines()
-    assert line.startswith("error: ") and ("must end in" in line or "would overwrite" in line)
+    line = _refused_before_loading(command, cwd=tmp_path)
+    assert "must end in" in line or "would overwrite" in line
 
 
 def test_a_run_or_study_that_cannot_start_is_refused_before_the_chain_loads(
@@ -218,17 +226,8 @@ def test_a_run_or_study_that_cannot_start_is_refused_before_the_chain_loads(
         (["study", "--seeds", "0", "--out", f"{read_only}/s"], "Read-only file system"),
     ]
     for command, match in cases:
-        result = subprocess.run(
-            [sys.executable, "-c", _LOADED, *command],
-            capture_output=True,
-            text=True,
-            cwd=tmp_path,
-            timeout=120,
-            check=False,
-        )
-        assert result.stdout.split() == ["2", "none"], (command, result.stdout, result.stderr)
-        (line,) = result.stderr.strip().splitlines()
-        assert line.startswith("error: ") and match in line, line
+        line = _refused_before_loading(command, cwd=tmp_path)
+        assert match in line, line
     assert list(logs.iterdir()) == [logs / "r"] and not any((logs / "r").iterdir())
     assert not any(read_only.iterdir())
 
