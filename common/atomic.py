@@ -32,12 +32,20 @@ def check_writable(path: str | Path) -> Path:
         raise OutputError(f"output path is a directory, expected a file: {path}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
+    except OSError as exc:
+        raise OutputError(f"cannot write to {path.parent}: {exc.strerror or exc}") from None
+    _probe(path.parent, prefix=f".{path.name}.")
+    return path
+
+
+def _probe(folder: Path, *, prefix: str) -> None:
+    """Write and remove an empty file in `folder`; OutputError naming it if that fails."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=prefix, suffix=".probe", dir=folder)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise OutputError(f"cannot write to {path.parent}: {exc.strerror or exc}") from None
-    return path
+        raise OutputError(f"cannot write to {folder}: {exc.strerror or exc}") from None
 
 
 def check_creatable(path: str | Path) -> None:
@@ -52,12 +60,7 @@ def check_creatable(path: str | Path) -> None:
     place = Path(path).absolute()
     while not place.exists() and place != place.parent:
         place = place.parent
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".crank.", suffix=".probe", dir=place)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise OutputError(f"cannot write to {place}: {exc.strerror or exc}") from None
+    _probe(place, prefix=".crank.")
 
 
 @contextlib.contextmanager
