@@ -5,7 +5,7 @@ The suite is the README's second command's pytest (`python -m pytest -q`: one wo
 pyproject.toml). The reference is one bare `mujoco.rollout` of the twin on one thread (20
 machines x 250 samples x the twin's substeps, controls precomputed), in microseconds per physics
 step: most of the suite is the twin's physics, CasADi and torch on one thread per worker. On the
-AMD EPYC machine kind the host's load moved that reference from 7.3 to 4.9 us within one hour
+AMD EPYC machine kind the host's load moved that reference from 7.3 to 4.6-4.9 us within one hour
 (session 59), and the suite with it: a suite time means little without the reference beside it.
 
 Prints the suite's wall time and exit code, the reference before and after, and the suite's
@@ -16,13 +16,12 @@ wall time per microsecond of reference. Target (README): wall time <= 900 s on 2
 
 from __future__ import annotations
 
+import statistics
 import subprocess
 import sys
 import time
 
-import mujoco
-import numpy as np
-from mujoco import rollout
+from bench_generate import bare_rollout  # the script's folder is on the path
 
 from twin.physics import SliderCrank, load_model
 
@@ -32,18 +31,8 @@ RUNS, SAMPLES = 20, 250
 def reference_us(*, repeats: int = 3) -> float:
     """Median microseconds per physics step of a bare one-thread rollout of the twin."""
     physics = SliderCrank(load_model()[0])
-    rng = np.random.default_rng(0)
-    states = np.array([physics.initial_state(t) for t in rng.uniform(0, 2 * np.pi, RUNS)])
-    controls = np.repeat(
-        rng.uniform(-3, 3, (RUNS, SAMPLES, physics.model.nu)), physics.substeps, axis=1
-    )
-    data = [mujoco.MjData(physics.model)]
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        rollout.rollout(physics.model, data, states, controls)
-        times.append(time.perf_counter() - started)
-    return 1e6 * float(np.median(times)) / (RUNS * SAMPLES * physics.substeps)
+    seconds = statistics.median(bare_rollout(physics, RUNS, SAMPLES, 1) for _ in range(repeats))
+    return 1e6 * seconds / (RUNS * SAMPLES * physics.substeps)
 
 
 def main() -> None:
