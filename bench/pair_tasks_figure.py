@@ -15,15 +15,12 @@ sweep.csv names each case's and seed's solve and leaf.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 
 from bench_tasks import TASKS
 from matplotlib.figure import Figure
-from pair_today_figure import BAND, TARGET, entry
-
-REFUSED = "refused"
+from pair_today_figure import BAND, REFUSED, TARGET, entry, read_sweep
 
 
 def read_defaults(folders: list[str]) -> dict[tuple[str, int], dict | str]:
@@ -44,21 +41,6 @@ def read_defaults(folders: list[str]) -> dict[tuple[str, int], dict | str]:
     return found
 
 
-def read_pair(sweep: Path) -> dict[tuple[str, int], dict | str]:
-    found: dict[tuple[str, int], dict | str] = {}
-    with (sweep / "sweep.csv").open() as f:
-        for row in csv.DictReader(f):
-            if row["profile"] != "robust":
-                continue
-            key = (row["case"], int(row["seed"]))
-            if row["error"]:
-                found[key] = REFUSED
-                continue
-            leaf, solve = sweep / "leaf" / row["leaf_key"], sweep / "solve" / row["solve_key"]
-            found[key] = entry(leaf / "heldout.json", solve / "ocp.json")
-    return found
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--defaults", nargs="+", required=True)
@@ -67,7 +49,7 @@ def main() -> None:
     args = parser.parse_args()
     series = {
         "today's defaults": read_defaults(args.defaults),
-        "the pair": read_pair(Path(args.pair)),
+        "the pair": read_sweep(Path(args.pair)),
     }
     colours = {"today's defaults": "tab:grey", "the pair": "tab:blue"}
     tasks = [t for t in TASKS if any(k[0] == t for s in series.values() for k in s)]

@@ -22,6 +22,7 @@ from matplotlib.figure import Figure
 
 TARGET = 0.5  # %, a robust profile's allowed rate below the height
 BAND = (0.8, 1.25)  # issue 11's σ row
+REFUSED = "refused"  # a sweep row whose robust profile has no torque
 
 
 def entry(heldout: Path, ocp: Path) -> dict:
@@ -52,14 +53,24 @@ def read_defaults(folders: list[str]) -> dict[int, dict]:
     return found
 
 
-def read_pair(sweep: Path) -> dict[int, dict]:
-    found = {}
+def read_sweep(sweep: Path) -> dict[tuple[str, int], dict | str]:
+    """(case, seed) -> a `crank sweep` folder's robust open-loop torque's figures, or REFUSED."""
+    found: dict[tuple[str, int], dict | str] = {}
     with (sweep / "sweep.csv").open() as f:
         for row in csv.DictReader(f):
-            if row["profile"] == "robust" and not row["error"]:
-                leaf, solve = sweep / "leaf" / row["leaf_key"], sweep / "solve" / row["solve_key"]
-                found[int(row["seed"])] = entry(leaf / "heldout.json", solve / "ocp.json")
+            if row["profile"] != "robust":
+                continue
+            key = (row["case"], int(row["seed"]))
+            if row["error"]:
+                found[key] = REFUSED
+                continue
+            leaf, solve = sweep / "leaf" / row["leaf_key"], sweep / "solve" / row["solve_key"]
+            found[key] = entry(leaf / "heldout.json", solve / "ocp.json")
     return found
+
+
+def read_pair(sweep: Path) -> dict[int, dict]:
+    return {seed: e for (_, seed), e in read_sweep(sweep).items() if e != REFUSED}
 
 
 def main() -> None:
