@@ -85,38 +85,55 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
     own-tail check on (control/tail.py), the loop's torque without the check is played instead;
     the summary keeps the refusal under "tail_refused", its files as `out`/ocp.tail_refused.json
     (bench/refused_k3.md: such refusals were the first round's over-predicted spread, which the
-    round corrected on the paper task). The second round's solve checks its own torque as always
-    (and solves the fallback where it refuses; the first is played, so it has none).
+    round corrected on the paper task). Where they are refused even without the check (a line
+    no open-loop torque holds), `config.ocp.fallback` is solved as a one-round run would, and
+    the round plays the nominal torque (`plan`); its ocp.json says why each was refused. The
+    second round's solve checks its own torque as always.
 
     Raises:
-      RobustError: the first solve refused even without the check (its own error).
+      RobustError: the first solve refused even without the check and with no fallback, or the
+        fallback refused too (its own error).
     """
+    fallback = config.ocp.fallback
     config = replace(config, ocp=replace(config.ocp, fallback=()))
     try:
         return solve(config, model, out, hooks=hooks)
     except RobustError as exc:
-        if not config.ocp.tail_check:
-            raise
+        first = exc
+    failed = failed_path(out / OCP)
+    if config.ocp.tail_check:
         # what the refused solve kept (its nominal plan and margin history), out of the way of
         # the retry, which removes a stale ocp.failed.json when it succeeds
-        failed, why = failed_path(out / OCP), str(exc)
-        kept = failed.with_name(TAIL_REFUSED)
+        why, kept = str(first), failed.with_name(TAIL_REFUSED)
         if failed.is_file():
             os.replace(failed, kept)
             why = why.replace(str(failed), f"{out.name}/{kept.name}")
-        if hooks.on_stage is not None:
-            hooks.on_stage(
-                "the first solve's own-tail check refused it; solving again without the check, "
-                "a torque only to play in the round"
-            )
+        tell(
+            hooks,
+            "the first solve's own-tail check refused it; solving again without the check, "
+            "a torque only to play in the round",
+        )
         unchecked = replace(config, ocp=replace(config.ocp, tail_check=False))
         try:
-            solved = solve(unchecked, model, out, hooks=hooks)
+            return solve(unchecked, model, out, hooks=hooks) | {"tail_refused": why}
         except RobustError:
             if kept.is_file():  # the first refusal's error names its own files
                 os.replace(kept, failed)
-            raise exc from None
-        return solved | {"tail_refused": why}
+    if not fallback:
+        raise first from None
+    tell(
+        hooks,
+        f"the first solve refused every robust profile; solving the fallback "
+        f"{', '.join(fallback)} (the round plays the nominal torque)",
+    )
+    with_fallback = replace(config, ocp=replace(config.ocp, fallback=fallback))
+    return solve(with_fallback, model, out, hooks=hooks)
+
+
+def tell(hooks: Hooks, text: str) -> None:
+    """`text` to the user as a stage line, where the run shows them."""
+    if hooks.on_stage is not None:
+        hooks.on_stage(text)
 
 
 def plan(config: RunConfig, dataset: Path, ocp: Path, out: Path) -> dict[str, Any]:

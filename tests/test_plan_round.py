@@ -239,13 +239,17 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
 ) -> None:
     """stages.solve_first_round: a refusal with the own-tail check on is solved again without it
     (only the check differs), the refusal kept in the summary; a refusal without the check, or
-    with the check already off, is the solve's own error."""
+    with the check already off, is the solve's own error where no fallback is asked for, and the
+    fallback's solve (the check as asked) where one is."""
 
-    calls: list[bool] = []
+    calls: list[tuple[bool, tuple[str, ...]]] = []
 
     def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict:
-        calls.append(config.ocp.tail_check)
+        calls.append((config.ocp.tail_check, config.ocp.fallback))
         failed = out / "ocp.failed.json"  # as control/solve.py's solve_file keeps a refusal
+        if config.ocp.fallback:  # as solve_file: the refused profiles, the fallback solved
+            failed.unlink(missing_ok=True)
+            return {"refused": {"robust": "beyond the stroke"}, "fallback": config.ocp.fallback}
         if config.ocp.tail_check:
             failed.write_text('{"margins": "checked"}')
             raise RobustError(f"below the height on 1.31 %; the margin history is in {failed}")
@@ -255,13 +259,13 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
         return {"refused": {}, "k": config.ocp.k_sigma}
 
     monkeypatch.setattr(stages, "solve", solve)
-    checked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=True))
+    checked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=True, fallback=()))
     fail_unchecked = False
     told: list[str] = []
     solved = stages.solve_first_round(
         checked, tmp_path / "m.pt", tmp_path, hooks=Hooks(on_stage=told.append)
     )
-    assert calls == [True, False]
+    assert calls == [(True, ()), (False, ())]
     assert len(told) == 1 and "without the check" in told[0]  # the user sees the retry
     kept = tmp_path / stages.TAIL_REFUSED  # the refusal's files survive the retry, named
     assert kept.read_text() == '{"margins": "checked"}'
@@ -276,6 +280,23 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
     assert (tmp_path / "ocp.failed.json").read_text() == '{"margins": "checked"}'  # as it names
     assert not kept.exists()
     calls.clear()
+    unchecked = replace(PLANNED, ocp=replace(PLANNED.ocp, fallback=()))
     with pytest.raises(RobustError, match="beyond the stroke"):  # the check was off: no retry
-        stages.solve_first_round(PLANNED, tmp_path / "m.pt", tmp_path, hooks=Hooks())
-    assert calls == [False]
+        stages.solve_first_round(unchecked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    assert calls == [(False, ())]
+
+    # a line no open-loop torque holds: refused with and without the check, the fallback solved
+    # with the check as asked, its refusals in the summary (the round then plays the nominal)
+    for tail_check, tried in ((True, [(True, ()), (False, ())]), (False, [(False, ())])):
+        calls.clear()
+        told.clear()
+        asked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=tail_check))
+        assert asked.ocp.fallback == ("robust-fb",)  # the default
+        solved = stages.solve_first_round(
+            asked, tmp_path / "m.pt", tmp_path, hooks=Hooks(on_stage=told.append)
+        )
+        assert calls == [*tried, (tail_check, ("robust-fb",))]
+        assert solved == {"refused": {"robust": "beyond the stroke"}, "fallback": ("robust-fb",)}
+        assert "solving the fallback robust-fb" in told[-1] and "nominal" in told[-1]
+        assert not (tmp_path / "ocp.failed.json").exists()
+        assert not kept.exists()  # the fallback's solve replaced what the refusal kept
