@@ -168,12 +168,14 @@ class RunConfig:
             options |= {k: values[k] for k in ("model_path", "baselines")}
             train = dict(values["train"])
             train.setdefault("early_stopping", "tail")  # runs of before the stop on every machine
+            train.setdefault("mean_wrap", False)  # runs of before the setting
             return cls(
                 generation=GenerationConfig(**gen),
                 train=TrainConfig(**train),
                 ocp=OCPConfig(**values["ocp"]),
                 replay=ReplayConfig(**rep),
-                plan=PlanConfig(**values.get("plan", {})),  # runs of before the plan round
+                # runs of before the plan round: none
+                plan=PlanConfig(**values.get("plan", {"episodes": 0})),
                 **options,
             )
         except KeyError as exc:

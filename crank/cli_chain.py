@@ -43,6 +43,7 @@ from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
+from twin.plan_config import PlanConfig
 from twin.variability import Variability
 
 if TYPE_CHECKING:
@@ -102,7 +103,7 @@ def run_command(
             help="The plan round: play the first solve's robust torque on this many fresh "
             "machines, add their episodes to the data, train and solve again; 0: none."
         ),
-    ] = 0,
+    ] = PlanConfig.episodes,
     model: ModelPath = MODEL_PATH,
     resume: Annotated[
         Path | None,

@@ -42,6 +42,7 @@ SHORT = RunConfig.for_seed(
     # 20 machines measure a spread to ~±30 %: the check's predictions need not be 10 000 draws
     heldout_trajectories=1000,
     baselines=False,
+    plan={"episodes": 0},  # one round: the default's plan round is tests/test_plan_round.py's
 )
 
 

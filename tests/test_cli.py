@@ -51,7 +51,8 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     settings = tmp_path / "crank.toml"  # a config file, and a flag that overrides it
     settings.write_text(
         "heldout_runs = 50\nheldout_trajectories = 500\n[generation]\nseconds = 2.0\n"
-        "[ocp]\nheight = 0.081\n"
+        "[ocp]\nheight = 0.081\n[plan]\nepisodes = 0\n"  # one round: the refusal's line
+        "[train]\nmean_wrap = false\n"  # eq. 14's z_K: with mean_wrap this model has a tube
     )
     args = ["--config", str(settings), "--heldout-runs", "7", "--logs", str(tmp_path)]
     result = crank("run", *args, "--name", "r1")

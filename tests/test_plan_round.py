@@ -179,7 +179,7 @@ def test_plan_round_refuses_no_episodes_and_bad_torque(tmp_path: Path, planned_r
             run_dir / "dataset.mcap",
             tmp_path / "x.mcap",
             tau=np.zeros(5),
-            config=PlanConfig(),
+            config=PlanConfig(episodes=0),
             **options,
         )
     with pytest.raises(ConfigError, match="finite sequence"):
@@ -196,7 +196,7 @@ def test_plan_round_refuses_no_episodes_and_bad_torque(tmp_path: Path, planned_r
 
 
 def test_estimate_and_sweep_keys_know_the_round() -> None:
-    without = RunConfig.for_seed(0)
+    without = RunConfig.for_seed(0, plan={"episodes": 0})
     with_round = RunConfig.for_seed(0, plan={"episodes": 240})
     assert "plan" not in run_time(without)
     times = run_time(with_round)

@@ -54,6 +54,8 @@ tightening = "gaussian"  # tests/test_chain.py SHORT: the centred default refuse
 tail_check = false  # one leaf's torque puts 60 % of its own Monte-Carlo below (control/tail.py)
 [base.replay]
 runs = 4
+[base.plan]
+episodes = 0  # SHORT's one round
 """
 GRID = (
     SPEC
