@@ -4,6 +4,7 @@ its resolved configuration and streams, and the same seed reproduces every artif
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from crank.chain import STAGES_FILE, Hooks, RunConfig, run_chain
 from crank.resume import resumed_config
 from tests.conftest import LATE_MPC
 from twin.mcap_dataset import read_dataset
+from twin.plan_config import PlanConfig
 
 SHORT = RunConfig.for_seed(
     0,
@@ -109,6 +111,19 @@ def test_run_config_round_trips_through_config_json(two_runs) -> None:
     del old["train"]["early_stopping"]
     assert RunConfig.from_dict(old).train.early_stopping == "tail"
     assert SHORT.train.early_stopping == "machines"
+
+
+def test_a_config_json_from_before_the_pair_reads_as_it_ran() -> None:
+    """One from before the pair was the default (session 62) ran one round of eq. 14's z_K, as
+    did one from before either setting existed: read without the keys, they are so again."""
+    default = RunConfig().as_dict()
+    assert default["plan"]["episodes"] == 240 and default["train"]["mean_wrap"] is True
+    del default["plan"], default["train"]["mean_wrap"]
+    before = RunConfig.from_dict(default)
+    assert before.plan.episodes == 0 and before.train.mean_wrap is False
+    assert before == replace(
+        RunConfig(), plan=PlanConfig(episodes=0), train=replace(RunConfig().train, mean_wrap=False)
+    )
 
 
 def test_in_process_run_writes_every_artifact(two_runs) -> None:
