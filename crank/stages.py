@@ -110,8 +110,8 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
             why = why.replace(str(failed), f"{out.name}/{kept.name}")
         tell(
             hooks,
-            "the first solve's own-tail check refused it; solving again without the check, "
-            "a torque only to play in the round",
+            "the first solve refused every robust profile with its own-tail check on; solving "
+            "again without the check, a torque only to play in the round",
         )
         unchecked = replace(config, ocp=replace(config.ocp, tail_check=False))
         try:
