@@ -100,10 +100,10 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
         return solve(config, model, out, hooks=hooks)
     except RobustError as exc:
         first = exc
-    failed = failed_path(out / OCP)
     if config.ocp.tail_check:
         # what the refused solve kept (its nominal plan and margin history), out of the way of
         # the retry, which removes a stale ocp.failed.json when it succeeds
+        failed = failed_path(out / OCP)
         why, kept = str(first), failed.with_name(TAIL_REFUSED)
         if failed.is_file():
             os.replace(failed, kept)
