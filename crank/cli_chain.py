@@ -50,6 +50,13 @@ if TYPE_CHECKING:
     from crank.chain import RunConfig
 
 
+PlanEpisodes = Annotated[
+    int,
+    typer.Option(
+        help="The plan round: play the first solve's robust torque on this many fresh machines, "
+        "add their episodes to the data, train and solve again; 0: none."
+    ),
+]
 PDOption = Annotated[
     str | None,
     typer.Option(
@@ -97,13 +104,7 @@ def run_command(
             "wider ratio intervals in heldout.json)."
         ),
     ] = CALIBRATION_TRAJECTORIES,
-    plan_episodes: Annotated[
-        int,
-        typer.Option(
-            help="The plan round: play the first solve's robust torque on this many fresh "
-            "machines, add their episodes to the data, train and solve again; 0: none."
-        ),
-    ] = PlanConfig.episodes,
+    plan_episodes: PlanEpisodes = PlanConfig.episodes,
     model: ModelPath = MODEL_PATH,
     resume: Annotated[
         Path | None,
@@ -327,6 +328,7 @@ def study_command(
         str, typer.Option(help="centred (k·σ below the mean), gaussian (k·σ, eq. 16) or quantile.")
     ] = OCPConfig.tightening,
     confidence: Confidence = OCPConfig.confidence,
+    plan_episodes: PlanEpisodes = PlanConfig.episodes,
     profiles: ProfilesOption = DEFAULT_PROFILES,
     fallback: FallbackOption = DEFAULT_FALLBACK,
     pd: PDOption = None,
@@ -364,6 +366,7 @@ def study_command(
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
         baselines=baselines,
+        plan={"episodes": plan_episodes},
     )
 
     def hooks(seed: int) -> Hooks:

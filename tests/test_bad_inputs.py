@@ -418,6 +418,7 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-1 --variability line-99", "unknown variability scenario"),
     ("study --out S --seeds 0-1 --seconds 0", "seconds must be > 0"),
     ("study --out S --seeds 0-1 --runs 0", "runs must be an integer"),
+    ("study --out S --seeds 0-1 --plan-episodes -3", "plan.episodes must be an integer 0..10000"),
     ("study --out S --seeds 0-1 --pd 20", "--pd takes the gains as KP,KD"),
     (
         "study --out S --seeds 0-1 --profiles nominal",
