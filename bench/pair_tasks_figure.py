@@ -20,7 +20,7 @@ from pathlib import Path
 
 from bench_tasks import TASKS
 from matplotlib.figure import Figure
-from pair_today_figure import BAND, REFUSED, TARGET, entry, read_sweep
+from pair_today_figure import BAND, REFUSED, TARGET, draw_rates, entry, read_sweep
 
 
 def read_defaults(folders: list[str]) -> dict[tuple[str, int], dict | str]:
@@ -68,19 +68,7 @@ def main() -> None:
             runs = max([runs, *(r["runs"] for r in ok.values())])
             label = f"{name}: {below} below, {len(refused)} refused of {len(got)}"
             xs = [s + dx for s in ok]
-            rate.scatter(xs, [r["rate"] for r in ok.values()], color=colours[name], label=label)
-            rate.scatter(
-                xs, [r["upper"] for r in ok.values()], marker="_", s=200, color=colours[name]
-            )
-            for x, r in zip(xs, ok.values(), strict=True):
-                rate.annotate(
-                    f"{r['below']}",
-                    (x, r["upper"]),
-                    textcoords="offset points",
-                    xytext=(0, 4),
-                    ha="center",
-                    fontsize=8,
-                )
+            draw_rates(rate, xs, list(ok.values()), colour=colours[name], label=label)
             rate.scatter(
                 [s + dx for s in refused],
                 [0] * len(refused),

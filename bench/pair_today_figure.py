@@ -69,6 +69,21 @@ def read_sweep(sweep: Path) -> dict[tuple[str, int], dict | str]:
     return found
 
 
+def draw_rates(ax, xs: list[float], rows: list[dict], *, colour: str, label: str) -> None:
+    """Each torque's rate below the height (dot) and its 95 % bound (bar) with the count over it."""
+    ax.scatter(xs, [r["rate"] for r in rows], color=colour, label=label, zorder=3)
+    ax.scatter(xs, [r["upper"] for r in rows], marker="_", s=300, color=colour)
+    for x, r in zip(xs, rows, strict=True):
+        ax.annotate(
+            f"{r['below']}",
+            (x, r["upper"]),
+            textcoords="offset points",
+            xytext=(0, 5),
+            ha="center",
+            fontsize=8,
+        )
+
+
 def read_pair(sweep: Path) -> dict[int, dict]:
     return {seed: e for (_, seed), e in read_sweep(sweep).items() if e != REFUSED}
 
@@ -94,17 +109,7 @@ def main() -> None:
         rows = [found[s] for s in seeds if s in found]
         total = sum(r["below"] for r in rows)
         label = f"{name}: {total} of {len(rows) * runs} below"
-        rate.scatter(xs, [r["rate"] for r in rows], color=colours[name], label=label, zorder=3)
-        rate.scatter(xs, [r["upper"] for r in rows], marker="_", s=300, color=colours[name])
-        for x, r in zip(xs, rows, strict=True):
-            rate.annotate(
-                f"{r['below']}",
-                (x, r["upper"]),
-                textcoords="offset points",
-                xytext=(0, 5),
-                ha="center",
-                fontsize=8,
-            )
+        draw_rates(rate, xs, rows, colour=colours[name], label=label)
         premium.scatter(xs, [r["premium"] for r in rows], color=colours[name], label=name)
         for j, (sample, marker) in enumerate((("50", "o"), ("100", "s"))):
             values = [r["ratios"][sample] for r in rows]
