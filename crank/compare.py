@@ -91,17 +91,22 @@ def expand_sweeps(paths: list[Path]) -> list[Path]:
 
 def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
     """A finished run folder's (or a sweep leaf's) configuration, ocp.json and model.pt; a
-    ConfigError names what is missing. A sweep leaf's plan and model are its solve and model
-    steps' (crank/sweep.py)."""
+    ConfigError names what is missing. A sweep leaf's plan is its solve step's; its model the
+    model step's, or the solve step's where the leaf ran the plan round (the solve step trained
+    the model its torque is of, crank/sweep.py)."""
     files = {name: run_dir / name for name in ("config.json", "ocp.json", "model.pt", "report.md")}
+    if not files["config.json"].is_file():
+        raise ConfigError(f"{run_dir} is not a finished run folder (no config.json)")
+    config = RunConfig.from_dict(json.loads(files["config.json"].read_text()))
     if (leaf := _sweep_leaf(run_dir)) is not None:
         sweep, steps = run_dir.parent.parent, leaf["steps"]
-        files["ocp.json"] = step_folder(sweep, "solve", steps["solve"]) / "ocp.json"
-        files["model.pt"] = step_folder(sweep, "model", steps["model"]) / "model.pt"
+        solve = step_folder(sweep, "solve", steps["solve"])
+        files["ocp.json"] = solve / "ocp.json"
+        trained = solve if config.plan.episodes else step_folder(sweep, "model", steps["model"])
+        files["model.pt"] = trained / "model.pt"
     for name, path in files.items():
         if not path.is_file():
             raise ConfigError(f"{run_dir} is not a finished run folder (no {name})")
-    config = RunConfig.from_dict(json.loads(files["config.json"].read_text()))
     return config, files["ocp.json"], files["model.pt"]
 
 

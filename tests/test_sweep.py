@@ -448,3 +448,29 @@ def test_compare_takes_a_sweep_folder_as_its_leaves(swept, tmp_path: Path) -> No
     with pytest.raises(ConfigError, match="has no finished leaf"):
         compare_runs([unfinished], tmp_path / "bad", **kwargs)
     assert not (tmp_path / "bad").exists()
+
+
+def test_compare_takes_a_plan_round_leafs_model_from_its_solve_step(swept, tmp_path: Path) -> None:
+    """A leaf that ran the plan round ([plan] episodes > 0) was solved on the model its solve
+    step trained (crank/sweep.py), so the compare plays it with that model, not the model step's
+    first-round one; a one-round leaf keeps the model step's."""
+    from crank.compare import _run_folder
+
+    out, sweep, _, _ = swept
+    copy = tmp_path / "sweep"
+    shutil.copytree(out, copy)
+    first, second = (copy / "leaf" / row["leaf_key"] for row in sweep["rows"][:2])
+    steps = {
+        leaf["steps"]["leaf"]: leaf["steps"]
+        for leaf in json.loads((copy / "sweep.json").read_text())["leaves"]
+    }
+    config = json.loads((first / "config.json").read_text())
+    config["plan"]["episodes"] = 240
+    (first / "config.json").write_text(json.dumps(config))
+    solve = copy / "solve" / steps[first.name]["solve"]
+    shutil.copy(copy / "model" / steps[first.name]["model"] / "model.pt", solve / "model.pt")
+    planned, ocp, model = _run_folder(first)
+    assert planned.plan.episodes == 240
+    assert (ocp, model) == (solve / "ocp.json", solve / "model.pt")
+    _, _, model = _run_folder(second)
+    assert model == copy / "model" / steps[second.name]["model"] / "model.pt"
