@@ -73,10 +73,9 @@ def windows_over(dataset: Dataset, ranges: Sequence[tuple[int, int]], *, horizon
         firsts.append(first[dataset.episode[first] == dataset.episode[first + horizon]])
     first = np.concatenate(firsts) if firsts else np.zeros(0, dtype=int)
     if first.size == 0:
-        where = ", ".join(f"{a}..{b}" for a, b in ranges)
         raise DataError(
-            f"samples {where} hold no window of {horizon} steps inside one episode; "
-            "the dataset is too short for the split or the horizon"
+            f"samples {_named(ranges, horizon)} hold no window of {horizon} steps inside one "
+            "episode; the dataset is too short for the split or the horizon"
         )
     steps = first[:, None] + np.arange(1, horizon + 1)[None, :]
     states = np.stack([dataset.theta, dataset.omega], axis=-1)
@@ -84,6 +83,20 @@ def windows_over(dataset: Dataset, ranges: Sequence[tuple[int, int]], *, horizon
         x0=torch.from_numpy(states[first]),
         tau=torch.from_numpy(dataset.tau[first[:, None] + np.arange(horizon)[None, :]]),
         target=torch.from_numpy(states[steps]),
+    )
+
+
+def _named(ranges: Sequence[tuple[int, int]], horizon: int, *, listed: int = 3) -> str:
+    """Sample ranges as `a..b` (end inclusive); more than `listed` + 1 of them as the first
+    `listed`, the last and their count and lengths (a window needs `horizon` + 1 samples)."""
+    shown = [f"{a}..{b - 1}" for a, b in ranges]
+    if len(ranges) <= listed + 1:
+        return ", ".join(shown)
+    low, high = min(b - a for a, b in ranges), max(b - a for a, b in ranges)
+    sizes = f"{low}" if low == high else f"{low} to {high}"
+    return (
+        f"{', '.join(shown[:listed])}, …, {shown[-1]} ({len(ranges)} ranges of {sizes} "
+        f"samples; a window needs {horizon + 1})"
     )
 
 

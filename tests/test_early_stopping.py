@@ -70,10 +70,30 @@ def test_tail_is_the_papers_split() -> None:
 
 
 def test_an_episode_tail_too_short_for_a_window_names_the_samples() -> None:
-    with pytest.raises(DataError, match="hold no window of 10 steps"):
+    """Four tails of 5 samples (1 % of 500; the split at 1980) are each named, ends included."""
+    with pytest.raises(DataError) as error:
         make_splits(
             four_machines(), TrainConfig(validation_fraction=0.01, early_stopping="machines")
         )
+    assert str(error.value) == (
+        "samples 495..499, 995..999, 1495..1499, 1975..1979 hold no window of 10 steps inside "
+        "one episode; the dataset is too short for the split or the horizon"
+    )
+
+
+def test_many_short_tails_are_named_in_one_short_line() -> None:
+    """40 episodes of 50 samples: the 38 before the split (1900) each stop on their last 2
+    samples (round(2.5)); the message names the first three, the last and what they hold
+    (a 240-episode plan round named all of its tails in 7000 characters before)."""
+    data = synthetic(seconds=4.0)
+    data = replace(data, episode=(np.arange(len(data)) // 50).astype(np.int64))
+    with pytest.raises(DataError) as error:
+        make_splits(data, TrainConfig(validation_fraction=0.05, early_stopping="machines"))
+    assert str(error.value) == (
+        "samples 48..49, 98..99, 148..149, …, 1898..1899 (38 ranges of 2 samples; a window "
+        "needs 11) hold no window of 10 steps inside one episode; the dataset is too short for "
+        "the split or the horizon"
+    )
 
 
 def test_unknown_early_stopping_is_refused() -> None:
