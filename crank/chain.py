@@ -300,7 +300,7 @@ def run_chain(
             "train_plan",
             "training again with the plan's episodes"
             + (" and the baselines" if config.baselines else ""),
-            lambda: stages.train(config, run_dir / stages.PLAN_DATASET, run_dir, hooks=hooks),
+            lambda: stages.train_again(config, run_dir / stages.PLAN_DATASET, run_dir, hooks=hooks),
         )
         solved = stage_result(
             "solve_plan",

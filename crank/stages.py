@@ -18,6 +18,7 @@ from control.ocp_file import read_ocp
 from control.records import RobustError
 from control.solve import failed_path, solve_file
 from crank.report import solve_summary, write_markdown
+from ppann.data import DataError
 from ppann.pipeline import train_and_report
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_file
@@ -66,6 +67,22 @@ def train(
         on_trained=hooks.on_trained,
         on_stage=hooks.on_stage,
     )
+
+
+def train_again(config: RunConfig, dataset: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
+    """The plan round's training (`train` on `dataset`, the plan round's plan.mcap); data too
+    short for its splits says that it was the round's and how to run without it.
+
+    Raises:
+      DataError: the round's episodes and the dataset hold no window for a split.
+    """
+    try:
+        return train(config, dataset, out, hooks=hooks)
+    except DataError as error:
+        raise DataError(
+            f"training again on the plan round's {config.plan.episodes} episodes and the "
+            f"dataset: {error} (--plan-episodes 0 trains once, on the dataset alone)"
+        ) from error
 
 
 def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:

@@ -157,7 +157,7 @@ def _solve_with_plan(
     first = here / stages.FIRST_ROUND
     solved = stages.solve_first_round(config, made["model"] / stages.MODEL, first, hooks=hooks)
     planned = stages.plan(config, made["data"] / stages.DATASET, first / stages.OCP, here)
-    trained = stages.train(config, here / stages.PLAN_DATASET, here, hooks=hooks)
+    trained = stages.train_again(config, here / stages.PLAN_DATASET, here, hooks=hooks)
     final = stages.solve(config, here / stages.MODEL, here, hooks=hooks)
     return final | {"plan_round": {"first_solve": solved, "plan": planned, "trained": trained}}
 

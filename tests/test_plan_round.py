@@ -300,3 +300,27 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
         assert "solving the fallback robust-fb" in told[-1] and "nominal" in told[-1]
         assert not (tmp_path / "ocp.failed.json").exists()
         assert not kept.exists()  # the fallback's solve replaced what the refusal kept
+
+
+def test_data_too_short_for_the_rounds_training_says_it_was_the_round(tmp_path: Path) -> None:
+    """The round's training refused for want of early-stopping windows says it was the round's
+    and how to train once (a 2 s dataset under 240 episodes of 150 samples failed with the
+    data's message alone). Episodes of 0.1 s (50 samples) keep tails of 2 samples, the one cut
+    by the validation split (at 967) 1."""
+    from ppann.data import DataError
+
+    config = replace(
+        PLANNED,
+        generation=replace(PLANNED.generation, seconds=2.0, episode_seconds=0.1),
+        baselines=False,
+    )
+    stages.generate(config, tmp_path, hooks=Hooks())
+    with pytest.raises(DataError) as error:
+        stages.train_again(config, tmp_path / stages.DATASET, tmp_path, hooks=Hooks())
+    said = str(error.value)
+    assert said.startswith(
+        f"training again on the plan round's {EPISODES} episodes and the dataset: samples "
+    )
+    assert "966..966 (20 ranges of 1 to 2 samples; a window needs 11) hold no window of 10" in said
+    assert said.endswith("(--plan-episodes 0 trains once, on the dataset alone)")
+    assert not (tmp_path / stages.MODEL).exists()
