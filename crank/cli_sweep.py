@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from common.errors import ConfigError
 from crank.console import HELDOUT_RUNS, HELDOUT_SEED, app, one_line_errors
 
 if TYPE_CHECKING:
@@ -117,6 +118,13 @@ def compare_command(
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
+    mjcf: Annotated[
+        Path | None,
+        typer.Option(
+            help="A copy of the runs' twin, for folders moved away from the MJCF their "
+            "config.json names (checked against each dataset's sha256).",
+        ),
+    ] = None,
     merge: Annotated[
         bool,
         typer.Option(
@@ -131,6 +139,8 @@ def compare_command(
     from crank.compare import compare_runs, counted, merge_compares
 
     if merge:
+        if mjcf is not None:
+            raise ConfigError("--mjcf is for replays; --merge joins compare folders and plays none")
         result = merge_compares(run_dirs, out)
         typer.echo(f"wrote {out / 'compare.md'} ({counted(result)})")
         return
@@ -140,6 +150,7 @@ def compare_command(
         runs=runs,
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
+        mjcf=mjcf,
         on_stage=lambda text: typer.echo(text, err=True),
     )
     typer.echo(

@@ -35,6 +35,7 @@ from common.errors import ConfigError
 from common.jsonio import write_json
 from control.mpc_config import MPCConfig
 from crank.chain import RunConfig
+from crank.run_twin import run_twin
 from crank.sweep_spec import folder as step_folder
 from twin.variability import Variability
 
@@ -89,12 +90,14 @@ def expand_sweeps(paths: list[Path]) -> list[Path]:
     return out
 
 
-def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
-    """A finished run folder's (or a sweep leaf's) configuration, ocp.json and model.pt; a
-    ConfigError names what is missing. A sweep leaf's plan is its solve step's; its model the
-    model step's, or the solve step's where the leaf ran the plan round (the solve step trained
-    the model its torque is of, crank/sweep.py)."""
-    files = {name: run_dir / name for name in ("config.json", "ocp.json", "model.pt", "report.md")}
+def _run_folder(run_dir: Path, *, mjcf: Path | None = None) -> tuple[RunConfig, Path, Path, Path]:
+    """A finished run folder's (or a sweep leaf's) configuration, ocp.json, model.pt and twin
+    (crank/run_twin.py: `mjcf` or the run's MJCF, checked against its dataset); a ConfigError
+    names what is missing. A sweep leaf's plan is its solve step's; its model the model step's,
+    or the solve step's where the leaf ran the plan round (the solve step trained the model its
+    torque is of, crank/sweep.py); its dataset the data step's."""
+    names = ("config.json", "ocp.json", "model.pt", "report.md", "dataset.mcap")
+    files = {name: run_dir / name for name in names}
     if not files["config.json"].is_file():
         raise ConfigError(f"{run_dir} is not a finished run folder (no config.json)")
     config = RunConfig.from_dict(json.loads(files["config.json"].read_text()))
@@ -104,10 +107,12 @@ def _run_folder(run_dir: Path) -> tuple[RunConfig, Path, Path]:
         files["ocp.json"] = solve / "ocp.json"
         trained = solve if config.plan.episodes else step_folder(sweep, "model", steps["model"])
         files["model.pt"] = trained / "model.pt"
+        files["dataset.mcap"] = step_folder(sweep, "data", steps["data"]) / "dataset.mcap"
     for name, path in files.items():
         if not path.is_file():
             raise ConfigError(f"{run_dir} is not a finished run folder (no {name})")
-    return config, files["ocp.json"], files["model.pt"]
+    twin = run_twin(files["dataset.mcap"], config.model_path, mjcf=mjcf)
+    return config, files["ocp.json"], files["model.pt"], twin
 
 
 UNREAD_TRAJECTORIES = 100
@@ -129,12 +134,14 @@ def compare_run(
     heldout_runs: int,
     heldout_seed: int,
     mpc: MPCConfig,
+    mjcf: Path | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Every profile of one run folder under every controller: {scenario, spread, seeds, rows}.
+    """Every profile of one run folder under every controller: {scenario, spread, seeds, rows},
+    on the run's twin (`mjcf`: a copy of it in place of the path its config.json names).
 
     Raises:
-      ConfigError: not a finished run folder.
+      ConfigError: not a finished run folder, or the twin is not the run's.
     """
     from control.ocp_file import read_ocp
     from ppann.checkpoint import CheckpointError, load
@@ -148,12 +155,12 @@ def compare_run(
 
     run_dir = Path(run_dir)
     stage = on_stage or (lambda _: None)
-    config, ocp_path, model_path = _run_folder(run_dir)
+    config, ocp_path, model_path, twin = _run_folder(run_dir, mjcf=mjcf)
     ocp = read_ocp(ocp_path)
     model, payload = load(model_path)
     if not isinstance(model, PPANN):
         raise CheckpointError(f"{model_path}: a {payload['kind']} model; compare needs a PPANN")
-    physics = SliderCrank(load_model(config.model_path)[0])
+    physics = SliderCrank(load_model(twin)[0])
     variability = config.generation.variability
     base = ReplayConfig(
         runs=runs,
@@ -236,6 +243,7 @@ def compare_run(
             )
     return {
         "run": str(run_dir),
+        "mjcf": str(twin),  # checked to be the bytes the run's dataset was generated from
         "scenario": variability.name,
         "spread": spread(variability),
         "seed": config.seed,
@@ -256,13 +264,14 @@ def compare_runs(
     heldout_runs: int = 1000,
     heldout_seed: int,
     mpc: MPCConfig | None = None,
+    mjcf: Path | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """`compare_run` for each run folder, written to `out`/compare.{json,md,png}.
 
     Raises:
-      ConfigError: no run folder, a folder named twice or not a finished run, runs whose
-        replays played different fixed PDs, or `out` exists.
+      ConfigError: no run folder, a folder named twice or not a finished run, a twin not the
+        run's, runs whose replays played different fixed PDs, or `out` exists.
     """
 
     out = Path(out)
@@ -275,7 +284,7 @@ def compare_runs(
     from replay.rates import TARGET_RATE
 
     # every folder and count checked before any replay
-    configs = [_run_folder(run_dir)[0] for run_dir in run_dirs]
+    configs = [_run_folder(run_dir, mjcf=mjcf)[0] for run_dir in run_dirs]
     horizon = max(c.ocp.horizon for c in configs)
     pds = {(c.replay.kp, c.replay.kd) for c in configs}
     if len(pds) > 1:
@@ -299,6 +308,7 @@ def compare_runs(
             heldout_runs=heldout_runs,
             heldout_seed=heldout_seed,
             mpc=mpc,
+            mjcf=mjcf,
             on_stage=on_stage,
         )
         for p in run_dirs

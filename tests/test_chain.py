@@ -390,3 +390,47 @@ def test_compare_plays_the_pd_the_runs_replays_played(two_runs, tmp_path: Path) 
         assert rows[name, "closed-PD"]["heldout_rate"] == entry["closed"]["rate"]
         other_pd = default["profiles"][name]["closed"]["samples"]
         assert lowest != 1e3 * min(e["lowest"] for e in other_pd.values())
+
+
+def test_a_moved_run_is_compared_on_a_copy_of_its_twin(two_runs, tmp_path: Path) -> None:
+    """A run folder whose config.json names an MJCF that is gone (moved to another machine or
+    checkout): `crank compare` stops before any replay with one line naming the path and the way
+    out; `--mjcf` with an edited file is refused, with a byte-for-byte copy the moved run plays
+    as the run itself did (every row the same). (It once stopped at a bare "MJCF not found", and
+    an MJCF edited since the run was played without a word.)"""
+    import shutil
+
+    from crank.compare import compare_runs
+    from tests.conftest import crank
+    from twin.physics import MODEL_PATH
+
+    a, _, _ = two_runs
+    moved = tmp_path / "moved"
+    shutil.copytree(a, moved)
+    config = json.loads((a / "config.json").read_text())
+    gone = tmp_path / "gone" / "slider_crank.xml"
+    (moved / "config.json").write_text(json.dumps(config | {"model_path": str(gone)}))
+    refused = crank("compare", str(a), str(moved), "--out", str(tmp_path / "bad"))
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1, refused.stderr
+    assert refused.stderr.startswith(f"error: MJCF not found: {gone} (the twin of {moved}/")
+    assert refused.stderr.rstrip().endswith("…); pass --mjcf with a copy of that twin")
+    assert not (tmp_path / "bad").exists()
+    edited = tmp_path / "edited.xml"
+    edited.write_text(MODEL_PATH.read_text() + "<!-- edited -->\n")
+    kwargs = {"runs": 2, "heldout_runs": 3, "heldout_seed": 3, "mpc": LATE_MPC}
+    with pytest.raises(ConfigError, match=r"edited\.xml is not the twin .* was generated on"):
+        compare_runs([moved], tmp_path / "bad", mjcf=edited, **kwargs)
+    copy = tmp_path / "twin.xml"
+    shutil.copy(MODEL_PATH, copy)
+    merging = crank(
+        "compare", "--merge", str(a), str(moved), "--mjcf", str(copy), "--out", str(tmp_path / "x")
+    )
+    assert (merging.returncode, merging.stderr) == (
+        2,
+        "error: --mjcf is for replays; --merge joins compare folders and plays none\n",
+    )
+    here = compare_runs([moved], tmp_path / "moved-cmp", mjcf=copy, **kwargs)["scenarios"][0]
+    there = compare_runs([a], tmp_path / "cmp", **kwargs)["scenarios"][0]
+    assert (here["mjcf"], there["mjcf"]) == (str(copy), config["model_path"])
+    untimed = [{k: v for k, v in r.items() if k != "mpc"} for r in there["rows"]]
+    assert [{k: v for k, v in r.items() if k != "mpc"} for r in here["rows"]] == untimed

@@ -469,8 +469,8 @@ def test_compare_takes_a_plan_round_leafs_model_from_its_solve_step(swept, tmp_p
     (first / "config.json").write_text(json.dumps(config))
     solve = copy / "solve" / steps[first.name]["solve"]
     shutil.copy(copy / "model" / steps[first.name]["model"] / "model.pt", solve / "model.pt")
-    planned, ocp, model = _run_folder(first)
+    planned, ocp, model, _ = _run_folder(first)
     assert planned.plan.episodes == 240
     assert (ocp, model) == (solve / "ocp.json", solve / "model.pt")
-    _, _, model = _run_folder(second)
+    _, _, model, _ = _run_folder(second)
     assert model == copy / "model" / steps[second.name]["model"] / "model.pt"
