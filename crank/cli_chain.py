@@ -111,7 +111,8 @@ def run_command(
         typer.Option(
             help="Continue an unfinished run folder with its own config.json, from the first "
             "stage it has not finished; only --profiles, --fallback, --pd, --confidence, --runs "
-            "and the --heldout-* options may be given, for the stages it has not made."
+            "and the --heldout-* options may be given, for the stages it has not made, and "
+            "--model: a copy of its twin's MJCF elsewhere."
         ),
     ] = None,
     config: Annotated[
@@ -182,9 +183,10 @@ RESUME_FLAGS = (
     "heldout_runs",
     "heldout_seed",
     "heldout_trajectories",
+    "model",
 )
 """The flags `crank run --resume` takes: settings of the solve, the replays and the held-out
-check, for the stages the run has not made (crank/resume.py)."""
+check, for the stages the run has not made, and the twin's MJCF moved (crank/resume.py)."""
 
 
 def pd_gains(text: str) -> tuple[float, float]:

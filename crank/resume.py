@@ -9,7 +9,9 @@ profile was refused on a wide line goes on with `--profiles robust-fb` from its 
 instead of generating and training again; a setting of a stage already run may not (its
 outputs were made with the old one), nor the dataset's, the training's or the plan round's.
 A resume that changes settings rewrites config.json with them and appends what changed, and
-from which command, to its `resumed` list, so the folder still says how it was made.
+from which command, to its `resumed` list, so the folder still says how it was made. The twin's
+MJCF may be given at another path (`--model`, a folder moved to another machine or checkout)
+if its bytes are those the run's dataset was generated from (crank/run_twin.py).
 """
 
 from __future__ import annotations
@@ -22,8 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from common.atomic import OutputError
 from common.errors import ConfigError
-from twin.mcap_dataset import read_run
-from twin.physics import model_sha256
+from crank.run_twin import run_twin
 
 if TYPE_CHECKING:
     from crank.chain import RunConfig
@@ -41,6 +42,9 @@ CHANGEABLE = {
 }
 """The RunConfig fields a resume may change, each with the first stage that uses it (and what
 a folder that finished that stage did)."""
+MOVED = "model"
+"""The config file's key of the twin's MJCF (RunConfig.model_path), which a resume may move to
+a copy of the same bytes."""
 
 
 def check_new_run(run_dir: Path) -> None:
@@ -66,15 +70,17 @@ def resumed_config(run_dir: str | Path) -> RunConfig:
 
 
 def with_settings(config: RunConfig, given: dict[str, Any]) -> RunConfig:
-    """`config` with `given`'s values: a partial config file of CHANGEABLE settings (the shape
-    of crank/config_file.py's `defaults()`, as `crank run`'s flags give them)."""
-    unknown = sorted(set(given) - set(CHANGEABLE))
+    """`config` with `given`'s values: a partial config file of CHANGEABLE settings and MOVED
+    (the shape of crank/config_file.py's `defaults()`, as `crank run`'s flags give them)."""
+    unknown = sorted(set(given) - {*CHANGEABLE, MOVED})
     if unknown:
         raise ConfigError(f"a resume cannot change {unknown[0]}: start a new run")
     tables = {"ocp": config.ocp, "replay": config.replay}
     changes: dict[str, Any] = {}
     for key, value in given.items():
-        if key in tables:
+        if key == MOVED:
+            changes["model_path"] = str(value)
+        elif key in tables:
             values = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
             changes[key] = replace(tables[key], **values)
         else:
@@ -100,7 +106,8 @@ def resumable(
     if (run_dir / "report.md").exists():
         raise OutputError(f"nothing to resume: {run_dir} finished (it has report.md)")
     stored = RunConfig.from_dict(resolved)
-    changed = [name for name in CHANGEABLE if getattr(stored, name) != getattr(config, name)]
+    fields = (*CHANGEABLE, "model_path")
+    changed = [name for name in fields if getattr(stored, name) != getattr(config, name)]
     try:  # the stored run with the changed settings: `config` itself, or another run
         same = replace(stored, **{name: getattr(config, name) for name in changed}) == config
     except ConfigError:  # e.g. the OCP's seed not the stored root seed
@@ -109,20 +116,15 @@ def resumable(
         raise ConfigError(f"{run_dir}/config.json is another run's configuration")
     stages = run_dir / STAGES_FILE
     done = json.loads(stages.read_text()) if stages.is_file() else {}
-    for name in changed:
+    for name in set(changed) & set(CHANGEABLE):
         stage, did = CHANGEABLE[name]
         if stage in done:
             raise ConfigError(
                 f"{run_dir} already {did}: its {name} settings cannot change on --resume; "
                 f"start a new run"
             )
-    if "generate" in done:
-        made_on = read_run(run_dir / "dataset.mcap")["mjcf_sha256"]
-        if made_on != model_sha256(config.model_path):
-            raise ConfigError(
-                f"the twin's MJCF {config.model_path} changed since {run_dir}/dataset.mcap was "
-                f"generated on it; start a new run"
-            )
+    if "generate" in done:  # the twin at its path (moved or not) is the dataset's
+        run_twin(run_dir / "dataset.mcap", config.model_path, flag="--model")
     if not changed:
         return resolved, done, False
     record = {"argv": sys.argv[1:] if argv is None else argv, "changed": changed}

@@ -19,9 +19,12 @@ from pathlib import Path
 from common.errors import ConfigError
 
 
-def run_twin(dataset: Path, model_path: str | Path, *, mjcf: Path | None = None) -> Path:
+def run_twin(
+    dataset: Path, model_path: str | Path, *, mjcf: Path | None = None, flag: str = "--mjcf"
+) -> Path:
     """The MJCF to replay a run on: `mjcf` if given, else the run's `model_path`, refused unless
-    its bytes are those the run's `dataset` was generated from.
+    its bytes are those the run's `dataset` was generated from; the errors name `flag` as the
+    way to give a copy.
 
     Raises:
       ConfigError: the file is missing, or it is not the MJCF the dataset was made on.
@@ -34,13 +37,13 @@ def run_twin(dataset: Path, model_path: str | Path, *, mjcf: Path | None = None)
         raise ConfigError(f"{dataset} records no MJCF sha256: the twin it was made on is unknown")
     path = Path(mjcf if mjcf is not None else model_path)
     if not path.is_file():
-        hint = "" if mjcf is not None else "; pass --mjcf with a copy of that twin"
+        hint = "" if mjcf is not None else f"; pass {flag} with a copy of that twin"
         raise ConfigError(
             f"MJCF not found: {path} (the twin of {dataset}, sha256 {made_on[:12]}…){hint}"
         )
     if (sha := model_sha256(path)) != made_on:
         raise ConfigError(
             f"{path} is not the twin {dataset} was generated on (sha256 {sha[:12]}…, the "
-            f"dataset's {made_on[:12]}…): pass --mjcf with a copy of that twin"
+            f"dataset's {made_on[:12]}…): pass {flag} with a copy of that twin"
         )
     return path

@@ -106,6 +106,52 @@ def test_the_cli_resumes_with_other_profiles_and_names_what_it_takes(
     assert json.loads((run / "heldout.json").read_text())["runs"] == 10
 
 
+def test_a_moved_run_resumes_on_a_copy_of_its_twin(unsolved, tmp_path: Path) -> None:
+    """A folder whose config.json names an MJCF that is gone (moved to another machine or
+    checkout) goes on with `--model` naming a byte-for-byte copy, which config.json then records;
+    without it, or with an edited file, one line names the twin the dataset was made on and the
+    folder is left as it was but for its transcript. (It once stopped at a bare "MJCF not
+    found", with no way on.)"""
+    from twin.physics import MODEL_PATH
+
+    run = _copy(unsolved, tmp_path / "run")
+    config = json.loads((run / "config.json").read_text())
+    gone = tmp_path / "gone" / "slider_crank.xml"
+    (run / "config.json").write_text(json.dumps(config | {"model_path": str(gone)}))
+    before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
+    stopped = crank("run", "--resume", str(run))
+    assert stopped.returncode == 2, stopped.stderr
+    (line,) = stopped.stderr.splitlines()
+    assert line.startswith(f"error: MJCF not found: {gone} (the twin of {run}/dataset.mcap, ")
+    assert line.endswith("…); pass --model with a copy of that twin")
+    edited = tmp_path / "edited.xml"
+    edited.write_text(MODEL_PATH.read_text() + "<!-- edited -->\n")
+    other = crank("run", "--resume", str(run), "--model", str(edited))
+    assert other.returncode == 2 and other.stderr.startswith(f"error: {edited} is not the twin ")
+    after = {p.name: p.stat().st_mtime_ns for p in run.iterdir() if p.name != "run.log"}
+    assert after == before  # but the resumed run's transcript, which says what was refused
+    assert (run / "run.log").read_text().splitlines() == [line, other.stderr.strip()]
+    copy = tmp_path / "twin.xml"
+    shutil.copy(MODEL_PATH, copy)
+    moved = with_settings(resumed_config(run), {"model": str(copy)})
+    stages: list[str] = []
+
+    def on_stage(text: str) -> None:
+        stages.append(text)
+        _stop_at_solve(text)
+
+    with pytest.raises(_StoppedError):  # the resume is taken: stopped where the twin is next used
+        run_chain(moved, run, argv=["moved"], hooks=Hooks(on_stage=on_stage), resume=True)
+    assert stages == [
+        "generating the dataset: done before, kept",
+        "training the PPANN: done before, kept",
+        "solving the nominal and robust OCP",
+    ]
+    written = json.loads((run / "config.json").read_text())
+    assert written["model_path"] == str(copy)
+    assert written["resumed"] == [{"argv": ["moved"], "changed": ["model_path"]}]
+
+
 def test_a_refused_open_loop_ends_with_the_fallback_tube_and_its_report(
     unsolved, tmp_path: Path
 ) -> None:
