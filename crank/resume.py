@@ -116,7 +116,9 @@ def resumable(
         raise ConfigError(f"{run_dir}/config.json is another run's configuration")
     stages = run_dir / STAGES_FILE
     done = json.loads(stages.read_text()) if stages.is_file() else {}
-    for name in set(changed) & set(CHANGEABLE):
+    for name in changed:  # in CHANGEABLE's order: the first stage made is the one named
+        if name not in CHANGEABLE:  # the twin moved: checked below against the dataset
+            continue
         stage, did = CHANGEABLE[name]
         if stage in done:
             raise ConfigError(
