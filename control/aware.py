@@ -22,7 +22,7 @@ tightening - margin is the bracketed loop's, and so is the acceptance.
 
 The first solve starts from the nominal's primal point alone (its multipliers belong to the
 nominal's constraint function: 15 IPOPT iterations with them, 8 without, on the seed-0 model; 5
-since that point is not pushed off its bounds, control/ocp.py PRIMAL_BOUND_PUSH).
+since that point is not pushed off its bounds, control/solvers.py PRIMAL_BOUND_PUSH).
 Drafts follow while any residual is outside the tolerance. A draft that settles with its
 states its torque's own (it kept its warm start's 2 pi crossing: `exact`) is returned (since
 session 52: on 22 of the bench's 25 model-seed pairs, one full solve and its Monte-Carlo fewer,

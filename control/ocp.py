@@ -24,15 +24,16 @@ already tried (the optimum sits on the edge, where the stiffness torque jumps), 
 MAX_TURN_PASSES, the consistent solution of lowest cost is kept.
 
 Draft solves (`solve(..., draft=True)`, used by the robust loop between its final solves): one
-IPOPT pass on the warm start's turns at tolerance DRAFT_TOLERANCE, without the turn passes. The
-torque of a draft meets every constraint of the NLP (to 1e-8) but where its crossing moved, its
-states follow the stiffness term extrapolated across 2 pi rather than the wrapped one; the robust
-loop uses such a draft only for the Monte-Carlo of its torque; it returns a draft only where
-its crossing stayed and its states are its torque's own (control/aware.py `exact`). A draft
-whose heights jump by more than DRAFT_JUMP starts from the warm start's primal point alone; so
-does one asked to (`multipliers=False`), not pushed off the bounds it sits on
-(PRIMAL_BOUND_PUSH). The draft solvers share the derivative functions of the full one
-(CasADi's `cache` option), so they cost no second build (0.03 s against 3.5 s for the first).
+IPOPT pass on the warm start's turns at tolerance DRAFT_TOLERANCE (control/solvers.py), without the
+turn passes. The torque of a draft meets every constraint of the NLP (to 1e-8) but where its
+crossing moved, its states follow the stiffness term extrapolated across 2 pi rather than the
+wrapped one; the robust loop uses such a draft only for the Monte-Carlo of its torque; it returns a
+draft only where its crossing stayed and its states are its torque's own (control/aware.py
+`exact`). A draft whose heights jump by more than DRAFT_JUMP starts from the warm start's primal
+point alone; so does one asked to (`multipliers=False`), not pushed off the bounds it sits on
+(PRIMAL_BOUND_PUSH). The draft solvers share the derivative functions of the full one (CasADi's
+`cache` option), so they cost no second build (0.03 s against 3.5 s for the first).
+control/solvers.py builds the four and may keep them for the next OCP that poses the same NLP.
 """
 
 from __future__ import annotations
@@ -46,9 +47,9 @@ import casadi as ca
 import numpy as np
 
 from common.errors import CrankError
-from control.compiled import Workshop
 from control.config import OCPConfig
 from control.dynamics import CasadiPPANN
+from control.solvers import solvers
 from ppann.model import PPANN
 from twin.geometry import Geometry
 
@@ -80,15 +81,6 @@ TURN_EDGE = 1e-9
 """theta_k stays this far inside [2 pi turn_k, 2 pi (turn_k + 1)), rad."""
 TURN_ACTIVE = 1e-7
 """theta_k this close to a turn edge means the optimum wants to cross it there, rad."""
-DRAFT_TOLERANCE = 1e-6
-"""IPOPT's optimality tolerance in draft solves (full solves: 1e-10)."""
-PRIMAL_BOUND_PUSH = 1e-9
-"""How far a draft from a primal point alone (`solve(..., multipliers=False)`) is moved inside
-the torque bounds and the inequality slacks (IPOPT's bound_push and bound_frac; default 1e-2,
-kept after a DRAFT_JUMP). The point is a solution: on control/aware.py's first draft the default
-took 8-13 IPOPT iterations on the five session-27 models, this 5, to the same robust torques
-(1e-13 N·m); on the bracketed loop's drafts after a jump it took more in sum (350 against 325 on
-the same models), so they keep the default."""
 DRAFT_JUMP = 3e-3
 """A draft whose heights move further than this from its warm start's (m) starts from the warm
 start's primal point only: after a jump that large, IPOPT's multiplier warm start costs more
@@ -181,37 +173,11 @@ class NominalOCP:
             },
         }
         nlp = {"x": w, "p": ca.vertcat(turns, extra), "f": cost, "g": g}
-        self.engine = "vm"
-        self._workshop = None
-        if c.compiled:  # the NLP's functions in C: IPOPT's callbacks are most of a solve
-            self._workshop = Workshop()
-            try:
-                compiled = {**options, "expand": False, **self._workshop.options()}
-                with self._workshop.building():
-                    self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, compiled)
-                self.engine = "compiled"
-            except RuntimeError:  # no C compiler here: CasADi's virtual machine
-                self._workshop = None
-        if self.engine == "vm":
-            self._solver = ca.nlpsol("nominal_ocp", "ipopt", nlp, options)
-        derivatives = {f: self._solver.get_function(f) for f in self._solver.get_function()}
-        # the drafts share those functions (compiled or not) through the cache
-        options["expand"] = self.engine == "vm"
-        draft_ipopt = {**options["ipopt"], "tol": DRAFT_TOLERANCE, "mu_init": 1e-6}
-        self._draft_solver = ca.nlpsol(
-            "draft_ocp", "ipopt", nlp, {**options, "ipopt": draft_ipopt, "cache": derivatives}
-        )
-        jump_ipopt = {**draft_ipopt, "warm_start_init_point": "no"}
-        self._jump_solver = ca.nlpsol(
-            "jump_ocp", "ipopt", nlp, {**options, "ipopt": jump_ipopt, "cache": derivatives}
-        )
-        push = {"bound_push": PRIMAL_BOUND_PUSH, "bound_frac": PRIMAL_BOUND_PUSH}
-        self._primal_solver = ca.nlpsol(
-            "primal_ocp",
-            "ipopt",
-            nlp,
-            {**options, "ipopt": {**jump_ipopt, **push}, "cache": derivatives},
-        )
+        built = solvers(nlp, options, compiled=c.compiled)
+        self.engine = built.engine
+        self._workshop = built.workshop
+        self._solver, self._draft_solver = built.full, built.draft
+        self._jump_solver, self._primal_solver = built.jump, built.primal
         self._lbx = np.concatenate([np.full(2 * n, -np.inf), np.full(n, -c.torque_limit)])
         self._ubx = np.concatenate([np.full(2 * n, np.inf), np.full(n, c.torque_limit)])
 

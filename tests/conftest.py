@@ -12,6 +12,7 @@ import pytest
 
 from control.mpc_config import MPCConfig
 from control.ocp_file import OCPFile, read_ocp
+from control.solvers import keep_solvers
 from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
 from tests.replay_ocp import write_ocp
@@ -28,12 +29,22 @@ the wall clock)."""
 LATE_MPC = MPCConfig(deadline=LATE)
 
 
+SOLVERS_KEPT = 8
+"""NLPs whose IPOPT solvers a test process keeps (control/solvers.py): several tests run a chain
+and then the same chain another way (a sweep's leaf, a resume, a study's row) to compare them, and
+build the same NLPs again; ~250 MB each."""
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    """Under pytest-xdist (one worker per core, pyproject.toml) each worker and every process it
+    """The test process keeps the solvers of the last SOLVERS_KEPT NLPs it built (the processes
+    it starts keep none, as a `crank` command does).
+
+    Under pytest-xdist (one worker per core, pyproject.toml) each worker and every process it
     starts computes on one thread (torch's, and MuJoCo's and the Monte-Carlo kernel's rollouts,
     common/threads.py): two workers of torch's two threads each on two cores ran
     oversubscribed. A model trained in a test and one trained by a `crank` subprocess the test
     starts then use the same thread count (a PPANN's last bits depend on it, ppann/fit.py)."""
+    keep_solvers(SOLVERS_KEPT)
     if os.environ.get("PYTEST_XDIST_WORKER") is None:
         return
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CRANK_ROLLOUT_THREADS"):
