@@ -323,7 +323,8 @@ def run_sweep(
     sweep.json, sweep.csv, sweep.md and sweep.png; return sweep.json's content with the rows.
 
     Raises:
-      ConfigError: a bad spec, or an unknown executor; nothing has started.
+      ConfigError: a bad spec, an unknown executor, or a resume whose finished steps its spec
+        keys no more (crank/sweep_resume.py); nothing has started.
       OutputError: `out` exists (without resume), or is not a sweep folder (with resume).
     """
     from common.atomic import OutputError, check_writable
@@ -343,6 +344,10 @@ def run_sweep(
     elif out.exists():
         raise OutputError(f"sweep folder already exists: {out} (use --resume to continue it)")
     text, leaves = read_spec(spec)
+    if resume:
+        from crank.sweep_resume import check_resumable
+
+        check_resumable(out, leaves)
     nodes = graph(leaves)
     if executor == "ray":
         _ray()  # the extra is installed, before anything is written

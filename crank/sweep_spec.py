@@ -29,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -200,16 +201,23 @@ def node_key(kind: str, config: RunConfig) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
-_MJCF: dict[str, str] = {}
+_MJCF: dict[tuple[str, int, int], str] = {}
+"""The sha256 of each MJCF this process read, by its path, modification time and size: a file
+edited since is read again (a resume in the same process, crank/sweep_resume.py)."""
 
 
 def _mjcf_sha(model_path: str) -> str:
-    if model_path not in _MJCF:
+    try:
+        stat = os.stat(model_path)
+        key = (model_path, stat.st_mtime_ns, stat.st_size)
+    except OSError:  # load_model names it
+        key = (model_path, -1, -1)
+    if key not in _MJCF:
         from twin.physics import SliderCrank, load_model, model_sha256
 
         SliderCrank(load_model(model_path)[0])  # a bad MJCF is refused before anything starts
-        _MJCF[model_path] = model_sha256(model_path)
-    return _MJCF[model_path]
+        _MJCF[key] = model_sha256(model_path)
+    return _MJCF[key]
 
 
 def graph(leaves: list[Leaf]) -> list[Node]:
