@@ -1,14 +1,15 @@
 """A resumed sweep goes on from the steps it made, or says why it cannot.
 
 A sweep's steps are keyed by everything they depend on (crank/sweep_spec.py `node_key`): the
-settings each step uses, and the twin by the sha256 of its MJCF's bytes. Resumed after its twin
-was edited (or moved beside a spec naming a file of the same path with other bytes), or after its
-folder's sweep.toml was edited by hand, the keys change from the step that sees the change down:
-the resume would find none of those finished steps and make them all again beside the old ones,
-in the same folder, under the same leaf names (hours of work, without a word). It is refused
-instead, before anything is written, naming what changed: the twin (both sha256s), or the
-settings of the leaves (crank/sweep.py `run_sweep`). Leaves added to sweep.toml by hand resume
-as new ones; leaves taken out of it are no longer the sweep's and are not checked.
+settings each step uses, and the twin by the sha256 of its MJCF's bytes. Resumed after its twin was
+edited (or in another checkout whose `models/slider_crank.xml`, the default, has other bytes), or
+after its folder's sweep.toml was edited by hand, the keys change from the step that sees the
+change down: the resume would find none of those finished steps and make them all again beside the
+old ones, in the same folder, under the same leaf names (hours of work, its start line saying only
+how much is left). It is refused instead, before anything is written, naming what changed: the twin
+(both sha256s), or the settings of the leaves (crank/sweep.py `run_sweep`). Leaves added to
+sweep.toml by hand resume as new ones; leaves taken out of it are no longer the sweep's and are not
+checked.
 """
 
 from __future__ import annotations
