@@ -72,9 +72,9 @@ def _cause(out: Path, entry: dict[str, Any], leaf: Leaf, kind: str, key: str) ->
             )
     changed = _differ(entry["config"], leaf.config.as_dict())
     if changed:
-        return f"leaf {entry['name']!r}'s settings changed ({', '.join(changed)})"
+        return f"the settings of leaf {entry['name']!r} changed ({', '.join(changed)})"
     now = leaf.steps[KINDS.index(kind)]
-    return f"leaf {entry['name']!r}'s {kind} step is keyed {now} now, not {key}"
+    return f"the {kind} step of leaf {entry['name']!r} is keyed {now} now, not {key}"
 
 
 def _differ(before: Any, after: Any, prefix: str = "") -> list[str]:

@@ -66,7 +66,8 @@ def test_a_resume_whose_steps_changed_is_refused_naming_what_changed(tmp_path: P
     assert new.steps[:3] == leaf.steps[:3] and new.steps[3] != leaf.steps[3]
     with pytest.raises(ConfigError, match=r"1 finished steps \(0 data, 0 model, 0 solve, 1 leaf"):
         check_resumable(out, [new])
-    with pytest.raises(ConfigError, match=r"settings changed \(replay\.runs\)"):
+    changed = r"the settings of leaf 'seed=0' changed \(replay\.runs\)"
+    with pytest.raises(ConfigError, match=changed):
         check_resumable(out, [new])
     # a leaf added by hand is a new leaf; the recorded one unchanged resumes
     spec.write_text(text.replace("seed = [0]", "seed = [0, 1]"))
