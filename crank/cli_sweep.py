@@ -40,7 +40,10 @@ def sweep_command(
     ] = None,
     resume: Annotated[
         Path | None,
-        typer.Option(help="Continue a sweep folder with its own sweep.toml; keeps finished steps."),
+        typer.Option(
+            help="Continue a sweep folder with its own sweep.toml; keeps finished steps "
+            "(refused where its twin or its settings changed since they were made)."
+        ),
     ] = None,
 ) -> None:
     """Run every leaf of a sweep spec as a graph of shared steps (one dataset per seed, one model
