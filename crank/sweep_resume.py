@@ -82,8 +82,6 @@ def _differ(before: Any, after: Any, prefix: str = "") -> list[str]:
     if isinstance(before, dict) and isinstance(after, dict):
         names: list[str] = []
         for name in sorted(before.keys() | after.keys()):
-            if name in ("command", "argv"):
-                continue
             names += _differ(before.get(name), after.get(name), f"{prefix}{name}.")
         return names
     if json.dumps(before, default=str) != json.dumps(after, default=str):
