@@ -160,6 +160,10 @@ class NominalOCP:
             # the parameters' multipliers (turns, aware terms) serve nothing here, and CasADi
             # computes them after each solve: 2-4 ms of a 5-iteration draft's ~63 (interleaved)
             "calc_lam_p": False,
+            # nor CasADi's gradient of the Lagrangian (`nlp_grad`), which only those multipliers
+            # and the solver's own parametric derivatives (none taken here) use: not built, the
+            # same numbers to the last bit, 1.4 of the 5.2 s an NLP took to build (session 66)
+            "no_nlp_grad": True,
             "ipopt": {
                 "print_level": 0,
                 "sb": "yes",

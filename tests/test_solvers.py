@@ -1,6 +1,7 @@
 """control/solvers.py: an OCP whose NLP was built before in this process takes the kept solvers
 and gives a fresh build's numbers to the last bit; the key is the NLP's content (one ulp of one
-weight is another NLP); the oldest is dropped past the count kept; nothing is kept by default."""
+weight is another NLP); the oldest is dropped past the count kept; nothing is kept by default; no
+gradient of the Lagrangian is built, and one built changes no number."""
 
 from __future__ import annotations
 
@@ -117,3 +118,27 @@ def test_the_oldest_is_dropped_past_the_count_kept_and_none_by_default() -> None
     assert len(solvers_module._kept) == 0
     with pytest.raises(ValueError, match="negative"):
         keep_solvers(-1)
+
+
+@pytest.mark.usefixtures("kept")
+def test_no_gradient_of_the_lagrangian_is_built_and_one_built_changes_no_number(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The OCPs' solvers lack CasADi's `nlp_grad` (control/ocp.py's options: it serves only the
+    parameters' multipliers, which they do not ask for); solvers built with it give the same
+    robust solve, nominal and aware NLPs alike, to the last bit."""
+    model, config = _model(), OCPConfig()
+    ocp = NominalOCP(model, config)
+    result = solve_robust(model, config, ocp=ocp)
+    for solver in (ocp._solver, aware_ocp(model, ocp, samples=config.mc_samples)._solver):
+        assert "nlp_grad" not in solver.get_function()
+        assert {"nlp_jac_g", "nlp_hess_l"} <= set(solver.get_function())
+    built = solvers_module.build
+
+    def with_gradient(nlp: dict, options: dict, *, compiled: bool) -> solvers_module.Solvers:
+        return built(nlp, {**options, "no_nlp_grad": False}, compiled=compiled)
+
+    monkeypatch.setattr(solvers_module, "build", with_gradient)
+    reference = NominalOCP(model, config)
+    assert "nlp_grad" in reference._solver.get_function()
+    _same_robust(solve_robust(model, config, ocp=reference), result)
