@@ -3,7 +3,8 @@ share its derivative functions, built once and, on request, kept for the next OC
 process whose NLP is the same.
 
 Building is most of a short solve: `nlpsol` expands the 149 mapped PPANN steps and forms the exact
-Hessian, ~4 s for the nominal and again for the aware NLP of the default task, against ~2 s of
+Hessian, ~3 s for the nominal and again for the aware NLP of the default task (~4.5 s while it
+also built the gradient of the Lagrangian, control/ocp.py; bench/bench_build.py), against ~2 s of
 IPOPT's own work in a one-profile solve (session 64, bench/suite_time.md). A process that poses
 the same NLP again (a test that runs a chain a second time to compare it with a sweep's leaf, a
 resumed chain, a notebook solving one model twice) may keep what it built: `keep_solvers(n)` keeps

@@ -69,15 +69,15 @@ def _wrap(module: Any, name: str, what: str, key: Callable[..., str]) -> None:
 
     @functools.wraps(inner)
     def timed(*args: Any, **kwargs: Any) -> Any:
+        try:  # before the call: CasADi serialises an NLP otherwise once nlpsol was built on it
+            inputs = key(*args, **kwargs)
+        except Exception as error:  # a key that fails is logged as such
+            inputs = f"? {error}"
         started = time.perf_counter()
         try:
             return inner(*args, **kwargs)
         finally:
             seconds = time.perf_counter() - started
-            try:
-                inputs = key(*args, **kwargs)
-            except Exception as error:  # a key that fails is logged as such
-                inputs = f"? {error}"
             test = os.environ.get("PYTEST_CURRENT_TEST", "").split(" ")[0]
             line = {"what": what, "key": inputs, "s": seconds, "test": test, "pid": os.getpid()}
             with open(LOG, "a") as log:  # one short line per write: lines from processes stay whole
