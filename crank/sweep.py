@@ -330,6 +330,7 @@ def run_sweep(
     from common.atomic import OutputError, check_writable
     from crank.sweep_report import write_results
     from crank.sweep_spec import read_spec
+    from twin.physics import MJCFNotFoundError
 
     out = Path(out).absolute()  # Ray's workers run in folders of their own
     check_executor(executor)
@@ -343,7 +344,11 @@ def run_sweep(
         raise ConfigError("give the sweep's spec file (or --resume a sweep folder)")
     elif out.exists():
         raise OutputError(f"sweep folder already exists: {out} (use --resume to continue it)")
-    text, leaves = read_spec(spec)
+    try:
+        text, leaves = read_spec(spec)
+    except MJCFNotFoundError as error:  # moved with its folder: its steps know the twin's bytes
+        hint = f", named in {spec}: point `model` there at a copy of it (its bytes key the steps)"
+        raise MJCFNotFoundError(f"{error}{hint if resume else ''}") from None
     if resume:
         from crank.sweep_resume import check_resumable
 

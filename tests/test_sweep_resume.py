@@ -74,3 +74,30 @@ def test_a_resume_whose_steps_changed_is_refused_naming_what_changed(tmp_path: P
     both = read_spec(spec)[1]
     assert len(both) == 2
     check_resumable(out, both)
+
+
+def test_a_resume_whose_twin_is_gone_says_how_to_point_at_a_copy(tmp_path: Path) -> None:
+    """A sweep folder moved without its twin: the resume stops at "MJCF not found" and says that
+    `model` in the folder's sweep.toml may name a copy (its steps are keyed by the MJCF's bytes);
+    one line, exit 2, nothing written. A copy named there keys the steps as the original."""
+    out = tmp_path / "out"
+    out.mkdir()
+    gone = tmp_path / "gone" / "twin.xml"
+    spec = out / "sweep.toml"
+    spec.write_text(
+        SPEC.replace("[base]\n", f'[base]\nmodel = "{gone}"\n', 1) + "[grid]\nseed = [0]\n"
+    )
+    before = _files(out)
+    result = crank("sweep", "--resume", str(out))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"error: MJCF not found: {gone}, named in {spec}: point `model` there")
+    assert "its bytes key the steps" in line
+    assert _files(out) == before
+    copy = tmp_path / "copy.xml"  # the same bytes elsewhere: the same steps as the original's
+    shutil.copy(MODEL_PATH, copy)
+    spec.write_text(spec.read_text().replace(str(gone), str(copy)))
+    original = tmp_path / "original.toml"
+    original.write_text(spec.read_text().replace(str(copy), str(MODEL_PATH)))
+    (leaf,) = read_spec(spec)[1]
+    assert leaf.config.model_path == str(copy) and leaf.steps == read_spec(original)[1][0].steps

@@ -41,6 +41,10 @@ class ModelError(CrankError, ValueError):
     """The MJCF cannot be read, does not compile, or lacks an element the twin needs."""
 
 
+class MJCFNotFoundError(ModelError):
+    """No file at the MJCF's path."""
+
+
 def load_model(path: str | Path | None = None) -> tuple[mujoco.MjModel, str]:
     """Compile the slider-crank MJCF at `path` (default: models/slider_crank.xml).
 
@@ -55,7 +59,7 @@ def load_model(path: str | Path | None = None) -> tuple[mujoco.MjModel, str]:
     try:
         xml = path.read_text()
     except FileNotFoundError:
-        raise ModelError(f"MJCF not found: {path}") from None
+        raise MJCFNotFoundError(f"MJCF not found: {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ModelError(f"cannot read MJCF {path}: {exc}") from None
     return compile_mjcf(xml, source=str(path))
