@@ -19,6 +19,14 @@ from pathlib import Path
 from common.errors import ConfigError
 
 
+def made_on(dataset: Path) -> str | None:
+    """The sha256 of the MJCF `dataset` was generated on, as its run record keeps it
+    (twin/generation.py `provenance`); None where it records none (rig data, older files)."""
+    from twin.mcap_dataset import read_run
+
+    return read_run(dataset).get("mjcf_sha256")
+
+
 def run_twin(
     dataset: Path, model_path: str | Path, *, mjcf: Path | None = None, flag: str = "--mjcf"
 ) -> Path:
@@ -29,21 +37,20 @@ def run_twin(
     Raises:
       ConfigError: the file is missing, or it is not the MJCF the dataset was made on.
     """
-    from twin.mcap_dataset import read_run
     from twin.physics import model_sha256
 
-    made_on = read_run(dataset).get("mjcf_sha256")
-    if made_on is None:
+    recorded = made_on(dataset)
+    if recorded is None:
         raise ConfigError(f"{dataset} records no MJCF sha256: the twin it was made on is unknown")
     path = Path(mjcf if mjcf is not None else model_path)
     if not path.is_file():
         hint = "" if mjcf is not None else f"; pass {flag} with a copy of that twin"
         raise ConfigError(
-            f"MJCF not found: {path} (the twin of {dataset}, sha256 {made_on[:12]}…){hint}"
+            f"MJCF not found: {path} (the twin of {dataset}, sha256 {recorded[:12]}…){hint}"
         )
-    if (sha := model_sha256(path)) != made_on:
+    if (sha := model_sha256(path)) != recorded:
         raise ConfigError(
             f"{path} is not the twin {dataset} was generated on (sha256 {sha[:12]}…, the "
-            f"dataset's {made_on[:12]}…): pass {flag} with a copy of that twin"
+            f"dataset's {recorded[:12]}…): pass {flag} with a copy of that twin"
         )
     return path

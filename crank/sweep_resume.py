@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from common.errors import ConfigError
+from crank.run_twin import made_on
 from crank.sweep import RESULT
-from crank.sweep_spec import KINDS, Leaf, folder
+from crank.sweep_spec import KINDS, Leaf, folder, mjcf_sha
 
 
 def check_resumable(out: Path, leaves: list[Leaf]) -> None:
@@ -41,8 +42,7 @@ def check_resumable(out: Path, leaves: list[Leaf]) -> None:
         if entry["name"] not in now:
             continue
         for kind, key in entry["steps"].items():
-            finished = (folder(out, kind, key) / RESULT).is_file()
-            if (kind, key) not in keys and finished:
+            if (kind, key) not in keys and (folder(out, kind, key) / RESULT).is_file():
                 stale.setdefault((kind, key), entry)
     if not stale:
         return
@@ -58,17 +58,14 @@ def check_resumable(out: Path, leaves: list[Leaf]) -> None:
 def _cause(out: Path, entry: dict[str, Any], leaf: Leaf, kind: str, key: str) -> str:
     """What changed for the recorded leaf `entry` (now `leaf`), one of whose finished steps is
     `kind`/`key`: its twin's bytes, else its settings."""
-    from twin.mcap_dataset import read_run
-    from twin.physics import model_sha256
-
     path = Path(leaf.config.model_path)
     dataset = folder(out, "data", entry["steps"]["data"]) / "dataset.mcap"
     if dataset.is_file() and path.is_file():
-        made_on = read_run(dataset).get("mjcf_sha256")
-        if made_on is not None and (sha := model_sha256(path)) != made_on:
+        recorded = made_on(dataset)
+        if recorded is not None and (sha := mjcf_sha(str(path))) != recorded:
             return (
                 f"the twin {path} is not the one leaf {entry['name']!r} was made on (sha256 "
-                f"{sha[:12]}…, its dataset's {made_on[:12]}…)"
+                f"{sha[:12]}…, its dataset's {recorded[:12]}…)"
             )
     changed = _differ(entry["config"], leaf.config.as_dict())
     if changed:

@@ -182,7 +182,7 @@ def _label(value: Any) -> str:
 def node_key(kind: str, config: RunConfig) -> str:
     """The hash of everything the `kind` step of `config`'s chain depends on (12 hex digits)."""
     values = config.as_dict()
-    parts: dict[str, Any] = {"mjcf": _mjcf_sha(config.model_path)}
+    parts: dict[str, Any] = {"mjcf": mjcf_sha(config.model_path)}
     parts["generation"] = values["generation"]
     if KINDS.index(kind) >= 1:
         train = dict(values["train"])
@@ -206,7 +206,9 @@ _MJCF: dict[tuple[str, int, int], str] = {}
 edited since is read again (a resume in the same process, crank/sweep_resume.py)."""
 
 
-def _mjcf_sha(model_path: str) -> str:
+def mjcf_sha(model_path: str) -> str:
+    """The sha256 of the MJCF at `model_path`, compiled once to refuse a bad one; kept for the
+    process while the file's modification time and size stay."""
     try:
         stat = os.stat(model_path)
         key = (model_path, stat.st_mtime_ns, stat.st_size)

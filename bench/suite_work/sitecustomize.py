@@ -37,7 +37,9 @@ def _file(path: Any) -> str:
 
 
 def _dataset(config: Any, **options: Any) -> str:
-    return f"{_short(repr(config))}/{_file(options.get('model_path', 'models/slider_crank.xml'))}"
+    from twin import MODEL_PATH  # generate_file's default, wherever the process runs
+
+    return f"{_short(repr(config))}/{_file(options.get('model_path', MODEL_PATH))}"
 
 
 def _training(data_path: Any, out: Any, **options: Any) -> str:
