@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from control.ocp_file import OCPFile, read_ocp
 from control.solvers import keep_solvers
 from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
+from tests.forkserver import Command, ForkServer, Fresh
 from tests.replay_ocp import write_ocp
 from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
@@ -97,13 +97,32 @@ def campaign_files(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> 
     return output_paths(out)
 
 
-def crank(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    """Run the `crank` CLI in a fresh interpreter, as a user would."""
-    return subprocess.run(
-        [sys.executable, "-m", "crank", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=300,
-        check=False,
-    )
+_commands: ForkServer | Fresh | None = None
+
+
+def start_crank(
+    *args: str,
+    cwd: Path | None = None,
+    env: dict[str, str] | None = None,
+    new_session: bool = False,
+) -> Command:
+    """Start `crank ARGS` in a process of its own (`python -m crank`, as a user would): forked
+    from this test process's fork server (tests/forkserver.py: the heavy libraries imported
+    once), or, where $CRANK_TEST_FORKSERVER is 0, in a fresh interpreter."""
+    global _commands
+    if _commands is None:
+        fork = os.environ.get("CRANK_TEST_FORKSERVER", "1") != "0"
+        _commands = ForkServer() if fork else Fresh()
+    return _commands.start(list(args), cwd=cwd, env=env, new_session=new_session)
+
+
+def crank(
+    *args: str, cwd: Path | None = None, env: dict[str, str] | None = None, timeout: float = 300
+) -> subprocess.CompletedProcess[str]:
+    """Run `crank ARGS` to its end (`start_crank`): its exit code, stdout and stderr."""
+    return start_crank(*args, cwd=cwd, env=env).communicate(timeout)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _commands is not None:
+        _commands.close()

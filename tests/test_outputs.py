@@ -25,7 +25,7 @@ from control.solve import failed_path
 from crank.chain import STAGES_FILE
 from replay.config import ReplayConfig
 from tests.checkpoints import constant_checkpoint
-from tests.conftest import Written, crank
+from tests.conftest import Written, crank, start_crank
 from twin.mcap_dataset import read_run
 
 
@@ -237,9 +237,7 @@ def _kill_mid_step(
 ) -> None:
     """Run `crank ARGS`, SIGKILL it `after` seconds into the step that writes `out` (once its
     output lock exists, and `until` holds), and wait for it."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "crank", *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
+    process = start_crank(*args)
     deadline = time.monotonic() + 120
 
     def ready() -> bool:

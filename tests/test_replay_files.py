@@ -244,14 +244,7 @@ def test_cli_replay_writes_every_file_and_view_explains(ocp_path: Path, tmp_path
     assert stats["format"] == "crank-replay-stats" and stats["version"] == 3
     assert stats["config"]["runs"] == 3
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    view = subprocess.run(
-        [sys.executable, "-m", "crank", "view", str(paths["rrd"])],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-        check=False,
-    )
+    view = crank("view", str(paths["rrd"]), env=env, timeout=120)
     assert view.returncode == 0 and "no display" in view.stdout and "rerun" in view.stdout
     garbage = tmp_path / "garbage.rrd"
     garbage.write_text("not a recording")

@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from common.errors import ConfigError
+from tests.conftest import crank
 from twin.dataset import Dataset, GenerationConfig
 from twin.generation import generate_file
 from twin.mcap_dataset import has_model_xml, read_dataset
@@ -219,9 +218,7 @@ def test_measurements_alone_train(twin_data, tmp_path: Path) -> None:
     bare = read_dataset(path)
     assert bare.run == {} and bare.geometry == dataset.geometry
     np.testing.assert_array_equal(bare.theta, dataset.theta)
-    shown = subprocess.run(
-        [sys.executable, "-m", "crank", "inspect", str(path)], capture_output=True, text=True
-    )
+    shown = crank("inspect", str(path))
     assert shown.returncode == 0 and "measurements without a run record" in shown.stdout
     config = TrainConfig(max_epochs=2, sigma_epochs=5)
     report = train_and_report(path, tmp_path / "m.pt", config=config, baselines=False)
@@ -281,11 +278,6 @@ def test_rig_data_imports_inspects_trains_and_solves(twin_data, tmp_path: Path) 
     calibration in the report (there is no twin)."""
     _, dataset = twin_data
     table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
-
-    def crank(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "crank", *args], capture_output=True, text=True, check=False
-        )
 
     common = ["--map", MAP, "--units", UNITS, "--flip", "tau"]
     done = crank("import", str(table), *common, "--out", str(tmp_path / "rig.mcap"))

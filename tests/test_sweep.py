@@ -9,8 +9,6 @@ import os
 import re
 import shutil
 import signal
-import subprocess
-import sys
 import threading
 import time
 import tomllib
@@ -32,7 +30,7 @@ from crank.sweep_report import failure, markdown, rows_of
 from crank.sweep_spec import graph, leaves_of, node_key
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
-from tests.conftest import LATE_MPC
+from tests.conftest import LATE_MPC, crank, start_crank
 from tests.test_chain import SHORT
 
 SPEC = """
@@ -254,13 +252,7 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     # the resume and test nothing more (the steps a leaf shares: the fixture's sweep, above)
     spec.write_text(SPEC + '\n[grid]\n"ocp.constraint_samples" = [[50, 100]]\n')
     out = tmp_path / "out"
-    crank = [sys.executable, "-m", "crank", "sweep", str(spec), "--out", str(out)]
-    process = subprocess.Popen(
-        [*crank, "--workers", "2"],
-        start_new_session=True,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    process = start_crank("sweep", str(spec), "--out", str(out), "--workers", "2", new_session=True)
     try:
         deadline = time.monotonic() + 300
         while not list((out / "model").glob(f"*/{RESULT}")):
@@ -272,12 +264,7 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     assert not (out / "sweep.md").exists()
     (model,) = [d for d in (out / "model").iterdir() if (d / RESULT).is_file()]
     made = (model / RESULT).stat().st_mtime_ns
-    resumed = subprocess.run(
-        [sys.executable, "-m", "crank", "sweep", "--resume", str(out), "--executor", "sequential"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    resumed = crank("sweep", "--resume", str(out), "--executor", "sequential", timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert (model / RESULT).stat().st_mtime_ns == made
     for kind in ("data", "model"):
