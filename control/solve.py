@@ -50,9 +50,10 @@ def solve_file(
     config: OCPConfig,
     on_iteration: Callable[[Iteration], None] | None = None,
     on_fallback: Callable[[str], None] | None = None,
+    figures: bool = True,
 ) -> dict[str, Any]:
     """Solve the nominal OCP and each robust profile of `config.profiles` on a PPANN
-    checkpoint and write ocp.json and figures.
+    checkpoint and write ocp.json and (unless `figures` is false) its figures.
 
     A robust profile without a robust torque is refused (ocp.json says why) while another one
     is solved; where every one is refused, `config.fallback`'s are solved (control/profiles.py
@@ -124,7 +125,7 @@ def solve_file(
         engine=ocp.engine,
     )
     loaded = read_ocp(out)
-    for name, path in figure_paths(out, loaded.names).items():
+    for name, path in figure_paths(out, loaded.names if figures else ()).items():
         figure = nominal_figure(loaded) if name == "nominal" else robust_figure(loaded, name)
         save_figure(figure, path)
     return written

@@ -64,6 +64,9 @@ PDOption = Annotated[
         f"the robust-pd tube is sized for (default: {ReplayConfig.kp:g},{ReplayConfig.kd:g})."
     ),
 ]
+FiguresOption = Annotated[
+    bool, typer.Option(help="Write each stage's PNGs (off: none, the same numbers, sooner).")
+]
 
 
 @app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
@@ -106,6 +109,7 @@ def run_command(
     ] = CALIBRATION_TRAJECTORIES,
     plan_episodes: PlanEpisodes = PlanConfig.episodes,
     model: ModelPath = MODEL_PATH,
+    figures: FiguresOption = True,
     resume: Annotated[
         Path | None,
         typer.Option(
@@ -172,6 +176,7 @@ FLAG_KEYS = {
     "heldout_trajectories": ("heldout_trajectories",),
     "model": ("model",),
     "plan_episodes": ("plan", "episodes"),
+    "figures": ("figures",),
 }
 """Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
 RESUME_FLAGS = (
@@ -317,9 +322,7 @@ def study_command(
     seconds: Seconds = DATASET_SECONDS,
     episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
-    heldout_runs: Annotated[
-        int, typer.Option(help="Held-out machines per profile.")
-    ] = HELDOUT_RUNS,
+    heldout_runs: Annotated[int, typer.Option(help="Held-out machines a profile.")] = HELDOUT_RUNS,
     heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
         HELDOUT_SEED
     ),
@@ -335,9 +338,8 @@ def study_command(
     fallback: FallbackOption = DEFAULT_FALLBACK,
     pd: PDOption = None,
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
-    resume: Annotated[bool, typer.Option(help="Continue a study folder, keeping done seeds.")] = (
-        False
-    ),
+    figures: FiguresOption = True,
+    resume: Annotated[bool, typer.Option(help="Continue a study, keeping done seeds.")] = False,
 ) -> None:
     """The chain once per seed, each robust torque checked on held-out machines: study.md,
     study.csv, study.json and study.png (violation rate and premium against seed)."""
@@ -368,6 +370,7 @@ def study_command(
         heldout_runs=heldout_runs,
         heldout_seed=heldout_seed,
         baselines=baselines,
+        figures=figures,
         plan={"episodes": plan_episodes},
     )
 

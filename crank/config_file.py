@@ -1,8 +1,8 @@
 """One file for the whole chain: `crank run --config crank.toml`, and `crank config --show`.
 
 The file is TOML with the shape of `defaults()` (print it with `crank config --show`): top-level
-`seed`, `heldout_runs`, `heldout_seed`, `heldout_trajectories`, `model`, `baselines`, and one
-table per stage —
+`seed`, `heldout_runs`, `heldout_seed`, `heldout_trajectories`, `model`, `baselines`,
+`figures`, and one table per stage —
 `[generation]` (with `variability`, a scenario name or a range file, `drift`, and
 `[generation.excitation]`), `[train]`, `[ocp]` (any constraint samples, the robust loop's
 settings), `[replay]` and `[plan]` (the plan round, twin/plan_data.py). Every key is optional;
@@ -58,6 +58,7 @@ def defaults() -> dict[str, Any]:
         "heldout_trajectories": CALIBRATION_TRAJECTORIES,
         "model": str(MODEL_PATH),
         "baselines": True,
+        "figures": True,
         "generation": {
             **_field_defaults(GenerationConfig, skip=("seed",)),
             "variability": "paper",
@@ -186,6 +187,7 @@ def build(values: dict[str, Any], *, source: str = "config") -> RunConfig:
             heldout_trajectories=values["heldout_trajectories"],
             model_path=values["model"],
             baselines=values["baselines"],
+            figures=values["figures"],
         )
     except CrankError as exc:
         raise type(exc)(f"{source}: {exc}") from None

@@ -48,6 +48,7 @@ def generate(config: RunConfig, out: Path, *, hooks: Hooks) -> dict[str, Any]:
         config.generation,
         out=out / DATASET,
         model_path=config.model_path,
+        figures=config.figures,
         on_simulated=hooks.on_simulated,
         on_written=hooks.on_written,
     )
@@ -63,6 +64,7 @@ def train(
         out / MODEL,
         config=config.train,
         baselines=config.baselines and baselines,
+        figures=config.figures,
         on_epoch=hooks.on_epoch,
         on_trained=hooks.on_trained,
         on_stage=hooks.on_stage,
@@ -91,6 +93,7 @@ def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[st
         model,
         out / OCP,
         config=config.ocp,
+        figures=config.figures,
         on_iteration=hooks.on_iteration,
         on_fallback=hooks.on_stage,  # e.g. "robust refused: solving the fallback robust-fb"
     )
@@ -196,6 +199,7 @@ def replay(
         resolved=resolved,
         nthread=nthread,
         on_run=hooks.on_run,
+        figures=config.figures,
     )
 
 

@@ -21,7 +21,8 @@ from common.atomic import check_writable, writes
 from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
-from ppann import checkpoint, figures
+from ppann import checkpoint
+from ppann import figures as plots
 from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile
 from ppann.fit import Fitted, fit_all
 from ppann.kinds import KINDS
@@ -75,12 +76,14 @@ def train_and_report(
     mc_samples: int = 100,
     replay_runs: int = 100,
     baselines: bool = True,
+    figures: bool = True,
     on_epoch: Callable[[str, str, int, float], None] | None = None,
     on_trained: Callable[[str], None] | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Train (the kinds side by side where torch has a thread for each: ppann/fit.py
-    `fit_all`), save and report; returns the report dict."""
+    `fit_all`), save and report (its figures unless `figures` is false); returns the report
+    dict."""
     out = Path(out)
     check_writable(out)
     dataset = read_dataset(data_path)
@@ -198,11 +201,12 @@ def train_and_report(
                 "torque_limit": dataset.run.get("torque_limit"),
             },
         )
-    save_figure(figures.network_maps(ppann), sibling(out, "maps.png"))
-    predictions = {k: free_run(f.model, dataset, segment) for k, f in fitted.items()}
-    save_figure(figures.validation(t, measured, predictions), sibling(out, "validation.png"))
-    save_figure(figures.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
-    if replay is not None:
-        save_figure(figures.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
+    if figures:
+        save_figure(plots.network_maps(ppann), sibling(out, "maps.png"))
+        predictions = {k: free_run(f.model, dataset, segment) for k, f in fitted.items()}
+        save_figure(plots.validation(t, measured, predictions), sibling(out, "validation.png"))
+        save_figure(plots.monte_carlo_bands(t, measured, mc, replay), sibling(out, "bands.png"))
+        if replay is not None:
+            save_figure(plots.sigma_ratio(t, mc, replay), sibling(out, "calibration.png"))
     write_json(sibling(out, "report.json"), report, indent=2)
     return report

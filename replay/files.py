@@ -132,8 +132,10 @@ def replay_file(
     nthread: int | None = None,
     on_run: Callable[[int], None] | None = None,
     ppann: str | Path | None = None,
+    figures: bool = True,
 ) -> dict[str, Any]:
-    """Play both profiles of `ocp_path` in every mode of `config`; write the campaign's files.
+    """Play both profiles of `ocp_path` in every mode of `config`; write the campaign's files
+    (the figure unless `figures` is false).
 
     Args:
       ppann: the checkpoint the mpc mode predicts with (default: the one ocp.json names).
@@ -209,7 +211,8 @@ def replay_file(
     stats = campaign_statistics(
         campaign, ocp, ocp_path=recorded_path(ocp_path, artifact=paths["stats"]), timing=timing
     )
-    save_figure(replay_figure(campaign, ocp, stats), paths["figure"])
+    if figures:
+        save_figure(replay_figure(campaign, ocp, stats), paths["figure"])
     t0 = time.perf_counter()
     write_recording(
         paths["rrd"], campaign, ocp, recording_id=f"replay-seed{config.seed}-{out.stem}"

@@ -46,6 +46,10 @@ SHORT = RunConfig.for_seed(
     baselines=False,
     plan={"episodes": 0},  # one round: the default's plan round is tests/test_plan_round.py's
 )
+BRIEF = replace(SHORT, figures=False)
+"""SHORT writing no figure (RunConfig.figures): for the tests that check a chain's numbers, not
+its figures, which this file's chains and tests/test_cli.py's run check; tests/test_sweep.py
+checks that a chain without them computes the same numbers."""
 
 
 class _StoppedError(Exception):

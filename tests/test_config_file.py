@@ -40,7 +40,8 @@ def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
 def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
     path = tmp_path / "crank.toml"
     path.write_text(
-        "seed = 4\n[generation]\nseconds = 30\nvariability = 'line-15'\ndrift = false\n"
+        "seed = 4\nfigures = false\n"
+        "[generation]\nseconds = 30\nvariability = 'line-15'\ndrift = false\n"
         "[ocp]\nheight = 0.085\nconstraint_samples = [60, 90, 120]\n[train]\nsigma_block = 5\n"
         "[replay]\nmodes = ['closed']\n"
     )
@@ -55,6 +56,8 @@ def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
     assert config.train.sigma_block == 5 and config.replay.modes == ("closed",)
     assert config.ocp.fallback == ()  # --fallback none
     assert config.heldout_runs == HELDOUT_RUNS  # untouched keys keep their defaults
+    assert not config.figures and RunConfig.from_dict(config.as_dict()) == config
+    assert build(merge(read_values(path), flag_values({"figures": True}), source="f")).figures
 
 
 def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) -> None:
@@ -79,6 +82,7 @@ def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) ->
         ("[ocp]\nhorizon = 150.0\n", "ocp.horizon must be an integer, got 150.0"),
         ("[ocp]\nconstraint_samples = [50, 'x']\n", "must be a list of an integer"),
         ("baselines = 1\n", "baselines must be true or false, got 1"),
+        ("figures = 'no'\n", 'figures must be true or false, got "no"'),
         ("ocp = 3\n", "ocp must be a table, got 3"),
         ("[ocp]\nhorizon = 2\n", "horizon must be >= 3 samples"),
         ("[generation]\nvariability = 'line-99'\n", "unknown variability scenario 'line-99'"),

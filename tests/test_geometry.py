@@ -17,7 +17,7 @@ from ppann.checkpoint import load
 from replay.config import ReplayConfig
 from replay.files import replay_file
 from replay.heldout import heldout_file
-from tests.test_chain import SHORT
+from tests.test_chain import BRIEF
 from twin import MODEL_PATH
 from twin.geometry import PAPER, Geometry, GeometryError
 from twin.mcap_dataset import read_dataset, read_truth
@@ -105,7 +105,7 @@ def long_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     mjcf.write_text(_variant(LONG_CRANK))
     from dataclasses import replace
 
-    config = replace(SHORT, model_path=str(mjcf))
+    config = replace(BRIEF, model_path=str(mjcf))
     run_chain(config, root / "run", argv=[])
     return root
 
@@ -132,7 +132,7 @@ def test_a_twin_with_a_longer_crank_runs_end_to_end(long_run: Path) -> None:
     samples = [k - 1 for k in ocp["constraint_samples"]]
     assert min(np.array(ocp["nominal"]["slider"])[samples]) >= 0.08 - 1e-6
     report = json.loads((run / "report.json").read_text())
-    assert report["heldout"]["runs"] == SHORT.heldout_runs
+    assert report["heldout"]["runs"] == BRIEF.heldout_runs
 
 
 def test_a_plan_for_another_mechanism_is_refused_by_the_twin(long_run: Path) -> None:
@@ -146,7 +146,7 @@ def test_a_plan_for_another_mechanism_is_refused_by_the_twin(long_run: Path) -> 
             model=run / "model.pt",
             runs=2,
             seed=1,
-            variability=SHORT.generation.variability,
+            variability=BRIEF.generation.variability,
         )
     assert not (long_run / "other.mcap").exists() and not (long_run / "other.json").exists()
 

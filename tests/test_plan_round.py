@@ -36,6 +36,7 @@ PLANNED = replace(
     replay=replace(SHORT.replay, modes=("open",)),
     heldout_seed=5,
     plan=PlanConfig(episodes=EPISODES),
+    figures=False,  # the sweep spec's
 )
 SPEC = (
     SWEEP_SPEC

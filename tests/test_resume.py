@@ -16,7 +16,7 @@ from crank.chain import STAGES_FILE, Hooks, run_chain
 from crank.resume import resumed_config, with_settings
 from crank.study import run_rows
 from tests.conftest import crank
-from tests.test_chain import SHORT
+from tests.test_chain import BRIEF
 
 
 class _StoppedError(Exception):
@@ -30,10 +30,10 @@ def _stop_at_solve(text: str) -> None:
 
 @pytest.fixture(scope="module")
 def unsolved(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """SHORT stopped before its solve: dataset and model made, nothing after."""
+    """BRIEF stopped before its solve: dataset and model made, nothing after."""
     run = tmp_path_factory.mktemp("resume") / "run"
     with pytest.raises(_StoppedError):
-        run_chain(SHORT, run, argv=[], hooks=Hooks(on_stage=_stop_at_solve))
+        run_chain(BRIEF, run, argv=[], hooks=Hooks(on_stage=_stop_at_solve))
     assert set(json.loads((run / STAGES_FILE).read_text())) == {"generate", "train"}
     return run
 
@@ -46,7 +46,7 @@ def _copy(run: Path, to: Path) -> Path:
 def test_a_resume_with_another_profile_goes_on_from_the_model(unsolved, tmp_path: Path) -> None:
     run = _copy(unsolved, tmp_path / "run")
     trained = (run / "model.pt").stat().st_mtime_ns
-    changed = with_settings(SHORT, {"ocp": {"profiles": ["robust-fb"]}, "replay": {"runs": 2}})
+    changed = with_settings(BRIEF, {"ocp": {"profiles": ["robust-fb"]}, "replay": {"runs": 2}})
     assert changed.ocp.profiles == ("robust-fb",) and changed.replay.runs == 2
     stages: list[str] = []
     run_chain(changed, run, argv=["resumed"], hooks=Hooks(on_stage=stages.append), resume=True)
@@ -71,14 +71,14 @@ def test_a_setting_of_a_stage_made_or_of_the_data_is_refused(unsolved, tmp_path:
     run = _copy(unsolved, tmp_path / "run")
     before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
     with pytest.raises(ConfigError, match="another run's configuration"):
-        run_chain(SHORT.with_seed(1), run, resume=True)
-    longer = with_settings(SHORT, {})
+        run_chain(BRIEF.with_seed(1), run, resume=True)
+    longer = with_settings(BRIEF, {})
     with pytest.raises(ConfigError, match="cannot change generation"):
         with_settings(longer, {"generation": {"seconds": 20.0}})
     done = json.loads((run / STAGES_FILE).read_text())
     (run / STAGES_FILE).write_text(json.dumps(done | {"solve": {}}))  # as if it had solved
     with pytest.raises(ConfigError, match="already solved its OCPs: its ocp settings cannot"):
-        run_chain(with_settings(SHORT, {"ocp": {"confidence": 0.5}}), run, resume=True)
+        run_chain(with_settings(BRIEF, {"ocp": {"confidence": 0.5}}), run, resume=True)
     after = {p.name: p.stat().st_mtime_ns for p in run.iterdir() if p.name != STAGES_FILE}
     assert after == {k: v for k, v in before.items() if k != STAGES_FILE}  # nothing written
 
@@ -155,14 +155,14 @@ def test_a_moved_run_resumes_on_a_copy_of_its_twin(unsolved, tmp_path: Path) -> 
 def test_a_refused_open_loop_ends_with_the_fallback_tube_and_its_report(
     unsolved, tmp_path: Path
 ) -> None:
-    """SHORT's model asked for the open loop alone at k 2 with the centred tightening: its
+    """BRIEF's model asked for the open loop alone at k 2 with the centred tightening: its
     Monte-Carlo's spread needs more than the stroke (refused), so the run solves the fallback
     tube from the same plan and goes on to its replays, its held-out check in the tube's loop
     and a report that says both (resumed from the same model to save a training)."""
     run = _copy(unsolved, tmp_path / "run")
     wide = {"tightening": "centred", "k_sigma": 2.0, "profiles": ["robust"]}
     stages: list[str] = []
-    config = with_settings(SHORT, {"ocp": wide})
+    config = with_settings(BRIEF, {"ocp": wide})
     report = run_chain(config, run, argv=[], hooks=Hooks(on_stage=stages.append), resume=True)
     solving = stages.index("solving the nominal and robust OCP")  # said as it happens:
     assert stages[solving + 1] == "robust refused: solving the fallback robust-fb"

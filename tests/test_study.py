@@ -10,12 +10,12 @@ import pytest
 
 from common.errors import ConfigError
 from crank.study import parse_seeds, run_study
-from tests.test_chain import SHORT
+from tests.test_chain import BRIEF
 
 
 def test_study_rows_resume_and_files(tmp_path) -> None:
     out = tmp_path / "study"
-    study = run_study(SHORT, (0, 1), out)
+    study = run_study(BRIEF, (0, 1), out)
     rows = {(r["seed"], r["profile"]): r for r in study["rows"]}
     # one row per seed and robust profile, each judged in its own loop
     assert set(rows) == {(s, p) for s in (0, 1) for p in ("robust", "robust-fb", "robust-pd")}
@@ -49,15 +49,15 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
     assert "- robust-pd closed loop on held-out" in text
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
     with pytest.raises(ConfigError, match="already exists"):
-        run_study(SHORT, (0, 1), out)
-    again = run_study(SHORT, (0, 1), out, resume=True)
+        run_study(BRIEF, (0, 1), out)
+    again = run_study(BRIEF, (0, 1), out, resume=True)
     assert (out / "seed-0" / "report.md").stat().st_mtime_ns == stamp  # not redone
     assert again["rows"] == study["rows"]
 
 
 def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
     """k_sigma 3 on a 12 s model: no robust profile; the study records it and goes on."""
-    failing = replace(SHORT, ocp=replace(SHORT.ocp, k_sigma=3.0, profiles=("robust",), fallback=()))
+    failing = replace(BRIEF, ocp=replace(BRIEF.ocp, k_sigma=3.0, profiles=("robust",), fallback=()))
     study = run_study(failing, (0,), tmp_path / "study")
     (row,) = study["rows"]
     assert row["seed"] == 0 and "no robust profile" in row["error"]
