@@ -30,7 +30,7 @@ from control.robust import Iteration
 from crank import stages
 from crank.estimate import Span, left, run_time
 from crank.resume import STAGES_FILE, check_new_run, resumable
-from ppann.train_config import TrainConfig
+from ppann.train_config import CALIBRATION_RUNS, TrainConfig
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.heldout import check_trajectories
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
@@ -66,6 +66,8 @@ class RunConfig:
     heldout_trajectories: int = CALIBRATION_TRAJECTORIES
     """Monte-Carlo trajectories of each predicted σ of the held-out check (its model's own
     rate takes twice as many); fewer give wider ratio intervals in heldout.json."""
+    calibration_runs: int = CALIBRATION_RUNS
+    """Fresh machines the model report replays the validation torque on (its observed σ)."""
     model_path: str = str(MODEL_PATH)
     baselines: bool = True
     """Train and report the physics-only and black-box baselines too."""
@@ -79,6 +81,7 @@ class RunConfig:
         check_seed("heldout_seed", self.heldout_seed)
         check_count("heldout_runs", self.heldout_runs, low=0, high=100_000)
         check_trajectories("heldout_trajectories", self.heldout_trajectories)
+        check_count("calibration_runs", self.calibration_runs, low=2, high=100_000)
         seeds = {
             "generation": self.generation.seed,
             "train": self.train.seed,
@@ -171,6 +174,7 @@ class RunConfig:
             )
             options |= {k: values[k] for k in ("model_path", "baselines")}
             options["figures"] = values.get("figures", True)  # runs of before the setting
+            options["calibration_runs"] = values.get("calibration_runs", CALIBRATION_RUNS)
             train = dict(values["train"])
             train.setdefault("early_stopping", "tail")  # runs of before the stop on every machine
             train.setdefault("mean_wrap", False)  # runs of before the setting

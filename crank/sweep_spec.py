@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from common.errors import ConfigError
 from crank.config_file import build, defaults, follow_dataset, merge
+from ppann.train_config import CALIBRATION_RUNS
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 
 if TYPE_CHECKING:
@@ -189,6 +190,8 @@ def node_key(kind: str, config: RunConfig) -> str:
         if not train["residual_mean"]:  # keys of runs without it stay what they were before it
             del train["residual_mean"]
         parts |= {"train": train, "baselines": values["baselines"]}
+        if config.calibration_runs != CALIBRATION_RUNS:  # keys stay as before the setting
+            parts["calibration_runs"] = config.calibration_runs
     if KINDS.index(kind) >= 2:
         parts["ocp"] = values["ocp"]
         if config.plan.episodes:  # keys of sweeps without the round stay what they were

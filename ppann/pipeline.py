@@ -38,7 +38,7 @@ from ppann.report import (
     validation_segment,
 )
 from ppann.train import make_splits
-from ppann.train_config import TrainConfig
+from ppann.train_config import CALIBRATION_RUNS, TrainConfig
 from twin.dataset import Dataset
 from twin.mcap_dataset import has_model_xml, read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
@@ -74,7 +74,7 @@ def train_and_report(
     *,
     config: TrainConfig,
     mc_samples: int = 100,
-    replay_runs: int = 100,
+    replay_runs: int = CALIBRATION_RUNS,
     baselines: bool = True,
     figures: bool = True,
     on_epoch: Callable[[str, str, int, float], None] | None = None,

@@ -9,6 +9,10 @@ from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
 from ppann.model_config import MACHINE_TERMS, WHITE_INERTIA
 
+CALIBRATION_RUNS = 100
+"""Fresh machines the model report replays the validation torque on (its observed σ, against
+which each Monte-Carlo mode's predicted σ is calibrated; ppann/pipeline.py)."""
+
 EARLY_STOPPING = ("tail", "machines")
 """What phase 1's early stopping scores (TrainConfig.early_stopping)."""
 

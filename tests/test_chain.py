@@ -43,6 +43,7 @@ SHORT = RunConfig.for_seed(
     heldout_runs=20,
     # 20 machines measure a spread to ~±30 %: the check's predictions need not be 10 000 draws
     heldout_trajectories=1000,
+    calibration_runs=20,  # the model report's observed σ: from as many machines as the check's
     baselines=False,
     plan={"episodes": 0},  # one round: the default's plan round is tests/test_plan_round.py's
 )

@@ -83,6 +83,7 @@ def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) ->
         ("[ocp]\nconstraint_samples = [50, 'x']\n", "must be a list of an integer"),
         ("baselines = 1\n", "baselines must be true or false, got 1"),
         ("figures = 'no'\n", 'figures must be true or false, got "no"'),
+        ("calibration_runs = 1\n", "calibration_runs must be an integer 2..100000, got 1"),
         ("ocp = 3\n", "ocp must be a table, got 3"),
         ("[ocp]\nhorizon = 2\n", "horizon must be >= 3 samples"),
         ("[generation]\nvariability = 'line-99'\n", "unknown variability scenario 'line-99'"),

@@ -282,8 +282,8 @@ def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None
     short = tmp_path / "crank.toml"  # tests/test_chain.py SHORT's training: the chain, sooner;
     # no fallback, so that the refusal ends the run with the hint to the tube
     short.write_text(
-        "figures = false\n[train]\nmax_epochs = 3\nsigma_epochs = 20\n[ocp]\nfallback = []\n"
-        "[plan]\nepisodes = 0\n"
+        "figures = false\ncalibration_runs = 20\n"
+        "[train]\nmax_epochs = 3\nsigma_epochs = 20\n[ocp]\nfallback = []\n[plan]\nepisodes = 0\n"
     )
     args = ["run", "--seconds", "12", "--config", str(short), "--logs", str(tmp_path)]
     args += ["--name", "r"]

@@ -37,6 +37,7 @@ SPEC = """
 [base]
 figures = false  # compared with chains that write them: the same numbers
 heldout_runs = 20
+calibration_runs = 20
 heldout_trajectories = 1000
 baselines = false
 [base.generation]
@@ -380,6 +381,17 @@ def test_the_checks_monte_carlo_size_keys_the_leaf_alone() -> None:
     for kind in ("data", "model", "solve"):
         assert node_key(kind, small) == node_key(kind, base)
     assert node_key("leaf", small) != node_key("leaf", base)
+
+
+def test_the_reports_calibration_runs_key_the_model_and_figures_no_step() -> None:
+    """`calibration_runs` changes the model step's report (and so every step after it), not the
+    data; left out at its default. `figures` changes no number: no step's key."""
+    base = RunConfig.for_seed(0, heldout_runs=1000)
+    fewer = replace(base, calibration_runs=20)
+    assert node_key("data", fewer) == node_key("data", base)
+    for kind in ("model", "solve", "leaf"):
+        assert node_key(kind, fewer) != node_key(kind, base)
+        assert node_key(kind, replace(base, figures=False)) == node_key(kind, base)
 
 
 @pytest.fixture
