@@ -73,7 +73,7 @@ class RunConfig:
     """Train and report the physics-only and black-box baselines too."""
     figures: bool = True
     """Write each stage's PNGs (report.md shows those there). Off, a run writes none and computes
-    the same numbers, ~1 s sooner per figure (~15 per round): for sweeps and studies of many
+    the same numbers, ~1 s sooner per figure (~11 per round): for sweeps and studies of many
     runs whose figures nobody opens."""
 
     def __post_init__(self) -> None:
