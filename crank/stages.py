@@ -64,7 +64,7 @@ def train(
         out / MODEL,
         config=config.train,
         baselines=config.baselines and baselines,
-        replay_runs=config.calibration_runs,
+        calibration_runs=config.calibration_runs,
         figures=config.figures,
         on_epoch=hooks.on_epoch,
         on_trained=hooks.on_trained,

@@ -74,7 +74,7 @@ def train_and_report(
     *,
     config: TrainConfig,
     mc_samples: int = 100,
-    replay_runs: int = CALIBRATION_RUNS,
+    calibration_runs: int = CALIBRATION_RUNS,
     baselines: bool = True,
     figures: bool = True,
     on_epoch: Callable[[str, str, int, float], None] | None = None,
@@ -120,7 +120,7 @@ def train_and_report(
             dataset.geometry, this=f"{data_path}:model.xml", that=f"{data_path}'s run record"
         )
         replay = twin_replay(
-            dataset, segment, physics=physics, n_runs=replay_runs, seed=config.seed
+            dataset, segment, physics=physics, n_runs=calibration_runs, seed=config.seed
         )
     fingerprint = checkpoint.fingerprint(dataset)
     report: dict[str, Any] = {
@@ -140,7 +140,7 @@ def train_and_report(
         "calibration": None
         if replay is None
         else {
-            "n_runs": replay_runs,
+            "n_runs": calibration_runs,
             "observed_sigma_final": {
                 "theta": float(replay.theta[:, -1].std(ddof=1)),
                 "slider_position": float(replay.slider_position[:, -1].std(ddof=1)),

@@ -36,6 +36,7 @@ import tempfile
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -138,25 +139,35 @@ def _outputs() -> tuple[Any, Any]:
 
 
 class Command:
-    """A `crank` command running in a child of the server: the few methods of `subprocess.Popen`
-    the suite uses (pid, poll, wait, kill) and, once it has ended, its output."""
+    """A `crank` command running in a process of its own (a child of the server, or a fresh
+    interpreter): the few methods of `subprocess.Popen` the suite uses (pid, poll, wait, kill)
+    and, once it has ended, its output. `status(timeout)` is its exit status, None while it
+    runs `timeout` s on (0: at once; None: waits)."""
 
-    def __init__(self, server: ForkServer, args: list[str], pid: int, out: Any, err: Any) -> None:
-        self._server = server
+    def __init__(
+        self,
+        args: list[str],
+        pid: int,
+        out: Any,
+        err: Any,
+        *,
+        status: Callable[[float | None], int | None],
+    ) -> None:
         self.args = args
         self.pid = pid
         self.returncode: int | None = None
         self._out, self._err = out, err
+        self._status = status
 
     def poll(self) -> int | None:
         if self.returncode is None:
-            self.returncode = self._server.status(self.pid, timeout=0.0)
+            self.returncode = self._status(0.0)
         return self.returncode
 
     def wait(self, timeout: float | None = None) -> int:
         """The exit status; `subprocess.TimeoutExpired` after `timeout` seconds."""
         if self.returncode is None:
-            self.returncode = self._server.status(self.pid, timeout=timeout)
+            self.returncode = self._status(timeout)
             if self.returncode is None:
                 raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
         return self.returncode
@@ -211,6 +222,13 @@ class ForkServer:
             raise RuntimeError(f"the fork server ended (exit {self._process.poll()})")
         return json.loads(data)
 
+    def _receive(self, *, timeout: float | None) -> dict[str, Any] | None:
+        """`_read`, keeping the exit status the message brings (of any child)."""
+        message = self._read(timeout=timeout)
+        if message is not None and "status" in message:
+            self._ended[message["pid"]] = message["status"]
+        return message
+
     def start(
         self,
         args: list[str],
@@ -229,24 +247,20 @@ class ForkServer:
             "new_session": new_session,
         }
         socket.send_fds(self._sock, [json.dumps(request).encode()], [out.fileno(), err.fileno()])
-        while True:
-            message = self._read(timeout=None)
-            assert message is not None
-            if "status" in message:
-                self._ended[message["pid"]] = message["status"]
-            else:
-                return Command(self, args, message["pid"], out, err)
+        message = self._receive(timeout=None)
+        while message is not None and "status" in message:  # another child's end, kept
+            message = self._receive(timeout=None)
+        assert message is not None
+        pid = message["pid"]
+        return Command(args, pid, out, err, status=lambda t: self.status(pid, timeout=t))
 
     def status(self, pid: int, *, timeout: float | None) -> int | None:
         """The exit status of child `pid`; None if it still runs after `timeout` s."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while pid not in self._ended:
             left = None if deadline is None else max(0.0, deadline - time.monotonic())
-            message = self._read(timeout=left)
-            if message is None:
+            if self._receive(timeout=left) is None:
                 return None
-            if "status" in message:
-                self._ended[message["pid"]] = message["status"]
         return self._ended.pop(pid)
 
     def close(self) -> None:
@@ -265,7 +279,7 @@ class Fresh:
         cwd: Path | None = None,
         env: dict[str, str] | None = None,
         new_session: bool = False,
-    ) -> FreshCommand:
+    ) -> Command:
         out, err = _outputs()
         process = subprocess.Popen(
             [sys.executable, "-m", "crank", *args],
@@ -276,32 +290,19 @@ class Fresh:
             stderr=err,
             start_new_session=new_session,
         )
-        return FreshCommand(process, out, err)
+
+        def status(timeout: float | None) -> int | None:
+            if timeout == 0.0:
+                return process.poll()
+            try:
+                return process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                return None
+
+        return Command(args, process.pid, out, err, status=status)
 
     def close(self) -> None:
         pass
-
-
-class FreshCommand(Command):
-    """`Command`'s methods on a `subprocess.Popen`."""
-
-    def __init__(self, process: subprocess.Popen[bytes], out: Any, err: Any) -> None:
-        self._process = process
-        self.args = process.args  # type: ignore[assignment]
-        self.pid = process.pid
-        self.returncode = None
-        self._out, self._err = out, err
-
-    def poll(self) -> int | None:
-        self.returncode = self._process.poll()
-        return self.returncode
-
-    def wait(self, timeout: float | None = None) -> int:
-        self.returncode = self._process.wait(timeout)
-        return self.returncode
-
-    def kill(self) -> None:
-        self._process.kill()
 
 
 if __name__ == "__main__":
