@@ -10,8 +10,11 @@ AMD EPYC machine kind the host's load moved that reference from 7.3 to 4.6-4.9 u
 
 Prints the suite's wall time and exit code, the reference before and after, and the suite's
 wall time per microsecond of reference. Target (README): wall time <= 900 s on 2 cores.
+With `--record` (a passing run of the whole suite), it also writes the seconds each test file
+took, from pytest's JUnit XML, to tests/file_seconds.json: the suite runs its files longest
+first by it (tests/order.py), so record again after adding or much changing a long file.
 
-    python bench/suite_time.py [extra pytest arguments]
+    python bench/suite_time.py [--record | extra pytest arguments]
 """
 
 from __future__ import annotations
@@ -19,10 +22,15 @@ from __future__ import annotations
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.order
 
 from bench_generate import bare_rollout  # the script's folder is on the path
 
+from tests.order import RECORD, junit_seconds, write_record
 from twin.physics import SliderCrank, load_model
 
 RUNS, SAMPLES = 20, 250
@@ -36,15 +44,33 @@ def reference_us(*, repeats: int = 3) -> float:
 
 
 def main() -> None:
-    before = reference_us()
-    started = time.perf_counter()
-    suite = subprocess.run([sys.executable, "-m", "pytest", "-q", *sys.argv[1:]], check=False)
-    wall = time.perf_counter() - started
-    after = reference_us()
-    mean = 0.5 * (before + after)
-    print(f"suite: exit {suite.returncode}, {wall:.0f} s wall (target <= 900 s)")
-    print(f"reference: {before:.2f} us per physics step before, {after:.2f} after")
-    print(f"suite / reference: {wall / mean:.0f} s per us")
+    args = sys.argv[1:]
+    record = "--record" in args
+    args = [a for a in args if a != "--record"]
+    if record and args:
+        print(
+            f"--record times the whole suite as the README runs it; got also {args}",
+            file=sys.stderr,
+        )
+        sys.exit(2)
+    with tempfile.TemporaryDirectory() as tmp:
+        junit = Path(tmp) / "junit.xml"
+        before = reference_us()
+        started = time.perf_counter()
+        command = [sys.executable, "-m", "pytest", "-q", *args]
+        suite = subprocess.run(command + ([f"--junitxml={junit}"] if record else []), check=False)
+        wall = time.perf_counter() - started
+        after = reference_us()
+        mean = 0.5 * (before + after)
+        print(f"suite: exit {suite.returncode}, {wall:.0f} s wall (target <= 900 s)")
+        print(f"reference: {before:.2f} us per physics step before, {after:.2f} after")
+        print(f"suite / reference: {wall / mean:.0f} s per us")
+        if record and suite.returncode == 0:
+            seconds = junit_seconds(junit)
+            write_record(seconds, reference_us=mean, wall_s=wall)
+            print(f"recorded {len(seconds)} files, {sum(seconds.values()):.0f} s summed: {RECORD}")
+        elif record:
+            print(f"not recorded: the suite did not pass; {RECORD} unchanged")
     sys.exit(suite.returncode)
 
 

@@ -15,6 +15,7 @@ from control.solvers import keep_solvers
 from replay.config import ReplayConfig
 from replay.files import output_paths, replay_file
 from tests.forkserver import Command, ForkServer, Fresh
+from tests.order import longest_first, read_record
 from tests.replay_ocp import write_ocp
 from twin import PAPER_SECONDS
 from twin.dataset import Dataset, GenerationConfig, GroundTruth, generate
@@ -52,6 +53,11 @@ def pytest_configure(config: pytest.Config) -> None:
     import torch
 
     torch.set_num_threads(1)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The longest test files first (tests/order.py): the order xdist hands them to workers."""
+    longest_first(items, read_record())
 
 
 @pytest.fixture(scope="session")
