@@ -36,6 +36,10 @@ and then the same chain another way (a sweep's leaf, a resume, a study's row) to
 build the same NLPs again; ~250 MB each."""
 
 
+FILE_SECONDS = pytest.StashKey[dict[str, float]]()
+"""Seconds per test file of the recorded run (tests/order.py)."""
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """The test process keeps the solvers of the last SOLVERS_KEPT NLPs it built (the processes
     it starts keep none, as a `crank` command does).
@@ -46,6 +50,10 @@ def pytest_configure(config: pytest.Config) -> None:
     oversubscribed. A model trained in a test and one trained by a `crank` subprocess the test
     starts then use the same thread count (a PPANN's last bits depend on it, ppann/fit.py)."""
     keep_solvers(SOLVERS_KEPT)
+    try:  # read here, where a bad record stops the run with one line before a worker starts
+        config.stash[FILE_SECONDS] = read_record()
+    except ValueError as exc:
+        raise pytest.UsageError(f"{exc} (python bench/suite_time.py --record writes it)") from None
     if os.environ.get("PYTEST_XDIST_WORKER") is None:
         return
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "CRANK_ROLLOUT_THREADS"):
@@ -57,7 +65,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The longest test files first (tests/order.py): the order xdist hands them to workers."""
-    longest_first(items, read_record())
+    longest_first(items, config.stash[FILE_SECONDS])
 
 
 @pytest.fixture(scope="session")
