@@ -2,12 +2,13 @@
 
 pytest-xdist's `--dist loadfile` runs each test file on one worker and hands the files out in the
 collection's order (`--no-loadscope-reorder`, pyproject.toml); by default it orders them by their
-number of tests, so a file of 3 tests and 90 s (one training to convergence) started last and the
-other worker waited for it (up to ~40 s of a ~13-minute suite). Here the files are ordered by the
-seconds they took in a recorded run (`tests/file_seconds.json`, written by `python
-bench/suite_time.py --record` from pytest's JUnit XML): the longest first, so the last files to
-start are the short ones and both workers end together. A file the record does not name (a new
-one) goes after the recorded ones, in collection order; the order changes no test's outcome.
+number of tests, so a file of 3 tests and 60-98 s (one 40-epoch training) started last and the
+other worker waited for it (3-57 s of a 10-15 minute suite in session 67's runs). Here the files
+are ordered by the seconds they took in a recorded run (`tests/file_seconds.json`, written by
+`python bench/suite_time.py --record` from pytest's JUnit XML): the longest first, so the last
+files to start are the short ones and both workers end together. A file the record does not name
+(a new one) goes after the recorded ones, in collection order; the order changes no test's
+outcome.
 """
 
 from __future__ import annotations
