@@ -67,6 +67,15 @@ PDOption = Annotated[
 FiguresOption = Annotated[
     bool, typer.Option(help="Write each stage's PNGs (off: none, the same numbers, sooner).")
 ]
+HeldoutRuns = Annotated[
+    int,
+    typer.Option(
+        help=f"Held-out machines per profile; 0 skips the check. Fewer than "
+        f"{machines_to_confirm()} cannot confirm a rate of {100 * TARGET_RATE:g} % (the "
+        "exact 95 % bound of none below)."
+    ),
+]
+HeldoutSeed = Annotated[int, typer.Option(help="Root seed of the held-out machines.")]
 
 
 @app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
@@ -89,17 +98,8 @@ def run_command(
     runs: Annotated[int, typer.Option(help="Replay machines per profile and mode.")] = (
         ReplayConfig.runs
     ),
-    heldout_runs: Annotated[
-        int,
-        typer.Option(
-            help=f"Held-out machines per profile; 0 skips the check. Fewer than "
-            f"{machines_to_confirm()} cannot confirm a rate of {100 * TARGET_RATE:g} % (the "
-            "exact 95 % bound of none below)."
-        ),
-    ] = HELDOUT_RUNS,
-    heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
-        HELDOUT_SEED
-    ),
+    heldout_runs: HeldoutRuns = HELDOUT_RUNS,
+    heldout_seed: HeldoutSeed = HELDOUT_SEED,
     heldout_trajectories: Annotated[
         int,
         typer.Option(
@@ -322,10 +322,8 @@ def study_command(
     seconds: Seconds = DATASET_SECONDS,
     episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
     runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
-    heldout_runs: Annotated[int, typer.Option(help="Held-out machines a profile.")] = HELDOUT_RUNS,
-    heldout_seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (
-        HELDOUT_SEED
-    ),
+    heldout_runs: HeldoutRuns = HELDOUT_RUNS,
+    heldout_seed: HeldoutSeed = HELDOUT_SEED,
     mc_mode: Annotated[str, typer.Option(help="Monte-Carlo mode of the robust OCP.")] = (
         OCPConfig.mc_mode
     ),
