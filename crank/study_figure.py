@@ -22,35 +22,42 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     σ of the slider at each constraint sample with its 95 % interval against the 0.8-1.25 band
     (issue 11's rows) against seed; where a profile was refused beyond the stroke, the
     tightening its model asked for against the stroke left (a seed red where no profile, nor a
-    fallback, has a torque)."""
-    ok = [r for r in rows if r.get("error") is None and "robust_heldout_rate" in r]
+    fallback, has a torque). A run without the held-out check (`--heldout-runs 0`) has its
+    premium drawn and says so in the two held-out panels."""
+    solved = [r for r in rows if r.get("error") is None and "premium" in r]
+    ok = [r for r in solved if "robust_heldout_rate" in r]
     refused = [r for r in rows if "refused_tightening" in r]
     panels = 3 + bool(refused)
     fig = Figure(figsize=(10, 3 * panels), layout="constrained")
     axes = fig.subplots(panels, 1, sharex=True)
     top, bottom, calibration = axes[0], axes[1], axes[2]
     samples: dict[str, str] = {}  # constraint sample -> colour, in the order met
-    names = list(dict.fromkeys(r["profile"] for r in ok))
+    names = list(dict.fromkeys(r["profile"] for r in solved))
     width = 0.8 / max(1, len(names))
     upper: list[float] = []
     for i, name in enumerate(names):  # side by side per seed
-        mine = [r for r in ok if r["profile"] == name]
-        x = [r["seed"] + (i - (len(names) - 1) / 2) * width for r in mine]
-        bounds = [100 * r["robust_heldout_upper_95"] for r in mine]
-        upper += bounds
+        offset = (i - (len(names) - 1) / 2) * width
         color = COLORS[name]
         label = f"{name} ({loop_of(name)} loop)"
-        top.bar(x, [100 * r["robust_heldout_rate"] for r in mine], width, color=color, label=label)
+        mine = [r for r in solved if r["profile"] == name]
+        x = [r["seed"] + offset for r in mine]
+        bottom.bar(x, [100 * r["premium"] for r in mine], width, color=color, label=label)
+        mine = [r for r in ok if r["profile"] == name]
+        x = [r["seed"] + offset for r in mine]
+        bounds = [100 * r["robust_heldout_upper_95"] for r in mine]
+        upper += bounds
+        rates = [100 * r["robust_heldout_rate"] for r in mine]
+        if mine:  # an empty bar's legend entry would not take the colour
+            top.bar(x, rates, width, color=color, label=label)
         top.scatter(x, bounds, color="k", marker="_", s=200 * width)
         for at, bound, row in zip(x, bounds, mine, strict=True):
             _count_label(top, at, bound, row, turned=len(names) > 1)
-        bottom.bar(x, [100 * r["premium"] for r in mine], width, color=color, label=label)
         for at, row in zip(x, mine, strict=True):
             calibration_marks(calibration, at, row, samples)
     top.scatter([], [], color="k", marker="_", label="95 % upper bound")
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1, label="target 0.5 %")
     # a seed whose every profile was refused (a fallback's torque is a profile)
-    failed = sorted({r["seed"] for r in rows if r.get("error")} - {r["seed"] for r in ok})
+    failed = sorted({r["seed"] for r in rows if r.get("error")} - {r["seed"] for r in solved})
     for s in failed:
         top.axvline(s, color="C3", alpha=0.3, lw=8)
     top.set_ylim(0, max([100 * TARGET_HELDOUT_RATE * 1.2, *upper]) * 1.3)  # the counts above
@@ -59,17 +66,14 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     bottom.set_ylim(bottom=0)
     bottom.set_ylabel("robust cost premium [%]")
     calibration_frame(calibration, samples)
-    if not ok:
-        for axis in (top, bottom, calibration):
-            axis.text(
-                0.5,
-                0.5,
-                "no seed has a robust profile",
-                transform=axis.transAxes,
-                ha="center",
-                va="center",
-                color="C3",
-            )
+    empty = {}
+    if not solved:
+        empty = dict.fromkeys((top, bottom, calibration), "no seed has a robust profile")
+    elif not ok:
+        empty = dict.fromkeys((top, calibration), "no held-out check (--heldout-runs 0)")
+        bottom.legend(fontsize=8)  # the profiles' colours, which the first panel has not
+    for axis, text in empty.items():
+        axis.text(0.5, 0.5, text, transform=axis.transAxes, ha="center", va="center", color="C3")
     if refused:
         axis = axes[3]
         x = [r["seed"] for r in refused]

@@ -7,6 +7,7 @@ import json
 from dataclasses import replace
 
 import pytest
+from matplotlib.colors import to_rgba
 
 from common.errors import ConfigError
 from crank.study import parse_seeds, run_study
@@ -224,3 +225,28 @@ def test_the_figure_names_each_rate_as_machines_below_out_of_those_played() -> N
         ("7/4000", 90.0),
         ("0/1000", 90.0),
     ]
+
+
+def test_the_figure_of_a_study_without_the_held_out_check_draws_its_premiums() -> None:
+    """`crank study --heldout-runs 0`: each profile's premium is drawn in its colour, and the two
+    held-out panels say the check was skipped (they said "no seed has a robust profile")."""
+    from control.figures import COLORS
+    from crank.study_figure import figure
+
+    rows = [
+        {"seed": 0, "profile": "robust", "error": None, "premium": 0.521},
+        {"seed": 0, "profile": "robust-fb", "error": None, "premium": 0.012},
+        {"seed": 1, "profile": "robust", "error": "RobustError: refused"},
+    ]
+    fig = figure(rows)
+    top, premium, calibration = fig.axes[:3]
+    heights = {round(p.get_x() + p.get_width() / 2, 3): p.get_height() for p in premium.patches}
+    assert heights == pytest.approx({-0.2: 52.1, 0.2: 1.2})
+    assert [p.get_facecolor() for p in premium.patches] == [
+        pytest.approx(to_rgba(COLORS[name])) for name in ("robust", "robust-fb")
+    ]
+    for axis in (top, calibration):
+        assert [t.get_text() for t in axis.texts] == ["no held-out check (--heldout-runs 0)"]
+    assert not premium.texts and not top.patches
+    legend = [t.get_text() for t in premium.get_legend().get_texts()]
+    assert legend == ["robust (open loop)", "robust-fb (closed loop)"]
