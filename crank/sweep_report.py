@@ -100,6 +100,12 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
                 f"{_pct(max(r['robust_heldout_upper_95'] for r in unsure))}): their held-out "
                 "machines are too few to confirm it"
             )
+    unchecked = [r for r in rows if not r.get("error") and "robust_heldout_rate" not in r]
+    if unchecked:
+        lines.append(
+            f"- {len(unchecked)} robust torque(s) not checked on held-out machines "
+            "(heldout_runs = 0): no rate to judge"
+        )
     if failed:
         lines.append(
             f"- {len(failed)} profile(s) of a leaf gave no robust torque or no result: why, below"
@@ -119,26 +125,32 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, members in groups(rows, axes).items():
-        good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
-        bad = len(members) - len(good)
-        if not good:
+        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
+        bad = len(members) - len(solved)
+        if not solved:
             lines.append(f"| {label} | {len(members)} |" + " n/a |" * 7 + f" {bad} |")
             continue
-        machines = sum(r["heldout_runs"] for r in good)
-        violated = sum(round(r["robust_heldout_rate"] * r["heldout_runs"]) for r in good)
-        premium = [r["premium"] for r in good]
-        campaign = sum(r["robust_100"] for r in good), sum(r["campaign_runs"] for r in good)
+        good = [r for r in solved if "robust_heldout_rate" in r]  # heldout_runs = 0: none
+        checked = ["not checked"] * 3
+        if good:
+            machines = sum(r["heldout_runs"] for r in good)
+            violated = sum(round(r["robust_heldout_rate"] * r["heldout_runs"]) for r in good)
+            checked = [
+                f"{violated}/{machines} ({_pct(violated / machines)})",
+                _pct(max(r["robust_heldout_rate"] for r in good)),
+                _pct(max(r["robust_heldout_upper_95"] for r in good)),
+            ]
+        premium = [r["premium"] for r in solved]
+        campaign = sum(r["robust_100"] for r in solved), sum(r["campaign_runs"] for r in solved)
         mean = sum(premium) / len(premium)
         cells = [
             label,
             str(len(members)),
-            f"{violated}/{machines} ({_pct(violated / machines)})",
-            _pct(max(r["robust_heldout_rate"] for r in good)),
-            _pct(max(r["robust_heldout_upper_95"] for r in good)),
+            *checked,
             f"{campaign[0]}/{campaign[1]}",
             f"{_pct(mean, 1)} ({_pct(min(premium), 1)}–{_pct(max(premium), 1)})",
-            _own(good),
-            _solved(good),
+            _own(solved),
+            _solved(solved),
             str(bad),
         ]
         lines.append("| " + " | ".join(cells) + " |")
@@ -197,22 +209,25 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     top, bottom, calibration = fig.subplots(3, 1, sharex=True)
     samples: dict[str, str] = {}  # constraint sample -> colour, in the order met
     for x, members in enumerate(grouped.values()):
-        good = [r for r in members if not r.get("error") and "robust_heldout_rate" in r]
-        spread = [x + 0.3 * (i / max(1, len(good) - 1) - 0.5) for i in range(len(good))]
-        if len(good) == 1:
+        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
+        spread = [x + 0.3 * (i / max(1, len(solved) - 1) - 0.5) for i in range(len(solved))]
+        if len(solved) == 1:
             spread = [float(x)]
-        top.scatter(spread, [100 * r["robust_heldout_rate"] for r in good], color="C0", s=18)
+        bottom.scatter(spread, [100 * r["premium"] for r in solved], color="C1", s=18)
+        # the held-out check's figures, where it ran (heldout_runs = 0 skips it)
+        good = [(at, r) for at, r in zip(spread, solved, strict=True) if "robust_heldout_rate" in r]
+        places = [at for at, _ in good]
+        top.scatter(places, [100 * r["robust_heldout_rate"] for _, r in good], color="C0", s=18)
         top.scatter(
-            spread,
-            [100 * r["robust_heldout_upper_95"] for r in good],
+            places,
+            [100 * r["robust_heldout_upper_95"] for _, r in good],
             color="C3",
             marker="_",
             s=120,
         )
-        bottom.scatter(spread, [100 * r["premium"] for r in good], color="C1", s=18)
-        for at, row in zip(spread, good, strict=True):
+        for at, row in good:
             calibration_marks(calibration, at, row, samples)
-        if len(good) < len(members):
+        if len(solved) < len(members):
             top.scatter([x], [0], color="C3", marker="x", s=80)
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1)
     top.set_ylabel("robust, held-out violations [%]")
@@ -235,9 +250,11 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     for members in grouped.values():
         values = (str(members[0].get(name)) for name in names)
         label = "\n".join(textwrap.fill(v, TICK_WIDTH) for v in values) or "all"
-        bad = sum(1 for r in members if r.get("error") or "robust_heldout_rate" not in r)
+        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
+        bad = len(members) - len(solved)
         refused = sum(1 for r in members if failure(r) == "refused")
-        counts = ((bad - refused, "failed"), (refused, "refused"))
+        unchecked = sum(1 for r in solved if "robust_heldout_rate" not in r)
+        counts = ((bad - refused, "failed"), (refused, "refused"), (unchecked, "not checked"))
         notes = [f"{n} {word}" for n, word in counts if n]
         ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
     calibration_frame(calibration, samples)

@@ -121,3 +121,43 @@ def test_sweep_figure_draws_each_calibration_ratio_with_its_interval() -> None:
     assert (1.0, 1.1) in bars and (1.1, 1.3) in bars and (1.3, 1.5) in bars
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert labels == ["sample 50", "sample 100", "sample 130", "0.8-1.25"]
+
+
+def test_sweep_figure_without_the_held_out_check_draws_its_premiums() -> None:
+    """A sweep whose base skips the held-out check (heldout_runs = 0): each leaf's premium is
+    drawn, no rate, and the columns say "not checked", where they said every leaf "failed"
+    and drew nothing; a refused profile beside them is still counted as refused."""
+    rows = [
+        {"seed": 0, "case": "a", "profile": "robust", "premium": 0.3},
+        {"seed": 1, "case": "a", "profile": "robust", "premium": 0.25},
+        {"seed": 0, "case": "b", "profile": "robust", "premium": 0.4},
+        {"seed": 1, "case": "b", "profile": "robust", "error": "open loop cannot keep"},
+    ]
+    fig = figure(rows, ["seed", "case"])
+    top, premium, lowest = fig.axes[0], fig.axes[1], fig.axes[-1]
+    dots = sorted(tuple(np.round(xy, 6)) for c in premium.collections for xy in c.get_offsets())
+    assert dots == [(-0.15, 30.0), (0.15, 25.0), (1.0, 40.0)]
+    rates = [xy for c in top.collections for xy in c.get_offsets() if len(c.get_offsets())]
+    assert [tuple(xy) for xy in rates] == [(1.0, 0.0)]  # the refused leaf's cross alone
+    ticks = [t.get_text() for t in lowest.get_xticklabels()]
+    assert ticks == ["a\n(2 not checked of 2)", "b\n(1 refused, 1 not checked of 2)"]
+
+
+def test_the_verdict_of_a_sweep_without_the_held_out_check_says_so() -> None:
+    """sweep.md with heldout_runs = 0: the torques' campaign and premium in the table, "not
+    checked" for the held-out columns and no error counted, where the row was all "n/a" with
+    its torque counted as an error."""
+    sweep = {"axes": ["seed"], "steps": "", "executor": "ray", "wall_s": 1.0, "heldout_seeds": [7]}
+    rows = [
+        {"leaf": f"seed={s}", "seed": s, "profile": "robust", "premium": p, "robust_100": n}
+        | {"campaign_runs": 100}
+        for s, p, n in ((0, 0.3, 0), (1, 0.2, 2))
+    ]
+    text = markdown(sweep, rows)
+    assert "- 2 robust torque(s) not checked on held-out machines (heldout_runs = 0)" in text
+    assert "every robust torque returned" not in text and "## Errors" not in text
+    expected = (
+        "| all | 2 | not checked | not checked | not checked | 2/200 | 25.0 % (20.0 %–30.0 %) |"
+    )
+    assert expected in text
+    assert text.rstrip().endswith("| n/a | n/a | 0 |")
