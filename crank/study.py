@@ -276,6 +276,8 @@ def markdown(study: dict[str, Any]) -> str:
             f"**{'yes' if campaign and every else 'no'}**"
         )
         lines += _recurring(good)
+    if not study["config"].get("heldout_runs", 1):
+        lines.append("- no held-out check (--heldout-runs 0): no rate to judge")
     failed = [r for r in rows if r.get("error")]
     if failed:
         lines.append(f"- {len(failed)} seed(s) gave no result (errors below)")

@@ -250,3 +250,18 @@ def test_the_figure_of_a_study_without_the_held_out_check_draws_its_premiums() -
     assert not premium.texts and not top.patches
     legend = [t.get_text() for t in premium.get_legend().get_texts()]
     assert legend == ["robust (open loop)", "robust-fb (closed loop)"]
+
+
+def test_the_verdict_of_a_study_without_the_held_out_check_says_so() -> None:
+    """study.md of `crank study --heldout-runs 0`: one line saying there is no rate to judge
+    (it said nothing above the table), and none where the check ran."""
+    from crank.study import markdown
+
+    row = {"seed": 0, "profile": "robust", "error": None, "robust_100": 0, "premium": 0.3}
+    study = _study([row], tightening="centred", heldout_seed=7)
+    study["config"]["heldout_runs"] = 0
+    text = markdown(study)
+    assert "- no held-out check (--heldout-runs 0): no rate to judge\n" in text
+    assert "on held-out machines: worst seed" not in text
+    study["config"]["heldout_runs"] = 1000
+    assert "no held-out check" not in markdown(study)
