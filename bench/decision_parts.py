@@ -23,11 +23,7 @@ import argparse
 import cProfile
 import pstats
 import statistics
-import sys
 import time
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from control.config import OCPConfig
 from control.ocp import NominalOCP

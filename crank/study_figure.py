@@ -17,6 +17,12 @@ from ppann.figures import CALIBRATION_BAND
 from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
 
 
+def solved_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows whose profile has a torque (no error, a premium), checked on held-out machines
+    or not (heldout_runs = 0 skips the check): the study's and the sweep's figures and tables."""
+    return [r for r in rows if not r.get("error") and r.get("premium") is not None]
+
+
 def figure(rows: list[dict[str, Any]]) -> Figure:
     """Violation rates (held-out, with the 95 % bound), cost premium, and predicted / observed
     σ of the slider at each constraint sample with its 95 % interval against the 0.8-1.25 band
@@ -24,7 +30,7 @@ def figure(rows: list[dict[str, Any]]) -> Figure:
     tightening its model asked for against the stroke left (a seed red where no profile, nor a
     fallback, has a torque). A run without the held-out check (`--heldout-runs 0`) has its
     premium drawn and says so in the two held-out panels."""
-    solved = [r for r in rows if r.get("error") is None and "premium" in r]
+    solved = solved_rows(rows)
     ok = [r for r in solved if "robust_heldout_rate" in r]
     refused = [r for r in rows if "refused_tightening" in r]
     panels = 3 + bool(refused)

@@ -16,7 +16,7 @@ from common.atomic import atomic_path
 from common.figures import save_figure
 from crank import stages
 from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
-from crank.study_figure import calibration_frame, calibration_marks
+from crank.study_figure import calibration_frame, calibration_marks, solved_rows
 from crank.sweep_spec import KINDS, Leaf
 
 Records = list[tuple[Leaf, list[dict[str, Any]]]]
@@ -100,7 +100,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
                 f"{_pct(max(r['robust_heldout_upper_95'] for r in unsure))}): their held-out "
                 "machines are too few to confirm it"
             )
-    unchecked = [r for r in rows if not r.get("error") and "robust_heldout_rate" not in r]
+    unchecked = [r for r in solved_rows(rows) if "robust_heldout_rate" not in r]
     if unchecked:
         lines.append(
             f"- {len(unchecked)} robust torque(s) not checked on held-out machines "
@@ -125,7 +125,7 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label, members in groups(rows, axes).items():
-        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
+        solved = solved_rows(members)
         bad = len(members) - len(solved)
         if not solved:
             lines.append(f"| {label} | {len(members)} |" + " n/a |" * 7 + f" {bad} |")
@@ -208,8 +208,9 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     )
     top, bottom, calibration = fig.subplots(3, 1, sharex=True)
     samples: dict[str, str] = {}  # constraint sample -> colour, in the order met
+    ticks = []
     for x, members in enumerate(grouped.values()):
-        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
+        solved = solved_rows(members)
         spread = [x + 0.3 * (i / max(1, len(solved) - 1) - 0.5) for i in range(len(solved))]
         if len(solved) == 1:
             spread = [float(x)]
@@ -229,6 +230,17 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
             calibration_marks(calibration, at, row, samples)
         if len(solved) < len(members):
             top.scatter([x], [0], color="C3", marker="x", s=80)
+        values = (str(members[0].get(name)) for name in names)
+        label = "\n".join(textwrap.fill(v, TICK_WIDTH) for v in values) or "all"
+        refused = sum(1 for r in members if failure(r) == "refused")
+        unchecked = len(solved) - len(good)
+        counts = (
+            (len(members) - len(solved) - refused, "failed"),
+            (refused, "refused"),
+            (unchecked, "not checked"),
+        )
+        notes = [f"{n} {word}" for n, word in counts if n]
+        ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
     top.axhline(100 * TARGET_HELDOUT_RATE, color="k", ls="--", lw=1)
     top.set_ylabel("robust, held-out violations [%]")
     top.set_ylim(bottom=0)
@@ -246,17 +258,6 @@ def figure(rows: list[dict[str, Any]], axes: list[str]) -> Figure:
     premiums = [100 * r["premium"] for r in rows if r.get("premium") is not None]
     # a premium below 0 stays in view, and the largest one's dot whole
     bottom.set_ylim(min([0.0, *premiums]) - 0.5, max([0.0, *premiums]) * 1.06 + 0.5)
-    ticks = []
-    for members in grouped.values():
-        values = (str(members[0].get(name)) for name in names)
-        label = "\n".join(textwrap.fill(v, TICK_WIDTH) for v in values) or "all"
-        solved = [r for r in members if not r.get("error") and r.get("premium") is not None]
-        bad = len(members) - len(solved)
-        refused = sum(1 for r in members if failure(r) == "refused")
-        unchecked = sum(1 for r in solved if "robust_heldout_rate" not in r)
-        counts = ((bad - refused, "failed"), (refused, "refused"), (unchecked, "not checked"))
-        notes = [f"{n} {word}" for n, word in counts if n]
-        ticks.append(label + (f"\n({', '.join(notes)} of {len(members)})" if notes else ""))
     calibration_frame(calibration, samples)
     calibration.set_xticks(range(len(grouped)), ticks, fontsize=8)
     calibration.set_xlim(-0.5, len(grouped) - 0.5)
