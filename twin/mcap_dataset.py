@@ -39,6 +39,7 @@ from twin.dataset import (
     measurement_arrays,
     truth_arrays,
 )
+from twin.mcap_chunks import topic_messages
 
 MEASUREMENT_TOPIC = "/slider_crank/measurement"
 TRUTH_TOPIC = "/slider_crank/truth"
@@ -184,7 +185,11 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
                 "expected 'json'"
             )
         try:
-            rows = [orjson.loads(m.data) for _, _, m in reader.iter_messages(topics=[topic])]
+            datas = topic_messages(f, summary, topic)  # None: the library reads it
+            if datas is None:
+                rows = [orjson.loads(m.data) for _, _, m in reader.iter_messages(topics=[topic])]
+            else:
+                rows = [orjson.loads(data) for data in datas]
         except orjson.JSONDecodeError as exc:
             raise ContractError(f"{path}: a message on {topic} is not JSON ({exc})") from None
         except (McapError, ZstdError, ValueError, EOFError) as exc:  # a damaged chunk
