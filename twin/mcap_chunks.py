@@ -22,6 +22,7 @@ errors as the library's).
 
 from __future__ import annotations
 
+import io
 import struct
 from typing import IO
 
@@ -62,6 +63,7 @@ def _read(f: IO[bytes], summary: Summary, topic: str) -> list[bytes] | None:
     offsets = [index.chunk_start_offset for index in chunks]
     if len(set(offsets)) != len(offsets):
         return None
+    known = set(summary.channels)
     times: list[int] = []
     datas: list[bytes] = []
     for index in sorted(chunks, key=lambda c: c.chunk_start_offset):
@@ -74,7 +76,7 @@ def _read(f: IO[bytes], summary: Summary, topic: str) -> list[bytes] | None:
         else:
             return None
         first = len(times)
-        _walk(data, wanted, set(summary.channels), times, datas)
+        _walk(data, wanted, known, times, datas)
         if len(times) > first and min(times[first:]) < index.message_start_time:
             return None  # the library's heap would take this chunk later than its messages
     order = np.argsort(np.asarray(times, dtype=np.uint64), kind="stable")
@@ -121,21 +123,8 @@ def _walk(
                 times.append(log_time)
                 datas.append(bytes(view[body + _MESSAGE.size : end]))
         elif opcode in (_SCHEMA, _CHANNEL):
-            stream = ReadDataStream(_Bytes(view[body:end]))
+            stream = ReadDataStream(io.BytesIO(view[body:end]))
             (Schema if opcode == _SCHEMA else Channel).read(stream)
             if stream.count != length:
                 raise _UnusualError
         position = end
-
-
-class _Bytes:
-    """A readable over a memoryview, for `ReadDataStream`."""
-
-    def __init__(self, view: memoryview) -> None:
-        self._view, self._at = view, 0
-
-    def read(self, n: int = -1) -> bytes:
-        stop = len(self._view) if n < 0 else min(self._at + n, len(self._view))
-        out = bytes(self._view[self._at : stop])
-        self._at = stop
-        return out

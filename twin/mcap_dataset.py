@@ -185,11 +185,10 @@ def _read_topic(path: str | Path, topic: str, names: tuple[str, ...]) -> dict[st
                 "expected 'json'"
             )
         try:
-            datas = topic_messages(f, summary, topic)  # None: the library reads it
-            if datas is None:
-                rows = [orjson.loads(m.data) for _, _, m in reader.iter_messages(topics=[topic])]
-            else:
-                rows = [orjson.loads(data) for data in datas]
+            datas = topic_messages(f, summary, topic)
+            if datas is None:  # the library's reader, decoding each message as it comes
+                datas = (m.data for _, _, m in reader.iter_messages(topics=[topic]))
+            rows = [orjson.loads(data) for data in datas]
         except orjson.JSONDecodeError as exc:
             raise ContractError(f"{path}: a message on {topic} is not JSON ({exc})") from None
         except (McapError, ZstdError, ValueError, EOFError) as exc:  # a damaged chunk
