@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from ppann.activation import Tanh
+
 
 @dataclass(frozen=True)
 class BlackBoxConfig:
@@ -33,7 +35,7 @@ class BlackBox(nn.Module):
         super().__init__()
         self.config = config or BlackBoxConfig()
         self.net = nn.Sequential(
-            nn.Linear(4, self.config.hidden), nn.Tanh(), nn.Linear(self.config.hidden, 1)
+            nn.Linear(4, self.config.hidden), Tanh(), nn.Linear(self.config.hidden, 1)
         )
         self.double()
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ppann.activation import Tanh
 from ppann.friction import coulomb_friction
 from ppann.model_config import ModelConfigError, PPANNConfig
 from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
@@ -38,7 +39,7 @@ ppann/machine.py is kept in the model (`machine_profile`): 1e-4 to 1 in steps of
 
 
 def _mlp(inputs: int, hidden: int) -> nn.Sequential:
-    return nn.Sequential(nn.Linear(inputs, hidden), nn.Tanh(), nn.Linear(hidden, 1))
+    return nn.Sequential(nn.Linear(inputs, hidden), Tanh(), nn.Linear(hidden, 1))
 
 
 def theta_mod(theta: torch.Tensor) -> torch.Tensor:
