@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import argparse
 import csv
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from timing import median_seconds  # the script's folder is on the path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -38,15 +38,6 @@ def _csv_alone(path: Path) -> int:
     return len(rows)
 
 
-def _median(work, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
@@ -62,12 +53,12 @@ def main() -> None:
         def one_import() -> None:
             import_table(table, folder / f"rig{next(n)}.mcap", spec=spec)
 
-        imported = _median(one_import, args.repeats)
-        alone = _median(lambda: _csv_alone(table), args.repeats)
-        read = _median(lambda: read_table(table, spec), args.repeats)
+        imported = median_seconds(one_import, args.repeats)
+        alone = median_seconds(lambda: _csv_alone(table), args.repeats)
+        read = median_seconds(lambda: read_table(table, spec), args.repeats)
         columns = read_table(table, spec)
         geometry = SliderCrank(load_model(MODEL_PATH)[0]).geometry
-        converted = _median(
+        converted = median_seconds(
             lambda: resample(columns, spec, geometry=geometry, source="rig"), args.repeats
         )
     print(f"crank import of a 90 s 1 kHz CSV ({rows} rows, 6 columns), medians of {args.repeats}:")

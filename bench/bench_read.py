@@ -11,25 +11,14 @@ way: tests/test_mcap_chunks.py). `--data FILE` reads a dataset already written i
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
-import time
-from collections.abc import Callable
 from pathlib import Path
+
+from timing import median_seconds  # the script's folder is on the path
 
 import twin.mcap_dataset as mcap_dataset
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
-
-
-def timed(read: Callable[[], object], repeats: int) -> float:
-    """Median seconds of `repeats` calls."""
-    seconds = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        read()
-        seconds.append(time.perf_counter() - started)
-    return statistics.median(seconds)
 
 
 def main() -> None:
@@ -52,7 +41,7 @@ def main() -> None:
                 ("measurement", mcap_dataset.read_dataset),
                 ("truth", mcap_dataset.read_truth),
             ):
-                times[name, channel] = timed(lambda read=read: read(path), args.repeats)
+                times[name, channel] = median_seconds(lambda read=read: read(path), args.repeats)
         mcap_dataset.topic_messages = walk
         samples = len(mcap_dataset.read_dataset(path).t)
     print(f"dataset: {samples} samples ({samples / 500:g} s), median of {args.repeats}")
