@@ -3,7 +3,10 @@
 networks' 10-step prediction of a batch of 4096 windows with the backward of its loss, and phase
 2's step, the sigma networks on 288 000 samples (a 720 s dataset's training samples) with the
 backward of a sum. The same model with each network's hidden layer swapped to `nn.Tanh` is the
-reference; median of repeats, and the ratio (how many times quicker).
+reference; the two timed in turn (interleaved, each first every other time, so that the
+host's drift falls on both): the median of each and of the pairs' ratios (how many times
+quicker). The phase-2 figure moves from run to run (its tensors are 23 MB, allocated anew each
+call): run it a few times.
 
     python bench/bench_tanh.py [--repeats 20]
 """
@@ -13,24 +16,14 @@ from __future__ import annotations
 import argparse
 import copy
 import statistics
-import time
 from collections.abc import Callable
 
 import torch
+from timing import median_seconds  # the script's folder is on the path
 from torch import nn
 
 from ppann.activation import Tanh
 from ppann.model import PPANN, n_step_prediction
-
-
-def median_ms(work: Callable[[], object], repeats: int) -> float:
-    work()
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        work()
-        times.append(time.perf_counter() - started)
-    return 1e3 * statistics.median(times)
 
 
 def with_torch_tanh(model: PPANN) -> PPANN:
@@ -67,9 +60,19 @@ def main() -> None:
         ("phase 1 step (4096 windows x 10)", phase1),
         ("phase 2 epoch (288 000)", phase2),
     ):
-        slow = median_ms(step(reference), args.repeats)
-        fast = median_ms(step(ours), args.repeats)
-        print(f"{name:<34} nn.Tanh {slow:7.1f} ms, ours {fast:7.1f} ms, ratio {slow / fast:4.2f}x")
+        slow_step, fast_step = step(reference), step(ours)
+        slow_step(), fast_step()  # warm-up
+        slow: list[float] = []
+        fast: list[float] = []
+        for i in range(args.repeats):  # interleaved, each first in turn: drift falls on both
+            pairs = [(slow_step, slow), (fast_step, fast)]
+            for work, times in pairs if i % 2 == 0 else pairs[::-1]:
+                times.append(1e3 * median_seconds(work, 1))
+        ratio = statistics.median(s / f for s, f in zip(slow, fast, strict=True))
+        print(
+            f"{name:<34} nn.Tanh {statistics.median(slow):7.1f} ms, "
+            f"ours {statistics.median(fast):7.1f} ms, ratio {ratio:4.2f}x (median of pairs)"
+        )
 
 
 if __name__ == "__main__":
