@@ -5,7 +5,8 @@ Why: torch's float64 `tanh` on the CPU (2.13.0, AVX-512, one thread) takes ~5 ns
 where its `sigmoid` takes ~1.2, and the networks' tanh was the largest single cost of a
 training: ~37 % of `crank run`'s two trainings (py-spy, session 70), the mean networks' 100
 hidden units in phase 1 and the sigma networks' on every training sample in phase 2. With this
-one a phase-1 step is 1.45x and a phase-2 epoch 1.35x quicker (bench/bench_tanh.py). Its
+one a phase-1 step is ~1.25x and a phase-2 epoch 1.02-1.17x quicker (bench/bench_tanh.py), a
+whole `crank run` 1.20x. Its
 derivative is torch's own `tanh_backward`, 1 - y^2 from the output.
 
 The error: 2 sigmoid(2x) - 1 loses the relative precision of tanh near 0 (~1e-16 absolute
