@@ -5,13 +5,14 @@ Each stage's time is a sum of unit costs times what the request asks for (datase
 × epochs, runs × samples), with the unit costs measured on an idle 2-core machine of the project's
 kind (`crank run` defaults, 2026-11-23: generate 6.1 s, train 139 s, solve 6.8 s, replay 8.0 s,
 held-out check 26.5 s). A busy machine takes longer: two chains side by side took 1.5-2.5× as
-long. The training's and the held-out check's costs were measured again in session 53 on the
-fresh-clone `crank run`s of sessions 51-53 (phase 1 of the PPANN 1.98, 2.15, 2.73 s an epoch,
-phase 2 160-217 s, the rest of the stage ~33 s, the held-out check 24-35 s): the middle run's
-are taken. The costs of session 21 had said 3-7 min for trainings that took 7-9.5. Phase 1 of
-training stops early at a number of epochs nobody knows in advance (58-73 on seeds 0-4 of
-`paper`, 37-117 on `line-30`, with early stopping on every machine; 117 in those three runs), so
-the training estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
+long. The unit costs of generation, training and the held-out check are those of session 70's
+fresh-clone `crank run` (602dd34, the networks' tanh as 2 sigmoid(2x) - 1, idle AMD EPYC): phase 1
+of the PPANN 1.61 s an epoch, phase 2 153 s, the rest of the stage 25 s, the dataset 34 s, the
+held-out check 26 s. Sessions 52-53's (phase 1 1.98-2.73 s an epoch with `torch.tanh`) put
+that run's training at the bottom of its range; session 21's had said 3-7 min for trainings
+that took 7-9.5. Phase 1 of training stops early at a number of epochs nobody knows in advance
+(58-73 on seeds 0-4 of `paper`, 37-117 on `line-30`, 68-188 in the plan round's two trainings),
+so the training estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
 """
 
 from __future__ import annotations
@@ -28,18 +29,21 @@ if TYPE_CHECKING:
     from ppann.train_config import TrainConfig
     from twin.dataset import GenerationConfig
 
-GENERATE_PER_SECOND = 0.068
-"""Seconds of generation (simulation and MCAP) per second of dataset."""
-WINDOW_STEP_EPOCH = {"ppann": 4.77e-6, "physics": 0.18e-6, "blackbox": 4.03e-6}
-"""Phase-1 seconds per training window, window step and epoch, per model kind (session 52's
-fresh-clone run: 117 PPANN epochs in 251 s, 132 black-box ones in 240 s, 200 physics-only ones
-in 16 s, of 45 000 windows of 10 steps; session 21's were 2.92e-6, 0.15e-6, 2.1e-6)."""
-SIGMA_SAMPLE_EPOCH = 0.65e-6
+GENERATE_PER_SECOND = 0.047
+"""Seconds of generation (simulation and MCAP) per second of dataset (34 s for 720 s in session
+70's run; 0.068 in session 52's)."""
+WINDOW_STEP_EPOCH = {"ppann": 3.57e-6, "physics": 0.20e-6, "blackbox": 3.11e-6}
+"""Phase-1 seconds per training window, window step and epoch, per model kind (session 70's
+fresh-clone run, of 45 000 windows of 10 steps: 75 PPANN epochs in 120.6 s alone; in the plan
+round's training, 107 black-box epochs in 149.8 s and 193 physics-only ones in 17.3 s beside
+the PPANN; session 52's, with `torch.tanh`, were 4.77e-6, 0.18e-6, 4.03e-6)."""
+SIGMA_SAMPLE_EPOCH = 0.55e-6
 """Phase-2 seconds per training sample and epoch (that run: 800 epochs of 348 000 samples in
-181 s; session 21's 0.48e-6)."""
-VALIDATION = 33.0
+153.4 s; the plan round's 800 of 382 568 in 178.5 s, 0.58e-6; session 52's 0.65e-6)."""
+VALIDATION = 25.0
 """Validation, Monte-Carlo bands and the 100-run twin calibration of the default dataset, s
-(the training stage less its two phases: 33-34 s in sessions 52 and 53; session 21's 20)."""
+(the training stage less its two phases: 25.0 and 25.4 s in that run's two trainings; 33-34 s
+in sessions 52 and 53)."""
 EARLY_EPOCHS = 37
 """The fewest phase-1 epochs seen before early stopping (seeds 0-4 of paper and line-30)."""
 SOLVE = 6.8
@@ -48,9 +52,10 @@ REPLAY_FIXED, REPLAY_PER_SAMPLE = 2.0, 128e-6
 """A campaign: fixed seconds (figures, Rerun) and seconds per run, profile, mode and sample
 (100 µs measured in the default run, and 28 µs more since the log carries Foxglove's channels:
 bench_replay's log of 200 runs took 1.50 s against 0.59 s before)."""
-HELDOUT_PER_SAMPLE = 103e-6
-"""The held-out check: seconds per machine, profile and sample (with its Monte-Carlo): 31 s for
-the default's 1000 machines, two profiles and 150 samples in session 52 (88e-6 before)."""
+HELDOUT_PER_SAMPLE = 87e-6
+"""The held-out check: seconds per machine, profile and sample (with its Monte-Carlo): 26 s for
+the default's 1000 machines, two profiles and 150 samples in session 70's run (31 s, 103e-6,
+in session 52's)."""
 
 
 @dataclass(frozen=True)
