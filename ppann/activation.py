@@ -15,7 +15,8 @@ see; at large |x| the sigmoid saturates to exactly 0 or 1, so the output is exac
 as tanh's. tests/test_activation.py bounds it against torch.tanh and checks the gradient.
 The numbers of a training are not torch.tanh's to the last bit: a model trained with it is
 another draw of the same training, which is why the switch was checked on held-out machines
-(bench/fast_tanh.md: training seeds 0-4, 4000 machines each, every issue-11 row met).
+(bench/fast_tanh.md and bench/fast_tanh_5_9.md: training seeds 0-9, 4000 machines each;
+bench/fast_tanh_lines.md: the wide lines; every issue-11 row met).
 """
 
 from __future__ import annotations
