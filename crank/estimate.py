@@ -32,6 +32,12 @@ if TYPE_CHECKING:
 GENERATE_PER_SECOND = 0.047
 """Seconds of generation (simulation and MCAP) per second of dataset (34 s for 720 s in session
 70's run; 0.068 in session 52's)."""
+REWRITE_PER_SECOND = 0.0054
+"""The plan stage's seconds per second of the dataset it adds its episodes to, beside the
+generation of those episodes: it reads the dataset and writes it again with them (the plan
+stage of the four idle fresh-clone runs of sessions 70-71 took 6, 7, 7 and 9 s, 7.25 s on
+average, of which the generation of its 72 s counts 3.4 s: 3.9 s for the 720 s dataset; timed
+apart in session 72, at nice -20 beside a sweep, reading it took 1.0 s and writing it 2.1 s)."""
 WINDOW_STEP_EPOCH = {"ppann": 3.57e-6, "physics": 0.20e-6, "blackbox": 3.11e-6}
 """Phase-1 seconds per training window, window step and epoch, per model kind (session 70's
 fresh-clone run, of 45 000 windows of 10 steps: 75 PPANN epochs in 120.6 s alone; in the plan
@@ -85,6 +91,12 @@ class Span:
 
 def generate_time(config: GenerationConfig) -> Span:
     seconds = GENERATE_PER_SECOND * config.seconds
+    return Span(seconds, seconds)
+
+
+def rewrite_time(config: GenerationConfig) -> Span:
+    """Reading the dataset of `config` and writing it again (the plan round's)."""
+    seconds = REWRITE_PER_SECOND * config.seconds
     return Span(seconds, seconds)
 
 
@@ -147,7 +159,8 @@ def run_time(config: RunConfig) -> dict[str, Span]:
         added = config.plan.episodes * horizon / SAMPLE_RATE  # seconds of data the round adds
         merged = replace(config.generation, seconds=config.generation.seconds + added)
         stages |= {
-            "plan": generate_time(replace(config.generation, seconds=added)),
+            "plan": generate_time(replace(config.generation, seconds=added))
+            + rewrite_time(config.generation),
             "train_plan": train_time(config.train, merged, baselines=config.baselines),
             "solve_plan": solve,
         }

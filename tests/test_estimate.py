@@ -10,6 +10,7 @@ from crank.estimate import (
     EARLY_EPOCHS,
     GENERATE_PER_SECOND,
     REPLAY_FIXED,
+    REWRITE_PER_SECOND,
     WINDOW_STEP_EPOCH,
     Span,
     describe,
@@ -19,6 +20,7 @@ from crank.estimate import (
     train_time,
 )
 from twin import DATASET_SECONDS, PAPER_SECONDS
+from twin.physics import SAMPLE_RATE
 from twin.plan_config import PlanConfig
 
 
@@ -80,6 +82,13 @@ def test_each_stage_scales_with_its_request() -> None:
         assert run_time(more)[stage].low - fixed == pytest.approx(
             2 * (run_time(base)[stage].low - fixed)
         )
+    # the plan round: its episodes' generation, and the dataset read and written again with them
+    longer_plan = RunConfig.for_seed(0, plan={"episodes": 480}, heldout_runs=1000)
+    generated = run_time(longer_plan)["plan"].low - run_time(base)["plan"].low
+    assert generated == pytest.approx(GENERATE_PER_SECOND * 240 * base.ocp.horizon / SAMPLE_RATE)
+    bigger = RunConfig.for_seed(0, generation={"seconds": 2 * DATASET_SECONDS}, heldout_runs=1000)
+    rewritten = run_time(bigger)["plan"].low - run_time(base)["plan"].low
+    assert rewritten == pytest.approx(REWRITE_PER_SECOND * DATASET_SECONDS)
     assert solve_time(horizon=300, mc_samples=1000).low == pytest.approx(
         2 * solve_time(horizon=150, mc_samples=1000).low
     )
