@@ -37,7 +37,8 @@ REWRITE_PER_SECOND = 0.0054
 generation of those episodes: it reads the dataset and writes it again with them (the plan
 stage of the four idle fresh-clone runs of sessions 70-71 took 6, 7, 7 and 9 s, 7.25 s on
 average, of which the generation of its 72 s counts 3.4 s: 3.9 s for the 720 s dataset; timed
-apart in session 72, at nice -20 beside a sweep, reading it took 1.0 s and writing it 2.1 s)."""
+apart in session 72 beside a sweep (in its own scheduling group), reading it took 1.0 s and
+writing it 2.1 s)."""
 WINDOW_STEP_EPOCH = {"ppann": 3.57e-6, "physics": 0.20e-6, "blackbox": 3.11e-6}
 """Phase-1 seconds per training window, window step and epoch, per model kind (session 70's
 fresh-clone run, of 45 000 windows of 10 steps: 75 PPANN epochs in 120.6 s alone; in the plan
