@@ -85,7 +85,8 @@ def test_each_stage_scales_with_its_request() -> None:
     # the plan round: its episodes' generation, and the dataset read and written again with them
     longer_plan = RunConfig.for_seed(0, plan={"episodes": 480}, heldout_runs=1000)
     generated = run_time(longer_plan)["plan"].low - run_time(base)["plan"].low
-    assert generated == pytest.approx(GENERATE_PER_SECOND * 240 * base.ocp.horizon / SAMPLE_RATE)
+    added = (480 - base.plan.episodes) * base.ocp.horizon / SAMPLE_RATE
+    assert generated == pytest.approx(GENERATE_PER_SECOND * added)
     bigger = RunConfig.for_seed(0, generation={"seconds": 2 * DATASET_SECONDS}, heldout_runs=1000)
     rewritten = run_time(bigger)["plan"].low - run_time(base)["plan"].low
     assert rewritten == pytest.approx(REWRITE_PER_SECOND * DATASET_SECONDS)
