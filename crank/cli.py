@@ -27,7 +27,6 @@ from crank.console import (
     FallbackOption,
     ModelPath,
     ProfilesOption,
-    Progress,
     Seconds,
     Seed,
     VariabilityOption,
@@ -38,6 +37,7 @@ from crank.console import (
     profiles_list,
     show_iteration,
 )
+from crank.progress import Progress
 from ppann.train_config import TrainConfig
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH, OPERATING_SECONDS
 from twin.excitation import Excitation

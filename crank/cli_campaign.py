@@ -17,12 +17,12 @@ from crank.console import (
     ModelPath,
     PDKd,
     PDKp,
-    Progress,
     app,
     one_line_errors,
     print_heldout,
     print_replay,
 )
+from crank.progress import Progress
 from replay.config import ReplayConfig, played_line
 from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES

@@ -25,7 +25,6 @@ from crank.console import (
     FallbackOption,
     ModelPath,
     ProfilesOption,
-    Progress,
     Seconds,
     Seed,
     VariabilityOption,
@@ -39,6 +38,7 @@ from crank.console import (
     show_iteration,
     transcript,
 )
+from crank.progress import Progress
 from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES

@@ -7,17 +7,16 @@ from __future__ import annotations
 import contextlib
 import functools
 import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from tqdm import tqdm
 
 from common.errors import CrankError
 from common.threads import rollout_threads
 from control.config import PD_GAINS, OCPConfig
+from crank.progress import progress_bar
 
 if TYPE_CHECKING:
     from control.robust import Iteration
@@ -134,72 +133,6 @@ def transcript(path: Path, *, append: bool = False) -> Iterator[None]:
                 open(path, "a" if append else "w", encoding="utf-8") as log,
             ):
                 log.write("".join(kept))
-
-
-class LineBar:
-    """tqdm's update/set_postfix/close for a stderr that is not a terminal (a pipe, a log file):
-    a plain line at most every `interval` seconds (done, total, time left at the rate so far) and
-    one when done, never carriage-return frames; nothing at all for work done within `delay`
-    seconds (as tqdm's delay)."""
-
-    def __init__(
-        self, *, total: int, desc: str, unit: str, delay: float = 0.0, interval: float = 10.0
-    ) -> None:
-        self.total, self.desc, self.unit, self.interval = total, desc, unit, interval
-        self.delay = delay
-        self.n, self.postfix, self.closed = 0, "", False
-        self.started = self.shown = time.monotonic()
-
-    def update(self, n: int) -> None:
-        self.n += n
-        now = time.monotonic()
-        if now - self.shown >= self.interval and self.n < self.total:
-            self.shown = now
-            left = (now - self.started) / self.n * (self.total - self.n)
-            self._line(f"{self.n}/{self.total} {self.unit}s, {left:.0f} s left at this rate")
-
-    def set_postfix(self, **values: str) -> None:
-        self.postfix = ", ".join(f"{k}={v}" for k, v in values.items())
-
-    def close(self) -> None:
-        if not self.closed:
-            self.closed = True
-            if time.monotonic() - self.started < self.delay:
-                return
-            self._line(f"done, {self.n} {self.unit}s in {time.monotonic() - self.started:.1f} s")
-
-    def _line(self, text: str) -> None:
-        extra = f" ({self.postfix})" if self.postfix else ""
-        print(f"{self.desc}: {text}{extra}", file=sys.stderr, flush=True)
-
-
-def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any:
-    """A tqdm bar on a terminal, a LineBar otherwise."""
-    if not sys.stderr.isatty():
-        return LineBar(total=total, desc=desc, unit=unit, delay=delay)
-    return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, delay=delay, leave=False)
-
-
-class Progress:
-    """A progress bar on stderr, created at its first update and shown only if the step takes
-    more than 2 s, so short runs print nothing but their result."""
-
-    def __init__(self, total: int, desc: str, *, unit: str = "sample") -> None:
-        self.total, self.desc, self.unit, self.bar = total, desc, unit, None
-
-    def update(self, n: int) -> None:
-        if self.bar is None:
-            self.bar = progress_bar(total=self.total, desc=self.desc, unit=self.unit, delay=2.0)
-        self.bar.update(n)
-        if self.bar.n >= self.total:
-            self.bar.close()  # done: give the line back to the next stage's bar
-
-    def __enter__(self) -> Progress:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.close()
 
 
 def print_summary(title: str, summary: dict[str, Any]) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from mcap.writer import Writer
 
-from crank.console import LineBar
+from crank.progress import LineBar
 from tests.conftest import crank
 from twin.mcap_dataset import (
     MEASUREMENT_TOPIC,
