@@ -76,10 +76,9 @@ from common import streams
 from common.atomic import check_writable, writes
 from common.checks import check_count
 from common.jsonio import recorded_path, write_json
-from control.config import PD_GAINS, OCPConfig, loops_of, lower_tail
+from control.config import PD_GAINS, loops_of, lower_tail
 from control.mpc_config import MPCConfig, check_fits
-from control.ocp_file import Profile, read_ocp
-from control.tail import crank_angles, lowered_sliders, share_below
+from control.ocp_file import read_ocp
 from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
 from ppann.heads import FusedHeads
@@ -90,6 +89,7 @@ from ppann.transmission import draw
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
 from replay.laws import played_gains, plays_own_law
+from replay.model_rate import model_rate
 from replay.placement import placements
 from replay.rates import TARGET_RATE, rate_upper, verdict
 from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
@@ -135,37 +135,6 @@ def _theta_calibration(
             }
             for mode, b in predicted.items()
         },
-    }
-
-
-def model_rate(
-    heads: FusedHeads,
-    planned: Profile,
-    c: OCPConfig,
-    *,
-    n_samples: int,
-    law: Feedback | None,
-) -> dict[str, Any]:
-    """heldout.json's model_rate for one profile and loop (module docstring): `n_samples`
-    trajectories of the model under `planned`'s torque, open loop or under `law`, simulated up
-    to the last constraint sample only (every draw a prefix of the whole run's)."""
-    crank = crank_angles(
-        heads,
-        np.array([planned.theta[0], planned.omega[0]]),
-        planned.tau,
-        c,
-        draws=n_samples,
-        paths=streams.stream(c.mc_seed, "monte_carlo"),
-        angles=streams.stream(c.mc_seed, "transmission"),
-        feedback=law,
-    )
-    lowered = lowered_sliders(heads.geometry, crank)
-    rate, samples = share_below(lowered, c)
-    return {
-        "mode": c.mc_mode,
-        "draws": n_samples,
-        "rate": rate,
-        "samples": {str(k): v for k, v in samples.items()},
     }
 
 

@@ -23,7 +23,8 @@ from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
 from replay.campaign import draw_machines, play, run_campaign
 from replay.config import ReplayConfig
-from replay.heldout import heldout_check, heldout_file, model_rate
+from replay.heldout import heldout_check, heldout_file
+from replay.model_rate import model_rate
 from replay.placement import placement
 from replay.spread_interval import ratio_interval
 from replay.statistics import campaign_statistics, replay_statistics
