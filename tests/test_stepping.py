@@ -19,6 +19,7 @@ from twin.stepping import (
     rollout_threads,
     set_rollout_threads,
     simulate,
+    simulate_batches,
 )
 from twin.variability import Variability, apply
 
@@ -118,6 +119,41 @@ def test_chunking_does_not_change_a_trajectory_without_drift(physics: SliderCran
     )
     assert np.array_equal(a.sensordata, b.sensordata)
     assert np.array_equal(a.final_state, b.final_state)
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_batches_of_runs_equal_one_call_bit_for_bit(physics: SliderCrank, closed: bool) -> None:
+    """A long check plays its machines a batch at a time (progress): the same runs, in order,
+    to the last bit, open loop and under a law acting on each run's state alone."""
+    variability, draws, states, tau, disturbance = _inputs(physics, n_runs=7, n=60, seed=11)
+    starts = np.linspace(0.0, 50.0, 7)
+    motor = physics.layout.qpos["motor"]
+
+    def law(k: int, x: np.ndarray) -> np.ndarray:
+        return -2.0 * (x[:, motor] - 0.01 * k)
+
+    common = dict(
+        initial_states=states,
+        tau=tau,
+        disturbance=disturbance,
+        start_times=starts,
+        chunk_samples=60,
+        feedback=law if closed else None,
+    )
+    whole = simulate(physics, variability, draws=draws, **common)
+    played: list[int] = []
+    parts = simulate_batches(
+        physics, variability, batch=3, draws=draws, on_batch=played.append, **common
+    )
+    assert played == [3, 6, 7]
+    for field in ("sensordata", "tau", "disturbance", "final_state"):
+        assert np.array_equal(getattr(parts, field), getattr(whole, field)), field
+    assert parts.friction.keys() == whole.friction.keys()
+    for name, values in whole.friction.items():
+        assert np.array_equal(parts.friction[name], values), name
+    assert not np.array_equal(whole.sensordata[0], whole.sensordata[3])  # machines differ
+    with pytest.raises(ValueError, match="batch must be >= 1"):
+        simulate_batches(physics, variability, batch=0, draws=draws, **common)
 
 
 def test_drift_lowers_friction_over_time(physics: SliderCrank) -> None:

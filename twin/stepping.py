@@ -13,6 +13,9 @@ the S steps from t_k to t_{k+1}.
 Because the MJCF disables solver warm-starting, a trajectory does not depend on where it is cut
 into chunks, and it equals a plain `mj_step` loop bit for bit (tests/test_stepping.py).
 
+`simulate_batches` plays the runs a batch at a time (progress on long checks), equal to one call
+bit for bit for the same reason.
+
 Closed loop: with a `feedback` law the rollout advances one sample at a time; before sample k the
 law sees every run's state at t_k and returns a torque added to `tau[:, k]` (then clipped). With
 a law that returns zeros the result equals the open-loop one bit for bit.
@@ -26,6 +29,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -183,6 +187,58 @@ def simulate(
     )
 
 
+def simulate_batches(
+    physics: SliderCrank,
+    variability: Variability,
+    *,
+    batch: int,
+    draws: Sequence[MachineDraw],
+    initial_states: np.ndarray,
+    tau: np.ndarray,
+    disturbance: np.ndarray,
+    start_times: np.ndarray | None = None,
+    feedback: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    on_batch: Callable[[int], None] | None = None,
+    **options: Any,
+) -> Runs:
+    """`simulate` on at most `batch` runs at a time, in order, the batches' results joined:
+    equal to one call bit for bit (each run has its own model, and the MJCF's solver does not
+    warm-start), with `on_batch(runs done so far)` after each batch, for progress on long
+    checks. A `feedback` law must act on each run's state alone, as the tracking laws do (the
+    MPC's, which keeps a solver per machine, needs the one call). `options`: `simulate`'s."""
+    if batch < 1:
+        raise ValueError(f"batch must be >= 1, got {batch}")
+    n_runs = tau.shape[0]
+    starts = np.zeros(n_runs) if start_times is None else np.asarray(start_times, float)
+    parts = []
+    for a in range(0, n_runs, batch):
+        b = min(a + batch, n_runs)
+        parts.append(
+            simulate(
+                physics,
+                variability,
+                draws=draws[a:b],
+                initial_states=initial_states[a:b],
+                tau=tau[a:b],
+                disturbance=disturbance[a:b],
+                start_times=starts[a:b],
+                feedback=feedback,
+                **options,
+            )
+        )
+        if on_batch is not None:
+            on_batch(b)
+    if len(parts) == 1:
+        return parts[0]
+    return Runs(
+        sensordata=np.concatenate([r.sensordata for r in parts]),
+        tau=np.concatenate([r.tau for r in parts]),
+        disturbance=np.concatenate([r.disturbance for r in parts]),
+        friction={k: np.concatenate([r.friction[k] for r in parts]) for k in parts[0].friction},
+        final_state=np.concatenate([r.final_state for r in parts]),
+    )
+
+
 __all__ = [
     "STATE_SPEC",
     "Runs",
@@ -192,4 +248,5 @@ __all__ = [
     "rollout_threads",
     "set_rollout_threads",
     "simulate",
+    "simulate_batches",
 ]
