@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -28,6 +28,9 @@ from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
+
+if TYPE_CHECKING:
+    from control.ocp_file import OCPFile
 
 
 def _modes(text: str) -> tuple[str, ...]:
@@ -264,6 +267,7 @@ def heldout_command(
     check_output(
         "out", out, suffix=".json", inputs={"ocp_path": ocp, "model": model, "model_path": mjcf}
     )
+    from crank.estimate import heldout_time
     from replay.files import ocp_variability
     from replay.heldout import heldout_file
 
@@ -278,25 +282,50 @@ def heldout_command(
     checked = ("open",) if loops is None else loops
     ReplayConfig(runs=runs, seed=seed, modes=checked, feedback=feedback, kp=kp, kd=kd)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
-    result = heldout_file(
-        ocp,
-        out,
-        model=model,
-        runs=runs,
-        seed=seed,
-        variability=chosen,
-        modes=loops,
-        feedback=feedback,
-        kp=kp,
-        kd=kd,
-        model_path=mjcf,
-        mpc=mpc,
-        mc_samples=trajectories,
-        on_played=lambda name, mode, entry: typer.echo(
-            played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs),
+    bar = Progress(0, "held-out", unit="machine")  # its total once the file is read
+
+    def on_start(solved: OCPFile, played: tuple[str, ...]) -> None:
+        bar.total = runs * len(solved.names) * len(played)
+        span = heldout_time(
+            runs=runs,
+            horizon=solved.horizon,
+            profiles=len(solved.names),
+            modes=played,
+            mpc_horizon=mpc.horizon,
+        )
+        typer.echo(
+            f"held-out check: {', '.join(solved.names)} in {', '.join(played)} on {runs} "
+            f"machines of root {seed}; about {span} on an idle 2-core machine",
             err=True,
-        ),
-    )
+        )
+
+    done: dict[tuple[str, str], int] = {}
+
+    def on_machines(name: str, mode: str, machines: int) -> None:
+        bar.update(machines - done.get((name, mode), 0))
+        done[name, mode] = machines
+
+    with bar:
+        result = heldout_file(
+            ocp,
+            out,
+            model=model,
+            runs=runs,
+            seed=seed,
+            variability=chosen,
+            modes=loops,
+            feedback=feedback,
+            kp=kp,
+            kd=kd,
+            model_path=mjcf,
+            mpc=mpc,
+            mc_samples=trajectories,
+            on_played=lambda name, mode, entry: bar.echo(
+                played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs)
+            ),
+            on_machines=on_machines,
+            on_start=on_start,
+        )
     print_heldout(result)
     typer.echo(f"wrote {out}")
 

@@ -138,8 +138,20 @@ def replay_time(
     return Span(seconds, seconds)
 
 
-def heldout_time(*, runs: int, horizon: int, profiles: int = 2, modes: int = 1) -> Span:
-    seconds = HELDOUT_PER_SAMPLE * runs * profiles * modes * horizon
+def heldout_time(
+    *,
+    runs: int,
+    horizon: int,
+    profiles: int = 2,
+    modes: tuple[str, ...] = ("open",),
+    mpc_horizon: int | None = None,
+) -> Span:
+    """The held-out check: every profile in every loop of `modes` on `runs` machines, the mpc
+    loop's steps (`mpc_horizon`: the MPC's) as a campaign's."""
+    seconds = HELDOUT_PER_SAMPLE * runs * profiles * len(modes) * horizon
+    if "mpc" in modes and mpc_horizon is not None:
+        fixed, per = MPC_STEP
+        seconds += (fixed + per * mpc_horizon) * runs * profiles * horizon
     return Span(seconds, seconds)
 
 
@@ -179,7 +191,7 @@ def run_time(config: RunConfig) -> dict[str, Span]:
             runs=config.heldout_runs,
             horizon=horizon,
             profiles=profiles,
-            modes=len(config.heldout_modes),
+            modes=config.heldout_modes,  # the robust profiles' loops: open, closed
         )
     return _with_total(stages)
 

@@ -68,6 +68,13 @@ class Progress:
         if self.bar.n >= self.total:
             self.bar.close()  # done: give the line back to the next stage's bar
 
+    def echo(self, text: str) -> None:
+        """A line on stderr that leaves the bar whole (tqdm's `write` while one is drawn)."""
+        if isinstance(self.bar, tqdm) and not self.bar.disable:
+            tqdm.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
     def __enter__(self) -> Progress:
         return self
 

@@ -41,7 +41,7 @@ from ppann.transmission import LEVELS as TRANSMISSION_LEVELS
 from replay.config import ReplayConfig
 from replay.laws import closed_loop_gains, played_gains, predicted_sigma
 from twin.physics import SliderCrank
-from twin.stepping import simulate
+from twin.stepping import simulate_batches
 from twin.variability import MachineDraw
 
 if TYPE_CHECKING:
@@ -225,9 +225,14 @@ def play(
     config: ReplayConfig,
     nthread: int | None = None,
     model: PPANN | None = None,
+    batch: int | None = None,
+    on_machines: Callable[[int], None] | None = None,
 ) -> Replay:
     """Play one profile of `ocp` on every machine, open or closed loop or under the MPC, in one
-    native batch (`model`: the PPANN the MPC predicts with, needed in mpc mode only).
+    native batch (`model`: the PPANN the MPC predicts with, needed in mpc mode only), or open
+    and closed loop `batch` machines at a time, `on_machines(machines played so far)` after
+    each: the same result bit for bit (twin/stepping.py `simulate_batches`). The MPC, a solver
+    per machine, plays every machine in one batch.
 
     Each machine's friction is evaluated once, at the middle of its replay (the warm-up time
     constant, 20 s, is 70× the 0.3 s replay).
@@ -242,9 +247,10 @@ def play(
         if model is None:
             raise MPCConfigError("the mpc mode needs the PPANN the plan was solved on")
         feedback, record = mpc_law(physics, ocp, chosen, model, config)
-    runs = simulate(
+    runs = simulate_batches(
         physics,
         config.variability,
+        batch=n_runs if batch is None or mode == "mpc" else batch,
         draws=machines.draws,
         initial_states=np.tile(state0, (n_runs, 1)),
         tau=np.tile(chosen.tau, (n_runs, 1)),
@@ -253,6 +259,7 @@ def play(
         chunk_samples=n_samples,
         nthread=nthread,
         feedback=feedback,
+        on_batch=on_machines,
     )
     sd = runs.sensordata
     theta = physics.sensor(sd, "theta")

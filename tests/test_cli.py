@@ -260,3 +260,30 @@ def test_the_command_line_loads_without_the_heavy_engines() -> None:
         [sys.executable, "-c", probe], capture_output=True, text=True, check=True
     ).stdout
     assert loaded.strip() == "[]"
+
+
+def test_heldout_says_what_it_plays_and_about_how_long_once_its_inputs_are_read(
+    tmp_path: Path, ocp_path: Path
+) -> None:
+    """`crank heldout` first names the profiles, loops, machines and root with a time estimate
+    (after its inputs are checked: a bad one is still the only line, tests/test_outputs.py),
+    then one line per profile played; heldout.json as asked."""
+    from tests.checkpoints import constant_checkpoint
+
+    model = tmp_path / "m.pt"
+    constant_checkpoint(model)
+    out = tmp_path / "h.json"
+    result = crank(
+        *("heldout", "--ocp", str(ocp_path), "--model", str(model), "--out", str(out)),
+        *("--runs", "5", "--seed", "9", "--trajectories", "100"),
+    )
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stderr.splitlines() if not line.startswith("held-out:")]
+    assert re.fullmatch(
+        r"held-out check: nominal, robust in open on 5 machines of root 9; "
+        r"about \d+ s on an idle 2-core machine",
+        lines[0],
+    ), result.stderr
+    assert [line.split(":")[0].strip() for line in lines[1:]] == ["nominal open", "robust open"]
+    held = json.loads(out.read_text())
+    assert (held["runs"], held["seed"], held["modes"]) == (5, 9, ["open"])

@@ -9,11 +9,14 @@ from crank.chain import RunConfig
 from crank.estimate import (
     EARLY_EPOCHS,
     GENERATE_PER_SECOND,
+    HELDOUT_PER_SAMPLE,
+    MPC_STEP,
     REPLAY_FIXED,
     REWRITE_PER_SECOND,
     WINDOW_STEP_EPOCH,
     Span,
     describe,
+    heldout_time,
     left,
     run_time,
     solve_time,
@@ -102,6 +105,18 @@ def test_each_stage_scales_with_its_request() -> None:
         1.5 * (run_time(base)["replay"].low - REPLAY_FIXED)
     )
     assert run_time(both)["solve"].low == pytest.approx(2 * run_time(base)["solve"].low)
+
+
+def test_the_heldout_check_scales_with_machines_profiles_loops_and_the_mpc() -> None:
+    """`crank heldout`'s opening estimate: machines x profiles x loops x samples, and in the mpc
+    loop each machine's MPC steps as a campaign's."""
+    one = heldout_time(runs=1000, horizon=150, profiles=2)
+    assert one.low == one.high == pytest.approx(HELDOUT_PER_SAMPLE * 1000 * 2 * 150)
+    wide = heldout_time(runs=3000, horizon=200, profiles=3, modes=("open", "closed"))
+    assert wide.low == pytest.approx(one.low * 3 * 1.5 * 2 * 200 / 150)
+    mpc = heldout_time(runs=1000, horizon=150, profiles=2, modes=("open", "mpc"), mpc_horizon=20)
+    fixed, per = MPC_STEP
+    assert mpc.low - 2 * one.low == pytest.approx((fixed + per * 20) * 1000 * 2 * 150)
 
 
 def test_training_range_runs_from_early_stopping_to_the_epoch_cap() -> None:
