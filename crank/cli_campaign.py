@@ -286,6 +286,7 @@ def heldout_command(
 
     def on_start(solved: OCPFile, played: tuple[str, ...]) -> None:
         bar.total = runs * len(solved.names) * len(played)
+        bar.update(0)  # its clock starts with the first machine, not after the first batch
         span = heldout_time(
             runs=runs,
             horizon=solved.horizon,
