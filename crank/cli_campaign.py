@@ -300,12 +300,6 @@ def heldout_command(
             err=True,
         )
 
-    done: dict[tuple[str, str], int] = {}
-
-    def on_machines(name: str, mode: str, machines: int) -> None:
-        bar.update(machines - done.get((name, mode), 0))
-        done[name, mode] = machines
-
     with bar:
         result = heldout_file(
             ocp,
@@ -324,7 +318,7 @@ def heldout_command(
             on_played=lambda name, mode, entry: bar.echo(
                 played_line(name, mode, feedback=feedback, below=entry["violating_runs"], runs=runs)
             ),
-            on_machines=on_machines,
+            on_machines=lambda _name, _mode, machines: bar.update(machines),
             on_start=on_start,
         )
     print_heldout(result)

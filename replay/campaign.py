@@ -230,7 +230,7 @@ def play(
 ) -> Replay:
     """Play one profile of `ocp` on every machine, open or closed loop or under the MPC, in one
     native batch (`model`: the PPANN the MPC predicts with, needed in mpc mode only), or open
-    and closed loop `batch` machines at a time, `on_machines(machines played so far)` after
+    and closed loop `batch` machines at a time, `on_machines(machines just played)` after
     each: the same result bit for bit (twin/stepping.py `simulate_batches`). The MPC, a solver
     per machine, plays every machine in one batch.
 

@@ -171,8 +171,8 @@ def heldout_check(
     the MPC is while no bound is active (its weights' gains along the plan, whatever law the
     profile was tightened for). `on_played(profile,
     mode, entry)` sees each entry as soon as it is done (progress: the MPC on 1000 machines
-    takes about a minute a profile), `on_machines(profile, mode, played)` each `batch` of
-    machines played open or closed loop (the same result as one batch, bit for bit), and
+    takes about a minute a profile), `on_machines(profile, mode, machines just played)` after
+    each `batch` of them open or closed loop (the same result as one batch, bit for bit), and
     `on_start(ocp file, modes)` once every input has been checked, before the first play.
 
     Raises:

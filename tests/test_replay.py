@@ -245,7 +245,7 @@ def test_heldout_check_in_batches_of_machines_equals_one_batch(
         **kwargs,
     )
     loops = [(n, m) for n in ocp.names for m in ("open", "closed", "mpc")]
-    expected = [(n, m, k) for n, m in loops for k in ((8,) if m == "mpc" else (3, 6, 8))]
+    expected = [(n, m, k) for n, m in loops for k in ((8,) if m == "mpc" else (3, 3, 2))]
     assert played == [(ocp.names, ("open", "closed", "mpc")), *expected]
     for result in (whole, batched):  # the compute times differ from run to run
         for name in ocp.names:

@@ -203,7 +203,7 @@ def simulate_batches(
 ) -> Runs:
     """`simulate` on at most `batch` runs at a time, in order, the batches' results joined:
     equal to one call bit for bit (each run has its own model, and the MJCF's solver does not
-    warm-start), with `on_batch(runs done so far)` after each batch, for progress on long
+    warm-start), with `on_batch(runs just played)` after each batch, for progress on long
     checks. A `feedback` law must act on each run's state alone, as the tracking laws do (the
     MPC's, which keeps a solver per machine, needs the one call). `options`: `simulate`'s."""
     if batch < 1:
@@ -227,7 +227,7 @@ def simulate_batches(
             )
         )
         if on_batch is not None:
-            on_batch(b)
+            on_batch(b - a)
     if len(parts) == 1:
         return parts[0]
     return Runs(
