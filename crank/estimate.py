@@ -133,9 +133,14 @@ def replay_time(
     ones."""
     seconds = REPLAY_FIXED + REPLAY_PER_SAMPLE * runs * profiles * modes * horizon
     if mpc_horizon is not None:
-        fixed, per = MPC_STEP
-        seconds += (fixed + per * mpc_horizon) * runs * profiles * horizon
+        seconds += _mpc_steps(runs=runs, profiles=profiles, horizon=horizon, mpc=mpc_horizon)
     return Span(seconds, seconds)
+
+
+def _mpc_steps(*, runs: int, profiles: int, horizon: int, mpc: int) -> float:
+    """Seconds of every machine's MPC steps, each profile, the MPC predicting `mpc` samples."""
+    fixed, per = MPC_STEP
+    return (fixed + per * mpc) * runs * profiles * horizon
 
 
 def heldout_time(
@@ -150,8 +155,7 @@ def heldout_time(
     loop's steps (`mpc_horizon`: the MPC's) as a campaign's."""
     seconds = HELDOUT_PER_SAMPLE * runs * profiles * len(modes) * horizon
     if "mpc" in modes and mpc_horizon is not None:
-        fixed, per = MPC_STEP
-        seconds += (fixed + per * mpc_horizon) * runs * profiles * horizon
+        seconds += _mpc_steps(runs=runs, profiles=profiles, horizon=horizon, mpc=mpc_horizon)
     return Span(seconds, seconds)
 
 
