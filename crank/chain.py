@@ -215,7 +215,11 @@ class Hooks:
     on_trained: Callable[[str], None] | None = None
     """A model kind's training has ended (kinds may train side by side)."""
     on_iteration: Callable[[Iteration], None] | None = None
-    on_run: Callable[[int], None] | None = None
+    on_total: Callable[[str, int], None] | None = None
+    """What a playing stage ("replay": runs, "heldout": machines) will play, counted over its
+    profiles and loops, once its inputs are checked."""
+    on_runs: Callable[[str, int], None] | None = None
+    """(stage, runs or machines just played) as the stage plays them."""
     on_estimate: Callable[[dict[str, Span]], None] | None = None
     """The estimated time of each stage (and "total"), once the inputs are checked."""
 
@@ -328,7 +332,9 @@ def run_chain(
         checked = stage_result(
             "heldout",
             f"held-out check on {config.heldout_runs} machines",
-            lambda: stages.heldout(config, run_dir / stages.OCP, run_dir / stages.MODEL, run_dir),
+            lambda: stages.heldout(
+                config, run_dir / stages.OCP, run_dir / stages.MODEL, run_dir, hooks=hooks
+            ),
         )
     steps["total"] = time.perf_counter() - started
     report = stages.write_report(

@@ -101,17 +101,13 @@ def replay_campaign(
     resolved: dict[str, Any],
 ) -> dict[str, Any]:
     """`replay_file` with a progress bar over the runs."""
-    from control.ocp_file import read_ocp
     from replay.files import replay_file
 
-    total = config.runs * len(read_ocp(ocp).names) * len(config.modes)
-    with Progress(total, "replaying", unit="run") as bar:
-        done = 0
+    with Progress(0, "replaying", unit="run") as bar:  # its total once the inputs are checked
 
-        def on_run(n: int) -> None:
-            nonlocal done
-            bar.update(n - done)
-            done = n
+        def on_start(total: int) -> None:
+            bar.total = total
+            bar.update(0)  # its clock starts with the first run, not the second
 
         return replay_file(
             ocp,
@@ -119,7 +115,8 @@ def replay_campaign(
             config=config,
             model_path=model,
             resolved=resolved,
-            on_run=on_run,
+            on_run=bar.update,
+            on_start=on_start,
             ppann=ppann,
         )
 

@@ -258,16 +258,14 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
         with (
             Progress(config.generation.n_samples, "simulating") as sim,
             Progress(config.generation.n_samples, "writing MCAP") as io,
-            Progress(
-                config.replay.runs * 2 * len(config.replay.modes), "replaying", unit="run"
-            ) as rp,
+            Progress(0, "replaying", unit="run") as rp,  # the totals once the stage knows them
+            Progress(0, "held-out", unit="machine") as hp,
         ):
-            done = 0
+            played = {"replay": rp, "heldout": hp}
 
-            def on_run(n: int) -> None:
-                nonlocal done
-                rp.update(n - done)
-                done = n
+            def on_total(stage: str, total: int) -> None:
+                played[stage].total = total
+                played[stage].update(0)  # its clock starts with the first run, not the second
 
             def on_stage(text: str) -> None:
                 bars.close()  # the previous model's training, if any, has ended
@@ -280,7 +278,8 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
                 on_epoch=bars,
                 on_trained=bars.done,
                 on_iteration=show_iteration,
-                on_run=on_run,
+                on_total=on_total,
+                on_runs=lambda stage, n: played[stage].update(n),
                 on_estimate=lambda stages: typer.echo(describe(stages), err=True),
             )
             try:

@@ -28,6 +28,8 @@ from twin.physics import SliderCrank, load_model
 from twin.plan_data import plan_dataset_file
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from crank.chain import Hooks, RunConfig
 
 DATASET = "dataset.mcap"
@@ -199,14 +201,23 @@ def replay(
         model_path=config.model_path,
         resolved=resolved,
         nthread=nthread,
-        on_run=hooks.on_run,
+        on_run=_counted(hooks.on_runs, "replay"),
+        on_start=_counted(hooks.on_total, "replay"),
         figures=config.figures,
     )
 
 
-def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, Any]:
+def _counted(hook: Callable[[str, int], None] | None, stage: str) -> Callable[[int], None] | None:
+    """A count callback of `stage` that passes its number on to `hook` (or none without one)."""
+    return None if hook is None else lambda n: hook(stage, n)
+
+
+def heldout(
+    config: RunConfig, ocp: Path, model: Path, out: Path, *, hooks: Hooks
+) -> dict[str, Any]:
     """Every profile of `ocp` on `config.heldout_runs` held-out machines, in the loops its
     robust profiles (a fallback's included) were tightened for: `out`/heldout.json."""
+    played, total = _counted(hooks.on_runs, "heldout"), _counted(hooks.on_total, "heldout")
     return heldout_file(
         ocp,
         out / HELDOUT,
@@ -219,6 +230,10 @@ def heldout(config: RunConfig, ocp: Path, model: Path, out: Path) -> dict[str, A
         kd=config.replay.kd,
         model_path=config.model_path,
         mc_samples=config.heldout_trajectories,
+        on_machines=None if played is None else lambda _profile, _mode, n: played(n),
+        on_start=None
+        if total is None
+        else lambda solved, loops: total(config.heldout_runs * len(solved.names) * len(loops)),
     )
 
 

@@ -130,7 +130,7 @@ def _work(node: Node, out: Path, here: Path, ancestors: tuple[dict, ...]) -> dic
     checked = None
     if config.heldout_runs:
         t0 = time.perf_counter()
-        checked = stages.heldout(config, ocp, model, here)
+        checked = stages.heldout(config, ocp, model, here, hooks=hooks)
         seconds["heldout"] = time.perf_counter() - t0
     seconds["total"] = sum(seconds.values())  # of this leaf's steps, some shared with others
     report = stages.write_report(

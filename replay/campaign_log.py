@@ -121,7 +121,8 @@ class CampaignLog:
     def write_replay(
         self, replay: Replay, machines: Machines, *, on_run: Callable[[int], None] | None = None
     ) -> None:
-        """Append every run of `replay`, each as one episode, flushing after each run."""
+        """Append every run of `replay`, each as one episode, flushing after each run and then
+        calling `on_run(1)`: the runs just logged."""
         n = self.n_samples
         plan = (  # the same for every run of the replay's profile and mode
             None
@@ -179,7 +180,7 @@ class CampaignLog:
             self.writer.flush()
             self.episodes += 1
             if on_run is not None:
-                on_run(self.episodes)
+                on_run(1)
 
     def _write_mpc(self, replay: Replay, run: int, tags: dict[str, Any], t0: int) -> None:
         """The run's MPC steps on MPC_TOPIC (the channel is registered on first use)."""

@@ -131,6 +131,7 @@ def replay_file(
     resolved: dict[str, Any] | None = None,
     nthread: int | None = None,
     on_run: Callable[[int], None] | None = None,
+    on_start: Callable[[int], None] | None = None,
     ppann: str | Path | None = None,
     figures: bool = True,
 ) -> dict[str, Any]:
@@ -141,7 +142,9 @@ def replay_file(
       ppann: the checkpoint the mpc mode predicts with (default: the one ocp.json names).
       resolved: the command's resolved configuration, attached to the log as config.json
         (default: the replay config).
-      on_run: called with the number of runs logged so far (all profiles and modes).
+      on_run: called with the runs just logged (each run of every profile and mode).
+      on_start: called with the runs the campaign will log (runs x profiles x modes) once every
+        input has been checked, before the first run.
 
     Returns:
       The statistics written to `<stem>.stats.json`.
@@ -174,6 +177,8 @@ def replay_file(
             f"actuator saturates at {physics.torque_limit:g} N·m (the replay would clip it)"
         )
 
+    if on_start is not None:
+        on_start(config.runs * len(ocp.names) * len(config.modes))
     started = time.perf_counter()
     logging = 0.0
     resolved = resolved if resolved is not None else {"replay": config.as_dict()}

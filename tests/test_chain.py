@@ -75,7 +75,21 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict
     assert not (b / "replay.mcap").exists() and not (b / "report.md").exists()
     trained = (b / "model.pt").stat().st_mtime_ns
     stages: list[str] = []
-    run_chain(SHORT, b, argv=[], hooks=Hooks(on_stage=stages.append), resume=True)
+    told: list[tuple[str, str, int]] = []  # what the playing stages count, in order
+    hooks = Hooks(
+        on_stage=stages.append,
+        on_total=lambda stage, n: told.append(("total", stage, n)),
+        on_runs=lambda stage, n: told.append(("played", stage, n)),
+    )
+    run_chain(SHORT, b, argv=[], hooks=hooks, resume=True)
+    # the replay: 4 machines x 4 profiles x 2 loops, each run as logged; the held-out check:
+    # 20 machines x 4 profiles x 2 loops, a batch (all 20) per profile and loop
+    assert told == [
+        ("total", "replay", 32),
+        *[("played", "replay", 1)] * 32,
+        ("total", "heldout", 160),
+        *[("played", "heldout", 20)] * 8,
+    ]
     assert stages[:3] == [
         "generating the dataset: done before, kept",
         "training the PPANN: done before, kept",

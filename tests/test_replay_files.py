@@ -21,13 +21,13 @@ from control.ocp_file import OCPFile
 from replay.campaign import run_campaign
 from replay.campaign_log import partial_path
 from replay.config import ReplayConfig, ReplayConfigError
-from replay.files import output_paths
+from replay.files import output_paths, replay_file
 from replay.recording import BAND_LINES, band_lines, check_recording
 from tests.conftest import crank
 from tests.replay_ocp import N
 from twin.geometry import PAPER
 from twin.mcap_dataset import ContractError, read_dataset, read_run, read_truth
-from twin.physics import SliderCrank
+from twin.physics import MJCFNotFoundError, SliderCrank
 
 
 def test_campaign_log_reads_back_through_the_dataset_loader(
@@ -59,6 +59,27 @@ def test_campaign_log_reads_back_through_the_dataset_loader(
     assert len(runs) == 24
     assert json.loads(runs[7].metadata["machine"]) == campaign.machines.draws[1].as_dict()
     assert attachments == {"model.xml", "ocp.json", "config.json"}
+
+
+def test_a_campaign_tells_what_it_will_play_then_each_run_as_it_is_logged(
+    ocp_path: Path, tmp_path: Path
+) -> None:
+    """on_start: runs x profiles x modes once the inputs are checked (never for a bad input);
+    on_run: 1 after each run, as many times as there are runs."""
+    told: list[tuple[str, int]] = []
+    hooks = {
+        "on_start": lambda n: told.append(("start", n)),
+        "on_run": lambda n: told.append(("run", n)),
+    }
+    out = tmp_path / "r.mcap"
+    with pytest.raises(MJCFNotFoundError):
+        replay_file(
+            ocp_path, out, config=ReplayConfig(runs=2), model_path=tmp_path / "none.xml", **hooks
+        )
+    assert told == [] and not partial_path(out).exists()
+    config = ReplayConfig(runs=2, seed=3, modes=("open", "closed"))
+    replay_file(ocp_path, out, config=config, figures=False, **hooks)
+    assert told == [("start", 2 * 2 * 2)] + [("run", 1)] * 8  # 2 machines, 2 profiles, 2 modes
 
 
 def test_rrd_reads_back_with_reruns_reader(campaign_files: dict[str, Path]) -> None:
