@@ -279,7 +279,8 @@ def heldout_command(
     checked = ("open",) if loops is None else loops
     ReplayConfig(runs=runs, seed=seed, modes=checked, feedback=feedback, kp=kp, kd=kd)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
-    bar = Progress(0, "held-out", unit="machine")  # its total once the file is read
+    # its total once the file is read; "done" after the last profile's line, not before it
+    bar = Progress(0, "held-out", unit="machine", close_when_full=False)
 
     def on_start(solved: OCPFile, played: tuple[str, ...]) -> None:
         bar.total = runs * len(solved.names) * len(played)

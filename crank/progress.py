@@ -56,17 +56,22 @@ def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any
 
 class Progress:
     """A progress bar on stderr, created at its first update and shown only if the step takes
-    more than 2 s, so short runs print nothing but their result."""
+    more than 2 s, so short runs print nothing but their result. It closes once full (its line
+    given back to the next stage's bar) or, if not `close_when_full`, when its `with` ends: the
+    step's last lines (`echo`) then come before its "done"."""
 
-    def __init__(self, total: int, desc: str, *, unit: str = "sample") -> None:
+    def __init__(
+        self, total: int, desc: str, *, unit: str = "sample", close_when_full: bool = True
+    ) -> None:
         self.total, self.desc, self.unit, self.bar = total, desc, unit, None
+        self.close_when_full = close_when_full
 
     def update(self, n: int) -> None:
         if self.bar is None:
             self.bar = progress_bar(total=self.total, desc=self.desc, unit=self.unit, delay=2.0)
         self.bar.update(n)
-        if self.bar.n >= self.total:
-            self.bar.close()  # done: give the line back to the next stage's bar
+        if self.close_when_full and self.bar.n >= self.total:
+            self.bar.close()
 
     def echo(self, text: str) -> None:
         """A line on stderr that leaves the bar whole (tqdm's `write` while one is drawn)."""

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from mcap.writer import Writer
 
-from crank.progress import LineBar
+from crank.progress import LineBar, Progress
 from tests.conftest import crank
 from twin.mcap_dataset import (
     MEASUREMENT_TOPIC,
@@ -248,6 +248,20 @@ def test_progress_off_a_terminal_prints_lines_not_frames(capsys: pytest.CaptureF
     quick.update(2)
     quick.close()
     assert capsys.readouterr().err == ""
+
+
+def test_a_full_progress_bar_closes_at_once_or_when_its_step_ends() -> None:
+    """By default a bar closes (says "done") once full; with close_when_full=False only when its
+    `with` ends, so the lines its step prints after the last unit come before its "done"."""
+    with Progress(4, "replaying", unit="run") as bar:
+        bar.update(3)
+        assert not bar.bar.closed
+        bar.update(1)
+        assert bar.bar.closed
+    with Progress(4, "held-out", unit="machine", close_when_full=False) as held:
+        held.update(4)
+        assert not held.bar.closed
+    assert held.bar.closed
 
 
 def test_the_command_line_loads_without_the_heavy_engines() -> None:
