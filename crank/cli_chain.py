@@ -4,6 +4,8 @@ study (crank/study.py)."""
 from __future__ import annotations
 
 import json
+from contextlib import AbstractContextManager
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -13,6 +15,7 @@ import typer
 from common.atomic import check_creatable
 from common.errors import ConfigError
 from control.config import OCPConfig
+from crank.chain_progress import chain_progress
 from crank.console import (
     DEFAULT_FALLBACK,
     DEFAULT_PROFILES,
@@ -21,7 +24,6 @@ from crank.console import (
     Confidence,
     Drift,
     EpisodeSeconds,
-    EpochBars,
     FallbackOption,
     ModelPath,
     ProfilesOption,
@@ -35,10 +37,8 @@ from crank.console import (
     print_replay,
     print_summary,
     profiles_list,
-    show_iteration,
     transcript,
 )
-from crank.progress import Progress
 from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
@@ -249,38 +249,14 @@ def config_command(
 def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
     """run_chain with progress bars, stage lines, run.log and the summary tables."""
     from control.records import RobustError
-    from crank.chain import Hooks, run_chain
+    from crank.chain import run_chain
     from crank.estimate import describe
     from crank.report import train_summary
 
     with transcript(run_dir / "run.log", append=resume):
-        bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.phase2_epochs})
-        with (
-            Progress(config.generation.n_samples, "simulating") as sim,
-            Progress(config.generation.n_samples, "writing MCAP") as io,
-            Progress(0, "replaying", unit="run") as rp,  # the totals once the stage knows them
-            Progress(0, "held-out", unit="machine") as hp,
-        ):
-            played = {"replay": rp, "heldout": hp}
-
-            def on_total(stage: str, total: int) -> None:
-                played[stage].total = total
-                played[stage].update(0)  # its clock starts with the first run, not the second
-
-            def on_stage(text: str) -> None:
-                bars.close()  # the previous model's training, if any, has ended
-                typer.echo(f"{text} ...", err=True)
-
-            hooks = Hooks(
-                on_stage=on_stage,
-                on_simulated=sim.update,
-                on_written=io.update,
-                on_epoch=bars,
-                on_trained=bars.done,
-                on_iteration=show_iteration,
-                on_total=on_total,
-                on_runs=lambda stage, n: played[stage].update(n),
-                on_estimate=lambda stages: typer.echo(describe(stages), err=True),
+        with chain_progress(config) as shown:
+            hooks = replace(
+                shown, on_estimate=lambda stages: typer.echo(describe(stages), err=True)
             )
             try:
                 report = run_chain(config, run_dir, hooks=hooks, resume=resume)
@@ -291,8 +267,6 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
                         f"{run_dir} --profiles robust-fb",
                     )
                 raise
-            finally:
-                bars.close()
         print_summary(f"run {run_dir}: dataset", report["dataset"])
         print_summary("PPANN", train_summary(report["ppann"]))
         print_summary("OCP", report["ocp"])
@@ -371,9 +345,9 @@ def study_command(
         plan={"episodes": plan_episodes},
     )
 
-    def hooks(seed: int) -> Hooks:
+    def progress(seed: int) -> AbstractContextManager[Hooks]:
         typer.echo(f"seed {seed}: running the chain into {out / f'seed-{seed}'}", err=True)
-        return Hooks(on_stage=lambda text: typer.echo(f"  seed {seed}: {text}", err=True))
+        return chain_progress(base.with_seed(seed), prefix=f"  seed {seed}: ")
 
     def show(row: dict[str, Any]) -> None:
         name = f"{row['profile']}{' (fallback)' if row.get('fallback') else ''}"
@@ -391,6 +365,6 @@ def study_command(
         typer.echo(f"{left} of {len(chosen)} seeds to run; {describe(times, times=left)}", err=True)
 
     study = run_study(
-        base, chosen, out, resume=resume, hooks=hooks, on_row=show, on_estimate=estimate
+        base, chosen, out, resume=resume, progress=progress, on_row=show, on_estimate=estimate
     )
     typer.echo(f"wrote {out / 'study.md'} ({study['wall_s'] / 60:.1f} min)")

@@ -22,6 +22,7 @@ import shutil
 import time
 from collections import Counter
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -150,14 +151,15 @@ def run_study(
     out: str | Path,
     *,
     resume: bool = False,
-    hooks: Callable[[int], Hooks] | None = None,
+    progress: Callable[[int], AbstractContextManager[Hooks]] | None = None,
     on_row: Callable[[dict[str, Any]], None] | None = None,
     on_estimate: Callable[[dict[str, Span], int], None] | None = None,
 ) -> dict[str, Any]:
     """Run the chain per seed into `out`/seed-<s>/ and write the study files; return study.json.
 
     `on_estimate` gets one run's estimated time per stage and the number of seeds left to run,
-    once the inputs are checked."""
+    once the inputs are checked; `progress(seed)`, a block around each seed's chain, gives the
+    chain's hooks."""
     out = Path(out)
     if out.exists() and not resume:
         raise ConfigError(f"study folder already exists: {out} (use --resume to continue it)")
@@ -173,12 +175,8 @@ def run_study(
         if not (run_dir / "report.md").is_file():
             shutil.rmtree(run_dir, ignore_errors=True)  # an unfinished seed starts over
             try:
-                run_chain(
-                    base.with_seed(seed),
-                    run_dir,
-                    hooks=hooks(seed) if hooks else None,
-                    argv=[],
-                )
+                with progress(seed) if progress else nullcontext(None) as hooks:
+                    run_chain(base.with_seed(seed), run_dir, hooks=hooks, argv=[])
             except CrankError as exc:
                 row = {"seed": seed, "profile": "/".join(base.ocp.profiles), "error": str(exc)}
                 if isinstance(exc, BeyondStrokeError):  # the figures of "no open-loop profile"

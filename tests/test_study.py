@@ -4,19 +4,50 @@ seeds, a seed whose chain fails recorded with its one-line error, and the seed p
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import replace
 
 import pytest
 from matplotlib.colors import to_rgba
 
 from common.errors import ConfigError
+from crank.chain import Hooks
 from crank.study import parse_seeds, run_study
 from tests.test_chain import BRIEF
 
 
+def _recorded(events: list[tuple]) -> Callable[[int], AbstractContextManager[Hooks]]:
+    """A study's `progress` that records when each seed's block opens and closes and, between,
+    its chain's stage lines and playing stages' totals."""
+
+    @contextmanager
+    def progress(seed: int) -> Iterator[Hooks]:
+        events.append(("open", seed))
+        try:
+            yield Hooks(
+                on_stage=lambda text: events.append((seed, text)),
+                on_total=lambda stage, n: events.append((seed, stage, n)),
+            )
+        finally:
+            events.append(("closed", seed))
+
+    return progress
+
+
 def test_study_rows_resume_and_files(tmp_path) -> None:
     out = tmp_path / "study"
-    study = run_study(BRIEF, (0, 1), out)
+    events: list[tuple] = []
+    study = run_study(BRIEF, (0, 1), out, progress=_recorded(events))
+    # each seed's chain runs inside its own block, one seed after the other
+    assert events[:2] == [("open", 0), (0, "generating the dataset")]
+    first = events[: events.index(("closed", 0)) + 1]
+    assert (0, "replay", 4 * 4 * 2) in first and (0, "heldout", 20 * 4 * 2) in first
+    assert events[len(first) : len(first) + 2] == [("open", 1), (1, "generating the dataset")]
+    assert events[-1] == ("closed", 1) and [e for e in events if e[0] == "open"] == [
+        ("open", 0),
+        ("open", 1),
+    ]
     rows = {(r["seed"], r["profile"]): r for r in study["rows"]}
     # one row per seed and robust profile, each judged in its own loop
     assert set(rows) == {(s, p) for s in (0, 1) for p in ("robust", "robust-fb", "robust-pd")}
@@ -51,15 +82,19 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
     with pytest.raises(ConfigError, match="already exists"):
         run_study(BRIEF, (0, 1), out)
-    again = run_study(BRIEF, (0, 1), out, resume=True)
+    events.clear()
+    again = run_study(BRIEF, (0, 1), out, resume=True, progress=_recorded(events))
     assert (out / "seed-0" / "report.md").stat().st_mtime_ns == stamp  # not redone
+    assert events == []  # no chain ran
     assert again["rows"] == study["rows"]
 
 
 def test_a_failing_seed_is_a_row_with_its_error(tmp_path) -> None:
     """k_sigma 3 on a 12 s model: no robust profile; the study records it and goes on."""
     failing = replace(BRIEF, ocp=replace(BRIEF.ocp, k_sigma=3.0, profiles=("robust",), fallback=()))
-    study = run_study(failing, (0,), tmp_path / "study")
+    events: list[tuple] = []
+    study = run_study(failing, (0,), tmp_path / "study", progress=_recorded(events))
+    assert events[-2:] == [(0, "solving the nominal and robust OCP"), ("closed", 0)]
     (row,) = study["rows"]
     assert row["seed"] == 0 and "no robust profile" in row["error"]
     assert "no robust profile" in (tmp_path / "study" / "seed-0" / "error.txt").read_text()
