@@ -355,9 +355,9 @@ def study_command(
             typer.echo(f"seed {row['seed']}: {name}: error: {row['error']}")
         elif "robust_heldout_rate" in row:
             typer.echo(
-                f"seed {row['seed']}: {name} {row['robust_100']}/100 {row['loop']} loop, held-out "
-                f"{100 * row['robust_heldout_rate']:.2f} % (95 % bound "
-                f"{100 * row['robust_heldout_upper_95']:.2f} %), "
+                f"seed {row['seed']}: {name} {row['robust_100']}/{row['campaign_runs']} "
+                f"{row['loop']} loop, held-out {100 * row['robust_heldout_rate']:.2f} % "
+                f"(95 % bound {100 * row['robust_heldout_upper_95']:.2f} %), "
                 f"premium {100 * row['premium']:.1f} %"
             )
 

@@ -102,8 +102,9 @@ def _profile_row(
         "profile": name,
         "error": None,
         "loop": loop,
-        "robust_100": played[name]["violating_runs"],
+        "robust_100": played[name]["violating_runs"],  # of campaign_runs (100 by default)
         "nominal_100": played["nominal"]["violating_runs"],
+        "campaign_runs": played[name]["runs"],
         "premium": stats["ocp"]["premiums"][name],
         "robust_lowest_mm": 1e3 * min(c["lowest"] for c in played[name]["constraint"].values()),
         "phase1_epochs": ppann["epochs"],
@@ -239,6 +240,7 @@ def markdown(study: dict[str, Any]) -> str:
     rows = study["rows"]
     ok = [r for r in rows if r.get("error") is None]
     lines = [f"# Seed study: seeds {', '.join(str(s) for s in study['seeds'])}", ""]
+    runs = study["config"]["replay"]["runs"]  # campaign machines per profile and loop
     scenario = study["config"]["generation"]["variability"]["name"]
     lines.append(
         f"Variability scenario `{scenario}`, Monte-Carlo `{study['config']['ocp']['mc_mode']}` "
@@ -270,7 +272,7 @@ def markdown(study: dict[str, Any]) -> str:
                 "held-out machines to confirm it"
             )
         lines.append(
-            f"- {name} {loop} loop 0/100 campaign runs on every seed: "
+            f"- {name} {loop} loop 0/{runs} campaign runs on every seed: "
             f"**{'yes' if campaign and every else 'no'}**"
         )
         lines += _recurring(good)
@@ -283,8 +285,8 @@ def markdown(study: dict[str, Any]) -> str:
     columns = [
         ("seed", "seed", ""),
         ("profile", "profile", ""),
-        ("robust_100", "robust /100", ""),
-        ("nominal_100", "nominal /100", ""),
+        ("robust_100", f"robust /{runs}", ""),
+        ("nominal_100", f"nominal /{runs}", ""),
         ("robust_heldout_rate", "robust held-out", ".2%"),
         ("robust_heldout_upper_95", "95 % bound", ".2%"),
         ("nominal_heldout_rate", "nominal held-out", ".1%"),

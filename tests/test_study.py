@@ -77,6 +77,9 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
     text = (out / "study.md").read_text()
     assert "| seed | profile |" in text and "- robust-fb closed loop on held-out" in text
     assert "| premium | solved with |" in text
+    # the campaign's counts are of its 4 machines a profile and loop (BRIEF's), not of 100
+    assert "| robust /4 | nominal /4 |" in text and "open loop 0/4 campaign runs on" in text
+    assert all(r["campaign_runs"] == 4 for r in rows.values() if r["error"] is None)
     assert "| pred/obs σ @50 | pred/obs σ @50 95 % from | pred/obs σ @50 95 % to |" in text
     assert "- robust-pd closed loop on held-out" in text
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
@@ -121,6 +124,7 @@ def _study(rows: list[dict], *, tightening: str, heldout_seed: int) -> dict:
             "generation": {"variability": {"name": "paper"}},
             "ocp": ocp | {"profiles": ["robust"], "confidence": 0.95},
             "heldout_seed": heldout_seed,
+            "replay": {"runs": 100},
         },
     }
 
