@@ -23,6 +23,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -164,6 +165,8 @@ def run_study(
     out = Path(out)
     if out.exists() and not resume:
         raise ConfigError(f"study folder already exists: {out} (use --resume to continue it)")
+    for seed in seeds:  # a resumed study's finished seeds ran with these settings, or none runs
+        check_same_settings(out / f"seed-{seed}", base.with_seed(seed))
     left = [s for s in seeds if not (out / f"seed-{s}" / "report.md").is_file()]
     estimate = run_time(base)
     if on_estimate:
@@ -212,6 +215,41 @@ def run_study(
     (out / "study.md").write_text(markdown(study))
     save_figure(figure(rows), out / "study.png")
     return study
+
+
+def check_same_settings(run_dir: Path, asked: RunConfig) -> None:
+    """A finished run folder of a study being resumed must have run with the settings `asked`
+    (but for `figures`, which changes no number), or the study would mix two configurations
+    under one heading.
+
+    Raises:
+      ConfigError: naming the first setting that differs, with both values.
+    """
+    if not (run_dir / "report.md").is_file():
+        return  # not finished: run again from the start with `asked`
+    from crank.resume import resumed_config
+
+    ran = resumed_config(run_dir)
+    if replace(ran, figures=asked.figures) == asked:
+        return
+    theirs, ours = _flat(ran.as_dict()), _flat(asked.as_dict())
+    differ = [k for k in (*ours, *theirs) if k != "figures" and theirs.get(k) != ours.get(k)]
+    key = next((k for k in differ if k.endswith(".name")), differ[0])  # a scenario by its name
+    raise ConfigError(
+        f"{run_dir} ran with {key} = {theirs.get(key)!r}, this study asks {ours.get(key)!r}: "
+        "resume the study with the options it was started with, or start a new study folder"
+    )
+
+
+def _flat(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dicts as one dict of dotted keys."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            out |= _flat(value, f"{prefix}{key}.")
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:

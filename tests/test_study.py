@@ -4,6 +4,7 @@ seeds, a seed whose chain fails recorded with its one-line error, and the seed p
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import replace
@@ -15,6 +16,9 @@ from common.errors import ConfigError
 from crank.chain import Hooks
 from crank.study import parse_seeds, run_study
 from tests.test_chain import BRIEF
+from twin.variability import Variability
+
+LINE_15 = Variability.resolve("line-15")
 
 
 def _recorded(events: list[tuple]) -> Callable[[int], AbstractContextManager[Hooks]]:
@@ -85,8 +89,25 @@ def test_study_rows_resume_and_files(tmp_path) -> None:
     stamp = (out / "seed-0" / "report.md").stat().st_mtime_ns
     with pytest.raises(ConfigError, match="already exists"):
         run_study(BRIEF, (0, 1), out)
-    events.clear()
-    again = run_study(BRIEF, (0, 1), out, resume=True, progress=_recorded(events))
+    # resumed with other settings: refused before anything is run or written
+    written = (out / "study.json").read_bytes()
+    more = replace(BRIEF, replay=replace(BRIEF.replay, runs=5))
+    line = replace(
+        BRIEF,
+        generation=replace(BRIEF.generation, variability=LINE_15),
+        replay=replace(BRIEF.replay, variability=LINE_15),
+    )
+    for other, message in (
+        (more, "replay.runs = 4, this study asks 5"),
+        (line, "generation.variability.name = 'paper', this study asks 'line-15'"),
+    ):
+        with pytest.raises(ConfigError, match=re.escape(f"seed-0 ran with {message}")):
+            run_study(other, (0, 1), out, resume=True)
+    assert (out / "study.json").read_bytes() == written
+    events.clear()  # with figures (no number changes): the finished seeds are the study's
+    again = run_study(
+        replace(BRIEF, figures=True), (0, 1), out, resume=True, progress=_recorded(events)
+    )
     assert (out / "seed-0" / "report.md").stat().st_mtime_ns == stamp  # not redone
     assert events == []  # no chain ran
     assert again["rows"] == study["rows"]
