@@ -23,7 +23,6 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -229,11 +228,10 @@ def check_same_settings(run_dir: Path, asked: RunConfig) -> None:
         return  # not finished: run again from the start with `asked`
     from crank.resume import resumed_config
 
-    ran = resumed_config(run_dir)
-    if replace(ran, figures=asked.figures) == asked:
-        return
-    theirs, ours = _flat(ran.as_dict()), _flat(asked.as_dict())
+    theirs, ours = _flat(resumed_config(run_dir).as_dict()), _flat(asked.as_dict())
     differ = [k for k in (*ours, *theirs) if k != "figures" and theirs.get(k) != ours.get(k)]
+    if not differ:
+        return
     key = next((k for k in differ if k.endswith(".name")), differ[0])  # a scenario by its name
     raise ConfigError(
         f"{run_dir} ran with {key} = {theirs.get(key)!r}, this study asks {ours.get(key)!r}: "
