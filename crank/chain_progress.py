@@ -32,10 +32,6 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
     ):
         played = {"replay": replayed, "heldout": checked}
 
-        def on_total(stage: str, total: int) -> None:
-            played[stage].total = total
-            played[stage].update(0)  # its clock starts with the first run, not the second
-
         def on_stage(text: str) -> None:
             bars.close()  # the previous model's training, if any, has ended
             typer.echo(f"{prefix}{text} ...", err=True)
@@ -48,7 +44,7 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
                 on_epoch=bars,
                 on_trained=bars.done,
                 on_iteration=show_iteration,
-                on_total=on_total,
+                on_total=lambda stage, total: played[stage].start(total),
                 on_runs=lambda stage, n: played[stage].update(n),
             )
         finally:

@@ -104,11 +104,6 @@ def replay_campaign(
     from replay.files import replay_file
 
     with Progress(0, "replaying", unit="run") as bar:  # its total once the inputs are checked
-
-        def on_start(total: int) -> None:
-            bar.total = total
-            bar.update(0)  # its clock starts with the first run, not the second
-
         return replay_file(
             ocp,
             out,
@@ -116,7 +111,7 @@ def replay_campaign(
             model_path=model,
             resolved=resolved,
             on_run=bar.update,
-            on_start=on_start,
+            on_start=bar.start,
             ppann=ppann,
         )
 
@@ -283,8 +278,7 @@ def heldout_command(
     bar = Progress(0, "held-out", unit="machine", close_when_full=False)
 
     def on_start(solved: OCPFile, played: tuple[str, ...]) -> None:
-        bar.total = runs * len(solved.names) * len(played)
-        bar.update(0)  # its clock starts with the first machine, not after the first batch
+        bar.start(runs * len(solved.names) * len(played))
         span = heldout_time(
             runs=runs,
             horizon=solved.horizon,

@@ -66,6 +66,12 @@ class Progress:
         self.total, self.desc, self.unit, self.bar = total, desc, unit, None
         self.close_when_full = close_when_full
 
+    def start(self, total: int) -> None:
+        """The total, once the step knows it; the bar's clock starts now, not at the first
+        update (which may come only after a whole batch)."""
+        self.total = total
+        self.update(0)
+
     def update(self, n: int) -> None:
         if self.bar is None:
             self.bar = progress_bar(total=self.total, desc=self.desc, unit=self.unit, delay=2.0)

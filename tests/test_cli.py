@@ -262,6 +262,9 @@ def test_a_full_progress_bar_closes_at_once_or_when_its_step_ends() -> None:
         held.update(4)
         assert not held.bar.closed
     assert held.bar.closed
+    with Progress(0, "replaying", unit="run") as late:  # its total known only later
+        late.start(2)
+        assert late.bar.total == 2 and late.bar.n == 0 and not late.bar.closed
 
 
 def test_the_command_line_loads_without_the_heavy_engines() -> None:
