@@ -215,6 +215,28 @@ def mpc_law(
     return law, record
 
 
+def _counting_steps(
+    law: Callable[[int, np.ndarray], np.ndarray],
+    n_runs: int,
+    n_samples: int,
+    on_machines: Callable[[int], None],
+) -> Callable[[int, np.ndarray], np.ndarray]:
+    """`law`, reporting after sample k the machines' worth of steps it completes: of
+    n_runs·(k + 1)/n_samples, rounded down, what was not reported before (n_runs in all)."""
+    reported = 0
+
+    def counted(k: int, states: np.ndarray) -> np.ndarray:
+        nonlocal reported
+        torque = law(k, states)
+        worth = n_runs * (k + 1) // n_samples
+        if worth > reported:
+            on_machines(worth - reported)
+            reported = worth
+        return torque
+
+    return counted
+
+
 def play(
     physics: SliderCrank,
     ocp: OCPFile,
@@ -232,7 +254,9 @@ def play(
     native batch (`model`: the PPANN the MPC predicts with, needed in mpc mode only), or open
     and closed loop `batch` machines at a time, `on_machines(machines just played)` after
     each: the same result bit for bit (twin/stepping.py `simulate_batches`). The MPC, a solver
-    per machine, plays every machine in one batch.
+    per machine, plays every machine in one batch, step by step; `on_machines` then counts the
+    machines' worth of steps done (all machines at sample k of n: k/n of them), so that a
+    progress bar moves through the minutes a thousand MPCs take.
 
     Each machine's friction is evaluated once, at the middle of its replay (the warm-up time
     constant, 20 s, is 70× the 0.3 s replay).
@@ -247,6 +271,8 @@ def play(
         if model is None:
             raise MPCConfigError("the mpc mode needs the PPANN the plan was solved on")
         feedback, record = mpc_law(physics, ocp, chosen, model, config)
+        if on_machines is not None:
+            feedback, on_machines = _counting_steps(feedback, n_runs, n_samples, on_machines), None
     runs = simulate_batches(
         physics,
         config.variability,

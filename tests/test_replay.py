@@ -21,7 +21,7 @@ from control.tightening import sigma_relative_se
 from ppann.heads import FusedHeads
 from ppann.model import PPANN, constant_ppann
 from ppann.montecarlo import Feedback, monte_carlo
-from replay.campaign import draw_machines, play, run_campaign
+from replay.campaign import _counting_steps, draw_machines, play, run_campaign
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, heldout_file
 from replay.model_rate import model_rate
@@ -222,7 +222,8 @@ def test_heldout_check_in_batches_of_machines_equals_one_batch(
     """A long check plays its machines a batch at a time, open and closed loop, reporting each
     batch (`crank heldout`'s progress) after saying once what it will play: heldout.json the
     same to the last bit but its timing; the MPC, a solver per machine, plays all its machines
-    at once."""
+    at once, step by step, and reports the machines' worth of steps done: with 8 machines and
+    more samples than that, one machine's worth at a time, 8 in all."""
     model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
     kwargs = dict(
         runs=8,
@@ -245,13 +246,36 @@ def test_heldout_check_in_batches_of_machines_equals_one_batch(
         **kwargs,
     )
     loops = [(n, m) for n in ocp.names for m in ("open", "closed", "mpc")]
-    expected = [(n, m, k) for n, m in loops for k in ((8,) if m == "mpc" else (3, 3, 2))]
+    expected = [(n, m, k) for n, m in loops for k in ((1,) * 8 if m == "mpc" else (3, 3, 2))]
     assert played == [(ocp.names, ("open", "closed", "mpc")), *expected]
     for result in (whole, batched):  # the compute times differ from run to run
         for name in ocp.names:
             assert result["profiles"][name]["mpc"].pop("mpc")["deadline_misses"] == 0
         del result["timing"]
     assert json.dumps(batched, sort_keys=True) == json.dumps(whole, sort_keys=True)
+
+
+def test_mpc_progress_counts_machines_worth_of_steps_as_they_are_played() -> None:
+    """8 machines over 150 samples: one machine's worth after samples 19, 38, 57, 75, 94, 113,
+    132 and 150 (8·k/150 crossing each whole number), each reported as its step is played, and
+    the law's torques passed through unchanged."""
+    reports: list[tuple[int, int]] = []
+    step = [-1]
+
+    def law(k: int, states: np.ndarray) -> np.ndarray:
+        step[0] = k
+        return states[:, 0] * k
+
+    counted = _counting_steps(law, 8, 150, lambda n: reports.append((step[0], n)))
+    states = np.arange(16.0).reshape(8, 2)
+    for k in range(150):
+        np.testing.assert_array_equal(counted(k, states), states[:, 0] * k)
+    assert reports == [(k, 1) for k in (18, 37, 56, 74, 93, 112, 131, 149)]
+    bigger: list[int] = []
+    many = _counting_steps(law, 1000, 150, bigger.append)
+    for k in range(150):
+        many(k, states)
+    assert sum(bigger) == 1000 and len(bigger) == 150  # 6 or 7 machines' worth a sample
 
 
 def _check_heldout_entry(
