@@ -147,15 +147,19 @@ def compare_command(
         result = merge_compares(run_dirs, out)
         typer.echo(f"wrote {out / 'compare.md'} ({counted(result)})")
         return
-    result = compare_runs(
-        run_dirs,
-        out,
-        runs=runs,
-        heldout_runs=heldout_runs,
-        heldout_seed=heldout_seed,
-        mjcf=mjcf,
-        on_stage=lambda text: typer.echo(text, err=True),
-    )
+    from crank.chain import Hooks
+    from crank.progress import StageBars
+
+    with StageBars(unit="machine") as bars:  # a bar for each run's campaign and held-out stage
+        result = compare_runs(
+            run_dirs,
+            out,
+            runs=runs,
+            heldout_runs=heldout_runs,
+            heldout_seed=heldout_seed,
+            mjcf=mjcf,
+            hooks=Hooks(on_stage=bars.echo, on_total=bars.start, on_runs=bars.update),
+        )
     typer.echo(
         f"wrote {out / 'compare.md'}, compare.json, compare.png "
         f"({counted(result)}, {result['wall_s'] / 60:.1f} min)"

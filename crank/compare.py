@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -34,7 +33,7 @@ from common.atomic import writes
 from common.errors import ConfigError
 from common.jsonio import write_json
 from control.mpc_config import MPCConfig
-from crank.chain import RunConfig
+from crank.chain import Hooks, RunConfig
 from crank.run_twin import run_twin
 from crank.sweep_spec import folder as step_folder
 from twin.variability import Variability
@@ -135,10 +134,12 @@ def compare_run(
     heldout_seed: int,
     mpc: MPCConfig,
     mjcf: Path | None = None,
-    on_stage: Callable[[str], None] | None = None,
+    hooks: Hooks | None = None,
 ) -> dict[str, Any]:
     """Every profile of one run folder under every controller: {scenario, spread, seeds, rows},
-    on the run's twin (`mjcf`: a copy of it in place of the path its config.json names).
+    on the run's twin (`mjcf`: a copy of it in place of the path its config.json names);
+    `hooks`: a line per stage and per profile checked (`on_stage`), what the "campaign" and the
+    "held-out" stage will play (`on_total`, before the stage's line) and as they play (`on_runs`).
 
     Raises:
       ConfigError: not a finished run folder, or the twin is not the run's.
@@ -154,7 +155,10 @@ def compare_run(
     from twin.physics import SliderCrank, load_model
 
     run_dir = Path(run_dir)
-    stage = on_stage or (lambda _: None)
+    hooks = hooks or Hooks()
+    stage = hooks.on_stage or (lambda _: None)
+    total = hooks.on_total or (lambda _stage, _count: None)
+    played = hooks.on_runs or (lambda _stage, _count: None)
     config, ocp_path, model_path, twin = _run_folder(run_dir, mjcf=mjcf)
     ocp = read_ocp(ocp_path)
     model, payload = load(model_path)
@@ -174,18 +178,21 @@ def compare_run(
     )
     pd = replace(base, modes=("closed",), feedback="pd")
     label = _label(run_dir)
+    total("campaign", runs * len(ocp.names) * len(CONTROLLERS))  # each played in all 4
     stage(f"{label}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
-    campaign = run_campaign(physics, ocp, config=base, model=model)
+    kept = {"model": model, "on_machines": lambda n: played("campaign", n)}
+    campaign = run_campaign(physics, ocp, config=base, **kept)
     stats = {
         "lqr": campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing={}),
         "pd": campaign_statistics(
-            run_campaign(physics, ocp, config=pd, machines=campaign.machines, model=model),
+            run_campaign(physics, ocp, config=pd, machines=campaign.machines, **kept),
             ocp,
             ocp_path=ocp_path,
             timing={},
         ),
     }
     held = {}
+    total("held-out", heldout_runs * len(ocp.names) * len(CONTROLLERS))
     for feedback, modes in (("lqr", base.modes), ("pd", pd.modes)):
         stage(f"{label}: {heldout_runs} held-out machines, {', '.join(modes)} ({feedback})")
         held[feedback] = heldout_check(
@@ -203,6 +210,7 @@ def compare_run(
             kd=base.kd,
             mc_samples=UNREAD_TRAJECTORIES,
             tail_draws=UNREAD_TRAJECTORIES,
+            on_machines=lambda _profile, _mode, n: played("held-out", n),
             on_played=lambda name, mode, entry, law=feedback: stage(
                 played_line(
                     name, mode, feedback=law, below=entry["violating_runs"], runs=heldout_runs
@@ -265,7 +273,7 @@ def compare_runs(
     heldout_seed: int,
     mpc: MPCConfig | None = None,
     mjcf: Path | None = None,
-    on_stage: Callable[[str], None] | None = None,
+    hooks: Hooks | None = None,
 ) -> dict[str, Any]:
     """`compare_run` for each run folder, written to `out`/compare.{json,md,png}.
 
@@ -309,7 +317,7 @@ def compare_runs(
             heldout_seed=heldout_seed,
             mpc=mpc,
             mjcf=mjcf,
-            on_stage=on_stage,
+            hooks=hooks,
         )
         for p in run_dirs
     ]

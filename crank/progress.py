@@ -92,3 +92,40 @@ class Progress:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+class StageBars:
+    """A bar per playing stage, for stages that come one after another (`crank compare`'s
+    campaign and held-out machines of each run): `start(stage, total)` closes the bar before —
+    its "done" after that stage's last line — and opens the stage's; `echo` writes a line
+    through the open bar; the block's end closes the last one."""
+
+    def __init__(self, *, unit: str) -> None:
+        self.unit = unit
+        self.bar: Progress | None = None
+
+    def start(self, stage: str, total: int) -> None:
+        self.close()
+        self.bar = Progress(0, stage, unit=self.unit, close_when_full=False)
+        self.bar.start(total)
+
+    def update(self, _stage: str, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def echo(self, text: str) -> None:
+        if self.bar is None:
+            print(text, file=sys.stderr, flush=True)
+        else:
+            self.bar.echo(text)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__()
+            self.bar = None
+
+    def __enter__(self) -> StageBars:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

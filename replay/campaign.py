@@ -315,12 +315,14 @@ def run_campaign(
     nthread: int | None = None,
     on_replay: Callable[[Replay], None] | None = None,
     model: PPANN | None = None,
+    on_machines: Callable[[int], None] | None = None,
 ) -> Campaign:
     """Play every profile of `ocp` in every configured mode on the same machines (default:
     drawn from the config's seed), each with the PPANN's slider σ under the law it played
     (`model`: the plan's PPANN; the mpc mode needs it, and so does the prediction of a law
     other than the profile's own); `on_replay` sees each (profile, mode) as soon as it is
-    simulated (the campaign log writes it then)."""
+    simulated (the campaign log writes it then), `on_machines` its machines as they are played
+    (`play`'s: the MPC's step by step)."""
     machines = machines if machines is not None else draw_machines(config, ocp.horizon)
     heads = None
     if model is not None:
@@ -341,6 +343,7 @@ def run_campaign(
                 config=config,
                 nthread=nthread,
                 model=model,
+                on_machines=on_machines,
             )
             simulating += time.perf_counter() - started
             mpc_gains = None if replay.mpc is None else replay.mpc.gains

@@ -292,16 +292,39 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
 
     a, _, _ = two_runs
     said: list[str] = []
+    counts: list[tuple[str, str, int]] = []
     result = compare_runs(
         [a],
         tmp_path / "cmp",
         runs=4,
         heldout_runs=20,
         heldout_seed=SHORT.heldout_seed,
-        on_stage=said.append,
+        hooks=Hooks(
+            on_stage=lambda text: (said.append(text), counts.append(("line", text, 0))),
+            on_total=lambda stage, n: counts.append(("total", stage, n)),
+            on_runs=lambda stage, n: counts.append(("played", stage, n)),
+        ),
     )
     # progress: a line per profile and loop of the held-out check as it finishes
     assert sum(line.startswith("  robust-fb ") for line in said) == 4
+    # each stage's total (4 profiles, each under all 4 controllers) before it plays; the
+    # campaign's 4 machines at a time, the held-out ones in one batch open and closed loop and
+    # a machine's worth of the MPC's steps at a time (20 machines, 150 samples)
+    for stage, machines, batch in (("campaign", 4, (4,)), ("held-out", 20, (20,))):
+        mine = [(kind, n) for kind, name, n in counts if name == stage]
+        assert mine[0] == ("total", machines * 4 * 4)
+        loops = ["open", "closed", "mpc"] * 4 + ["closed"] * 4  # the LQR's, then the PD's
+        mpc = (1,) * machines
+        assert [n for _, n in mine[1:]] == [
+            n for m in loops for n in (mpc if m == "mpc" else batch)
+        ]
+    assert counts.index(("total", "held-out", 320)) > max(
+        i for i, c in enumerate(counts) if c[1] == "campaign"
+    )
+    # each stage's line after its bar's total (the bar before it closed first), before its plays
+    for stage, line in (("campaign", "campaign machines"), ("held-out", "held-out machines")):
+        heading = next(i for i, c in enumerate(counts) if c[0] == "line" and line in c[1])
+        assert counts[heading - 1][:2] == ("total", stage)
     (scenario,) = result["scenarios"]
     rows = {(r["profile"], r["controller"]): r for r in scenario["rows"]}
     names = ("nominal", "robust", "robust-fb")
