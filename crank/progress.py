@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from typing import Any
@@ -47,9 +48,20 @@ class LineBar:
         print(f"{self.desc}: {text}{extra}", file=sys.stderr, flush=True)
 
 
-def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any:
-    """A tqdm bar on a terminal, a LineBar otherwise."""
+def _terminal_columns() -> int:
+    """stderr's width in columns; 0 when it is not a terminal, or a terminal of no size (a pty
+    nobody sized, as `script` and some CI runners make: tqdm draws nothing at all on it)."""
     if not sys.stderr.isatty():
+        return 0
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError):
+        return 0
+
+
+def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any:
+    """A tqdm bar on a terminal, a LineBar otherwise (also on a terminal of no width)."""
+    if _terminal_columns() == 0:
         return LineBar(total=total, desc=desc, unit=unit, delay=delay)
     return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, delay=delay, leave=False)
 

@@ -250,6 +250,37 @@ def test_progress_off_a_terminal_prints_lines_not_frames(capsys: pytest.CaptureF
     assert capsys.readouterr().err == ""
 
 
+def test_a_terminal_of_no_width_gets_plain_lines_where_tqdm_would_draw_nothing() -> None:
+    """A pty nobody sized (`script` without a terminal, some CI runners) has 0 columns, on
+    which tqdm prints nothing at all: plain lines there; a bar once it has a width, and lines
+    off a terminal."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+    from contextlib import redirect_stderr
+    from io import StringIO
+
+    from tqdm import tqdm
+
+    from crank.progress import progress_bar
+
+    master, follower = pty.openpty()
+    try:
+        with open(follower, "w", closefd=False) as tty, redirect_stderr(tty):
+            assert isinstance(progress_bar(total=2, desc="held-out", unit="machine"), LineBar)
+            fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+            bar = progress_bar(total=2, desc="held-out", unit="machine")
+            assert isinstance(bar, tqdm)
+            bar.close()
+        with redirect_stderr(StringIO()):
+            assert isinstance(progress_bar(total=2, desc="held-out", unit="machine"), LineBar)
+    finally:
+        os.close(master)
+        os.close(follower)
+
+
 def test_a_full_progress_bar_closes_at_once_or_when_its_step_ends() -> None:
     """By default a bar closes (says "done") once full; with close_when_full=False only when its
     `with` ends, so the lines its step prints after the last unit come before its "done"."""
