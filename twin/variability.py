@@ -120,6 +120,8 @@ class Variability:
         for p in self.parameters():
             if not isinstance(p, Parameter):
                 raise ConfigError(f"variability parameter must be a Parameter, got {p!r}")
+        if not isinstance(self.drift, bool):  # a range file's drift = "no" would read as true
+            raise ConfigError(f"drift must be true or false, got {self.drift!r}")
         check_finite("warmup_time_constant", self.warmup_time_constant, positive=True)
         check_finite("disturbance_amplitude", self.disturbance_amplitude, nonneg=True)
         if self.warmup_drop.high >= 1:
