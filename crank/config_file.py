@@ -155,9 +155,16 @@ def _same_type(default: Any, value: Any) -> bool:
 
 def _type_name(default: Any) -> str:
     if isinstance(default, list):
-        return f"a list of {_type_name(default[0])}" if default else "a list"
+        return f"a list of {_items_name(default[0])}" if default else "a list"
     return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(
         type(default), type(default).__name__
+    )
+
+
+def _items_name(default: Any) -> str:
+    """What a list of `default`'s kind holds, in the plural: "integers", not "an integer"."""
+    return {bool: "true or false", int: "integers", float: "numbers", str: "strings"}.get(
+        type(default), f"{type(default).__name__} values"
     )
 
 

@@ -80,7 +80,7 @@ def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) ->
         ("[train]\nseed = 3\n", "unknown key 'train.seed' (every stage uses the top-level seed)"),
         ("[ocp]\nhorizon = '150'\n", 'ocp.horizon must be an integer, got "150"'),
         ("[ocp]\nhorizon = 150.0\n", "ocp.horizon must be an integer, got 150.0"),
-        ("[ocp]\nconstraint_samples = [50, 'x']\n", "must be a list of an integer"),
+        ("[ocp]\nconstraint_samples = [50, 'x']\n", "must be a list of integers"),
         ("baselines = 1\n", "baselines must be true or false, got 1"),
         ("figures = 'no'\n", 'figures must be true or false, got "no"'),
         ("calibration_runs = 1\n", "calibration_runs must be an integer 2..100000, got 1"),
