@@ -21,7 +21,7 @@ import torch
 from common.errors import ConfigError
 from common.jsonio import without_wall_clock
 from common.resources import ResourceError
-from crank.chain import RunConfig, run_chain
+from crank.chain import Hooks, RunConfig, run_chain
 from crank.console import HELDOUT_SEED
 from crank.study import run_rows
 from crank.sweep import RESULT, execute, leaf_results, run_node, run_sweep
@@ -435,7 +435,10 @@ def test_compare_takes_a_sweep_folder_as_its_leaves(swept, tmp_path: Path) -> No
     said: list[str] = []
     kwargs = {"runs": 2, "heldout_runs": 5, "heldout_seed": 3, "mpc": LATE_MPC}
     ours = compare_runs(
-        [out / "leaf" / row["leaf_key"]], tmp_path / "leaf", on_stage=said.append, **kwargs
+        [out / "leaf" / row["leaf_key"]],
+        tmp_path / "leaf",
+        hooks=Hooks(on_stage=said.append),
+        **kwargs,
     )
     theirs = compare_runs([chain], tmp_path / "chain", **kwargs)
     assert said[0].startswith(f"{row['leaf']}: 2 campaign machines")
