@@ -177,6 +177,7 @@ CASES: list[tuple[str, str]] = [
     ("generate --seconds 1 --variability {negative.toml} --out o/d.mcap", "motor_damping"),
     ("generate --seconds 1 --variability {broken.toml} --out o/d.mcap", "broken.toml"),
     ("generate --seconds 1 --variability {drift_text.toml} --out o/d.mcap", "drift must be true"),
+    ("generate --seconds 1 --episode-seconds 0.001 --out o/d.mcap", "episode_seconds must cover"),
     ("generate --seconds 1 --variability {dir}/absent.toml --out o/d.mcap", "absent.toml"),
     ("generate --seconds 1 --variability {text.txt} --out o/d.mcap", "text.txt"),
     ("generate --seconds 1 --out o/d.txt", "must end in .mcap"),

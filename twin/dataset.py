@@ -77,6 +77,11 @@ class GenerationConfig:
             raise ConfigError(
                 f"seconds must cover at least 2 samples at {SAMPLE_RATE:g} Hz, got {self.seconds}"
             )
+        if round(self.episode_seconds * SAMPLE_RATE) < 2:  # one machine per sample: no motion
+            raise ConfigError(
+                f"episode_seconds must cover at least 2 samples at {SAMPLE_RATE:g} Hz, got "
+                f"{self.episode_seconds}"
+            )
 
     @property
     def n_samples(self) -> int:
