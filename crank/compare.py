@@ -178,21 +178,22 @@ def compare_run(
     )
     pd = replace(base, modes=("closed",), feedback="pd")
     label = _label(run_dir)
-    total("campaign", runs * len(ocp.names) * len(CONTROLLERS))  # each played in all 4
+    loops = len(base.modes) + len(pd.modes)  # every profile in each: what both stages play
+    total("campaign", runs * len(ocp.names) * loops)
     stage(f"{label}: {runs} campaign machines, {len(ocp.names)} profiles × 4 controllers")
-    kept = {"model": model, "on_machines": lambda n: played("campaign", n)}
-    campaign = run_campaign(physics, ocp, config=base, **kept)
+    shared = {"model": model, "on_machines": lambda n: played("campaign", n)}
+    campaign = run_campaign(physics, ocp, config=base, **shared)
     stats = {
         "lqr": campaign_statistics(campaign, ocp, ocp_path=ocp_path, timing={}),
         "pd": campaign_statistics(
-            run_campaign(physics, ocp, config=pd, machines=campaign.machines, **kept),
+            run_campaign(physics, ocp, config=pd, machines=campaign.machines, **shared),
             ocp,
             ocp_path=ocp_path,
             timing={},
         ),
     }
     held = {}
-    total("held-out", heldout_runs * len(ocp.names) * len(CONTROLLERS))
+    total("held-out", heldout_runs * len(ocp.names) * loops)
     for feedback, modes in (("lqr", base.modes), ("pd", pd.modes)):
         stage(f"{label}: {heldout_runs} held-out machines, {', '.join(modes)} ({feedback})")
         held[feedback] = heldout_check(
