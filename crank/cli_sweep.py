@@ -76,16 +76,21 @@ def sweep_command(
             typer.echo(f"{where}: {result['seconds']:.1f} s", err=True)
 
     folder = resume if resume is not None else out
-    sweep = run_sweep(
-        spec,
-        folder,
-        executor=executor,
-        address=address,
-        workers=workers,
-        resume=resume is not None,
-        on_start=started,
-        on_done=done,
-    )
+    try:
+        sweep = run_sweep(
+            spec,
+            folder,
+            executor=executor,
+            address=address,
+            workers=workers,
+            resume=resume is not None,
+            on_start=started,
+            on_done=done,
+        )
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the finished steps are kept
+        if folder.is_dir():
+            exc.args = (f"continue it with: crank sweep --resume {folder}",)
+        raise
     from crank.sweep_report import failure
 
     rows = sweep["rows"]

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -60,27 +62,67 @@ INPUT_ERRORS = (CrankError, OSError)
 """What a command turns into one `error:` line (a bad input, a disk that is full)."""
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (`kill`, a scheduler's or a container's stop), raised as Ctrl-C's
+    KeyboardInterrupt is, so that a command stops the same way: unfinished files removed, locks
+    released, the run's log written; exit status 143, as a process SIGTERM ended."""
+
+
+_TERMINATED = threading.Event()
+"""Set by SIGTERM: a library that turns the exception into its own KeyboardInterrupt (Ray's
+wait does) still ends the command as terminated."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    _TERMINATED.set()
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises `Terminated` in the main thread while the block runs, where it would
+    have ended the process on the spot (a lock and hidden temporaries left behind); left
+    alone where it is ignored or handled already, or off the main thread."""
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield
+        return
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def error_line(exc: BaseException) -> str:
-    """The one line a command prints (and `transcript` logs) for an input error or Ctrl-C."""
+    """The one line a command prints (and `transcript` logs) for an input error, Ctrl-C or
+    SIGTERM (with what to do next, if the command said: `exc.args`)."""
     if isinstance(exc, KeyboardInterrupt):
-        return "error: interrupted; no unfinished file was put at a target path"
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        then = "".join(f"; {a}" for a in exc.args)
+        return f"error: {what}; no unfinished file was put at a target path{then}"
     return f"error: {exc}"
 
 
 def one_line_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn the project's input errors into `error: ...` on stderr and exit code 2."""
+    """Turn the project's input errors into `error: ...` on stderr and exit code 2 (Ctrl-C:
+    130, SIGTERM: 143)."""
 
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            rollout_threads()  # $CRANK_ROLLOUT_THREADS checked before anything is written
-            return command(*args, **kwargs)
+            with _sigterm_as_interrupt():
+                rollout_threads()  # $CRANK_ROLLOUT_THREADS checked before anything is written
+                return command(*args, **kwargs)
         except INPUT_ERRORS as exc:
             typer.echo(error_line(exc), err=True)
             raise typer.Exit(2) from None
         except KeyboardInterrupt as exc:
+            if _TERMINATED.is_set() and not isinstance(exc, Terminated):
+                exc = Terminated(*exc.args)
             typer.echo(error_line(exc), err=True)
-            raise typer.Exit(130) from None
+            raise typer.Exit(143 if isinstance(exc, Terminated) else 130) from None
 
     return wrapper
 

@@ -17,6 +17,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import socket
 import time
 import traceback
@@ -258,10 +259,11 @@ def _init_ray(ray: Any, *, address: str | None, workers: int | None) -> None:
         "log_to_driver": False,
         "logging_level": logging.ERROR,
     }
-    if address:
-        ray.init(address=address, **options)
-    else:
-        ray.init(num_cpus=workers or os.cpu_count() or 1, **options)
+    ours = signal.getsignal(signal.SIGTERM)  # crank's: stops as Ctrl-C (Ray's aborts: exit -6)
+    local = {} if address else {"num_cpus": workers or os.cpu_count() or 1}
+    ray.init(address=address, **local, **options)  # address None: a local instance
+    if callable(ours):
+        signal.signal(signal.SIGTERM, ours)
 
 
 def leaf_results(leaves: list[Leaf], out: Path) -> list[tuple[Leaf, list[dict[str, Any]]]]:

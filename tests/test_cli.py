@@ -335,3 +335,41 @@ def test_heldout_says_what_it_plays_and_about_how_long_once_its_inputs_are_read(
     assert [line.split(":")[0].strip() for line in lines[1:]] == ["nominal open", "robust open"]
     held = json.loads(out.read_text())
     assert (held["runs"], held["seed"], held["modes"]) == (5, 9, ["open"])
+
+
+def test_an_interrupted_run_says_how_to_continue_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C (or SIGTERM) once `crank run` has its folder: the error line, also in run.log,
+    names the command that goes on from the stages it finished; before the folder exists, no
+    such hint."""
+    import crank.chain
+    from crank.chain import RunConfig
+    from crank.cli_chain import _run
+    from crank.console import Terminated, error_line
+
+    def stopped(config: RunConfig, run_dir: Path, **_: object) -> None:
+        Path(run_dir).mkdir()
+        raise Terminated
+
+    monkeypatch.setattr(crank.chain, "run_chain", stopped)
+    run_dir = tmp_path / "r"
+    with pytest.raises(Terminated) as stop:
+        _run(RunConfig(), run_dir, resume=False)
+    line = error_line(stop.value)
+    assert line == (
+        "error: terminated (SIGTERM); no unfinished file was put at a target path; "
+        f"continue it with: crank run --resume {run_dir}"
+    )
+    assert (run_dir / "run.log").read_text().splitlines()[-1] == line
+
+    def early(config: RunConfig, run_dir: Path, **_: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(crank.chain, "run_chain", early)
+    with pytest.raises(KeyboardInterrupt) as stop:
+        _run(RunConfig(), tmp_path / "never", resume=False)
+    assert error_line(stop.value) == (
+        "error: interrupted; no unfinished file was put at a target path"
+    )
+    assert not (tmp_path / "never").exists()

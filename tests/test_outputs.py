@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -273,6 +274,32 @@ def test_a_killed_train_or_solve_leaves_nothing_that_looks_complete(tmp_path: Pa
     rerun = crank("solve", "--model", str(ppann), "--out", str(ocp))
     assert rerun.returncode == 0, rerun.stderr
     assert read_ocp(ocp).premium("robust") > 0
+
+
+def test_sigterm_stops_a_step_as_ctrl_c_does(tmp_path: Path) -> None:
+    """SIGTERM (kill, a scheduler's stop) mid-training: the command stops as on Ctrl-C, in
+    one line and exit status 143, and leaves nothing, not even its lock (SIGKILL's, above, is
+    left for the next run to take over)."""
+    data = tmp_path / "d.mcap"
+    assert crank("generate", "--seconds", "6", "--out", str(data)).returncode == 0
+    model = tmp_path / "m.pt"
+    process = start_crank("train", "--data", str(data), "--out", str(model))
+    deadline = time.monotonic() + 120
+    while not lock_path(model).exists():
+        assert process.poll() is None and time.monotonic() < deadline, "not training"
+        time.sleep(0.1)
+    time.sleep(2.0)
+    os.kill(process.pid, signal.SIGTERM)
+    ended = process.communicate(timeout=60)
+    assert ended.returncode == 143, ended.stderr
+    assert ended.stderr.splitlines()[-1] == (
+        "error: terminated (SIGTERM); no unfinished file was put at a target path"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "d.coverage.png",
+        "d.excitation.png",
+        "d.mcap",
+    ]
 
 
 def test_a_killed_run_leaves_a_folder_without_its_report(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ killed sweep resumes without redoing finished steps. Short chains (tests/test_ch
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -285,6 +286,32 @@ def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -
     report = (out / "sweep.md").read_text()
     found = re.search(r"; (\d+) found finished by a resume, (\d+) made by it", report)
     assert found is not None and int(found[1]) >= 2 and int(found[1]) + int(found[2]) == 4
+
+
+def test_sigterm_stops_a_sweep_on_ray_as_ctrl_c_does(tmp_path: Path) -> None:
+    """SIGTERM to the sweep's process (a scheduler's stop) once its first step is done: Ray is
+    shut down and the sweep ends in one line saying how to go on, exit status 143 (Ray's own
+    handler, which ray.init installs, aborted the driver with a stack dump: -6)."""
+    spec = tmp_path / "task.toml"
+    spec.write_text(SPEC + '\n[grid]\n"ocp.constraint_samples" = [[50, 100]]\n')
+    out = tmp_path / "out"
+    process = start_crank("sweep", str(spec), "--out", str(out), "--workers", "2", new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not list((out / "data").glob(f"*/{RESULT}")):
+            assert process.poll() is None and time.monotonic() < deadline, "no data step finished"
+            time.sleep(0.1)
+        os.kill(process.pid, signal.SIGTERM)
+        ended = process.communicate(timeout=120)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)  # whatever is left of it and its Ray
+    assert ended.returncode == 143, ended.stderr
+    assert ended.stderr.splitlines()[-1] == (
+        "error: terminated (SIGTERM); no unfinished file was put at a target path; "
+        f"continue it with: crank sweep --resume {out}"
+    )
+    assert not (out / "sweep.md").exists()
 
 
 def test_a_ray_worker_gives_torch_and_the_rollouts_one_thread(monkeypatch) -> None:
