@@ -88,6 +88,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
     ):
         yield
         return
+    _TERMINATED.clear()  # a command run before in this process is not this one
     signal.signal(signal.SIGTERM, _terminate)
     try:
         yield
