@@ -67,7 +67,10 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     try:
         payload = torch.load(path, weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError) as exc:
-        reason = " ".join(str(exc).split())[:160]
+        reason = str(exc)
+        if "WeightsUnpickler error:" in reason:  # after torch's advice to load it unsafely
+            reason = reason.split("WeightsUnpickler error:", 1)[1].strip().split("\n\n")[0]
+        reason = " ".join(reason.split())[:160]
         raise CheckpointError(f"{path}: not a checkpoint, or a damaged one ({reason})") from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a {FORMAT} file")

@@ -71,3 +71,11 @@ def test_a_cut_checkpoint_and_nan_weights_are_refused(tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match=r"tensor 'mean_nets\.B\.0\.weight' holds NaN or inf"):
         load(tmp_path / "nan.pt")
     load(good)  # the intact one still loads
+    other = tmp_path / "other.pt"  # a pickle of something else (a dataset passed as --model)
+    other.write_bytes(b"\x80\x02" + bytes(range(40)))
+    with pytest.raises(CheckpointError) as refused:
+        load(other)
+    line = str(refused.value)
+    assert line.startswith(f"{other}: not a checkpoint, or a damaged one (")
+    # torch's advice to load it with weights_only=False (code execution) is not passed on
+    assert "weights_only" not in line and "arbitrary code" not in line, line
