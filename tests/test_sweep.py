@@ -32,6 +32,7 @@ from crank.sweep_spec import graph, leaves_of, node_key
 from ppann.checkpoint import save
 from ppann.model import constant_ppann
 from tests.conftest import LATE_MPC, crank, start_crank
+from tests.forkserver import Command
 from tests.test_chain import SHORT
 
 SPEC = """
@@ -254,20 +255,27 @@ def _spec_tables() -> dict:
     return {"base": tomllib.loads(SPEC)["base"] | {"seed": 0}}
 
 
-def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -> None:
-    spec = tmp_path / "task.toml"  # one leaf: a second task would add a solve and a leaf to
-    # the resume and test nothing more (the steps a leaf shares: the fixture's sweep, above)
+def _sweep_until(tmp_path: Path, kind: str) -> tuple[Command, Path]:
+    """A one-leaf sweep on Ray, in a session of its own, once its `kind` step has finished: a
+    second task would add a solve and a leaf and test nothing more (the steps a leaf shares:
+    the fixture's sweep, above)."""
+    spec = tmp_path / "task.toml"
     spec.write_text(SPEC + '\n[grid]\n"ocp.constraint_samples" = [[50, 100]]\n')
     out = tmp_path / "out"
     process = start_crank("sweep", str(spec), "--out", str(out), "--workers", "2", new_session=True)
-    try:
-        deadline = time.monotonic() + 300
-        while not list((out / "model").glob(f"*/{RESULT}")):
-            assert process.poll() is None and time.monotonic() < deadline, "no model step finished"
-            time.sleep(0.1)
-    finally:
-        os.killpg(process.pid, signal.SIGKILL)  # the sweep and its local Ray
-        process.wait()
+    deadline = time.monotonic() + 300
+    while not list((out / kind).glob(f"*/{RESULT}")):
+        if process.poll() is not None or time.monotonic() > deadline:
+            os.killpg(process.pid, signal.SIGKILL)
+            raise AssertionError(f"no {kind} step finished")
+        time.sleep(0.1)
+    return process, out
+
+
+def test_a_killed_sweep_resumes_without_redoing_finished_steps(tmp_path: Path) -> None:
+    process, out = _sweep_until(tmp_path, "model")
+    os.killpg(process.pid, signal.SIGKILL)  # the sweep and its local Ray
+    process.wait()
     assert not (out / "sweep.md").exists()
     (model,) = [d for d in (out / "model").iterdir() if (d / RESULT).is_file()]
     made = (model / RESULT).stat().st_mtime_ns
@@ -292,15 +300,8 @@ def test_sigterm_stops_a_sweep_on_ray_as_ctrl_c_does(tmp_path: Path) -> None:
     """SIGTERM to the sweep's process (a scheduler's stop) once its first step is done: Ray is
     shut down and the sweep ends in one line saying how to go on, exit status 143 (Ray's own
     handler, which ray.init installs, aborted the driver with a stack dump: -6)."""
-    spec = tmp_path / "task.toml"
-    spec.write_text(SPEC + '\n[grid]\n"ocp.constraint_samples" = [[50, 100]]\n')
-    out = tmp_path / "out"
-    process = start_crank("sweep", str(spec), "--out", str(out), "--workers", "2", new_session=True)
+    process, out = _sweep_until(tmp_path, "data")
     try:
-        deadline = time.monotonic() + 300
-        while not list((out / "data").glob(f"*/{RESULT}")):
-            assert process.poll() is None and time.monotonic() < deadline, "no data step finished"
-            time.sleep(0.1)
         os.kill(process.pid, signal.SIGTERM)
         ended = process.communicate(timeout=120)
     finally:
