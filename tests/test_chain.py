@@ -307,7 +307,7 @@ def test_compare_plays_every_profile_under_every_controller(two_runs, tmp_path: 
     )
     # progress: a line per profile and loop of the held-out check as it finishes
     assert sum(line.startswith("  robust-fb ") for line in said) == 4
-    # each stage's total (4 profiles, each under all 4 controllers) before it plays; the
+    # each stage's total (4 profiles, each in the LQR's 3 loops and the PD's) before it plays; the
     # campaign's 4 machines at a time, the held-out ones in one batch open and closed loop and
     # a machine's worth of the MPC's steps at a time (20 machines, 150 samples)
     for stage, machines, batch in (("campaign", 4, (4,)), ("held-out", 20, (20,))):

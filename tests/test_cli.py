@@ -373,3 +373,28 @@ def test_an_interrupted_run_says_how_to_continue_it(
         "error: interrupted; no unfinished file was put at a target path"
     )
     assert not (tmp_path / "never").exists()
+
+
+def test_an_interrupted_study_says_how_to_continue_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C in `crank study` once its folder exists: exit 130, one line that says to run
+    the same command with --resume (a study resumes only with the options it started with)."""
+    import crank.study
+    from crank.cli import main
+
+    def stopped(base: object, seeds: object, out: Path, **_: object) -> None:
+        Path(out).mkdir()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(crank.study, "run_study", stopped)
+    monkeypatch.setattr(
+        sys, "argv", ["crank", "study", "--seeds", "0", "--out", str(tmp_path / "s")]
+    )
+    with pytest.raises(SystemExit) as ended:
+        main()
+    assert ended.value.code == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "error: interrupted; no unfinished file was put at a target path; continue it with the "
+        "same command and --resume"
+    )
