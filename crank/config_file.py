@@ -163,7 +163,7 @@ def _type_name(default: Any) -> str:
 
 def _items_name(default: Any) -> str:
     """What a list of `default`'s kind holds, in the plural: "integers", not "an integer"."""
-    return {bool: "true or false", int: "integers", float: "numbers", str: "strings"}.get(
+    return {bool: "true or false values", int: "integers", float: "numbers", str: "strings"}.get(
         type(default), f"{type(default).__name__} values"
     )
 
