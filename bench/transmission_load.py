@@ -188,13 +188,14 @@ def main() -> None:
             f"of delta's); bins at most 30 % of it: {pressed} of {args.bins}; per bin "
             f"{np.round(mrad * model.sd, 1).tolist()}"
         )
-    models = {"u": Conditioned.fit(delta, (load(parts, fitted),), args.bins)}
+    # each model by the lags of the loads it is conditioned on (0: u now)
+    models = {(0,): Conditioned.fit(delta, (load(parts, fitted),), args.bins)}
     for lag in lags:
         u = (load(parts, fitted), load(parts, fitted, lag))
-        models[f"u, u-{lag}"] = Conditioned.fit(delta, u, CELLS)
+        models[0, lag] = Conditioned.fit(delta, u, CELLS)
         print(
             f"  the fitted u now and {lag} samples before ({CELLS} x {CELLS} cells): "
-            f"{mrad * models[f'u, u-{lag}'].left(delta, u):.2f} mrad"
+            f"{mrad * models[0, lag].left(delta, u):.2f} mrad"
         )
     if args.ocp is not None:
         replayed(args, delta, fitted, models)
@@ -202,7 +203,10 @@ def main() -> None:
 
 
 def replayed(
-    args: argparse.Namespace, delta: np.ndarray, fitted: tuple, models: dict[str, Conditioned]
+    args: argparse.Namespace,
+    delta: np.ndarray,
+    fitted: tuple,
+    models: dict[tuple[int, ...], Conditioned],
 ) -> None:
     """delta on the twin under each profile, open and closed loop, beside each conditioned
     model's spread and the marginal's (module docstring)."""
@@ -219,9 +223,10 @@ def replayed(
         runs=args.runs, seed=args.seed, modes=("open", "closed"), variability=scenario
     )
     machines = draw_machines(config, ocp.horizon)
+    named = [", ".join(f"u-{lag}" if lag else "u" for lag in lags) for lags in models]
     print(
         f"on {args.runs} replay machines of seed {args.seed} ({scenario.name}), delta in mrad: "
-        f"the twin's sd (mean) | conditioned on {' | on '.join(models)} | marginal"
+        f"the twin's sd (mean) | conditioned on {' | on '.join(named)} | marginal"
     )
     for name in ocp.names:
         for mode in config.modes:
@@ -232,8 +237,7 @@ def replayed(
             for k in ocp.config.constraint_samples:
                 i = k - 1
                 drawn = [
-                    m.spread(tuple(u[:, i - lag] for lag in (0, *lags_of(key))))
-                    for key, m in models.items()
+                    m.spread(tuple(u[:, i - lag] for lag in lags)) for lags, m in models.items()
                 ]
                 twin = run.backlash_angle[:, i]
                 print(
@@ -243,11 +247,6 @@ def replayed(
                     + f" | {1e3 * delta.std():5.2f}   (u {u[:, i].mean():+.2f} ± "
                     f"{u[:, i].std():.2f} N m)"
                 )
-
-
-def lags_of(key: str) -> tuple[int, ...]:
-    """The lag of a model's key ("u": none; "u, u-10": 10)."""
-    return tuple(int(part.split("-")[1]) for part in key.split(", ")[1:])
 
 
 if __name__ == "__main__":
