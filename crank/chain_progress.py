@@ -47,5 +47,7 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
                 on_total=lambda stage, total: played[stage].start(total),
                 on_runs=lambda stage, n: played[stage].update(n),
             )
-        finally:
-            bars.close()
+        except BaseException:
+            bars.close(stopped=True)  # where each model's training stopped, not "done"
+            raise
+        bars.close()

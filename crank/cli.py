@@ -167,6 +167,9 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
             on_trained=bars.done,
             on_stage=lambda _: bars.close(),
         )
+    except BaseException:
+        bars.close(stopped=True)  # where each model's training stopped, not "done"
+        raise
     finally:
         bars.close()
 

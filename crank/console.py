@@ -18,7 +18,7 @@ import typer
 from common.errors import CrankError
 from common.threads import rollout_threads
 from control.config import PD_GAINS, OCPConfig
-from crank.progress import progress_bar
+from crank.progress import close_bar, progress_bar
 
 if TYPE_CHECKING:
     from control.robust import Iteration
@@ -267,15 +267,15 @@ class EpochBars:
         bar.set_postfix(loss=f"{loss:.4g}")  # first: a LineBar prints on update
         bar.update(1)
 
-    def done(self, kind: str) -> None:
-        """Close the bar of `kind` (its training has ended)."""
+    def done(self, kind: str, *, stopped: bool = False) -> None:
+        """Close the bar of `kind` (its training has ended; `stopped` by an error or Ctrl-C)."""
         if kind in self.bars:
-            self.bars.pop(kind)[1].close()
+            close_bar(self.bars.pop(kind)[1], stopped=stopped)
 
-    def close(self) -> None:
-        """Close every bar (a stage ends)."""
+    def close(self, *, stopped: bool = False) -> None:
+        """Close every bar (a stage ends; `stopped` by an error or Ctrl-C)."""
         for kind in list(self.bars):
-            self.done(kind)
+            self.done(kind, stopped=stopped)
 
 
 def _predicted(entry: dict[str, Any]) -> str:

@@ -14,8 +14,8 @@ from tqdm import tqdm
 class LineBar:
     """tqdm's update/set_postfix/close for a stderr that is not a terminal (a pipe, a log file):
     a plain line at most every `interval` seconds (done, total, time left at the rate so far) and
-    one when done, never carriage-return frames; nothing at all for work done within `delay`
-    seconds (as tqdm's delay)."""
+    one when done — or, closed by an error or Ctrl-C, where it stopped —, never carriage-return
+    frames; nothing at all for work done within `delay` seconds (as tqdm's delay)."""
 
     def __init__(
         self, *, total: int, desc: str, unit: str, delay: float = 0.0, interval: float = 10.0
@@ -36,12 +36,19 @@ class LineBar:
     def set_postfix(self, **values: str) -> None:
         self.postfix = ", ".join(f"{k}={v}" for k, v in values.items())
 
-    def close(self) -> None:
+    def close(self, *, stopped: bool = False) -> None:
+        """Its last line: "done", or with `stopped` (its step ended by an error or Ctrl-C) how
+        far it got, which a "done" would misreport (an epoch bar ends early by design, so a
+        short count alone cannot tell)."""
         if not self.closed:
             self.closed = True
-            if time.monotonic() - self.started < self.delay:
+            took = time.monotonic() - self.started
+            if took < self.delay:
                 return
-            self._line(f"done, {self.n} {self.unit}s in {time.monotonic() - self.started:.1f} s")
+            if stopped:
+                self._line(f"stopped at {self.n}/{self.total} {self.unit}s after {took:.1f} s")
+            else:
+                self._line(f"done, {self.n} {self.unit}s in {took:.1f} s")
 
     def _line(self, text: str) -> None:
         extra = f" ({self.postfix})" if self.postfix else ""
@@ -57,6 +64,15 @@ def _terminal_columns() -> int:
         return os.get_terminal_size(sys.stderr.fileno()).columns
     except (OSError, ValueError):
         return 0
+
+
+def close_bar(bar: Any, *, stopped: bool) -> None:
+    """Close a bar of `progress_bar`; `stopped` if its step ended by an error or Ctrl-C (a
+    LineBar's last line then says where it stopped; tqdm's, `leave=False`, leaves none)."""
+    if isinstance(bar, LineBar):
+        bar.close(stopped=stopped)
+    else:
+        bar.close()
 
 
 def progress_bar(*, total: int, desc: str, unit: str, delay: float = 0.0) -> Any:
@@ -101,9 +117,13 @@ class Progress:
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def close(self, *, stopped: bool = False) -> None:
+        """Close the bar, if shown; `stopped` if the step ended by an error or Ctrl-C."""
         if self.bar is not None:
-            self.bar.close()
+            close_bar(self.bar, stopped=stopped)
+
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        self.close(stopped=kind is not None)
 
 
 class StageBars:
@@ -131,13 +151,13 @@ class StageBars:
         else:
             self.bar.echo(text)
 
-    def close(self) -> None:
+    def close(self, *, stopped: bool = False) -> None:
         if self.bar is not None:
-            self.bar.__exit__()
+            self.bar.close(stopped=stopped)
             self.bar = None
 
     def __enter__(self) -> StageBars:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        self.close(stopped=kind is not None)

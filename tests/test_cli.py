@@ -250,6 +250,47 @@ def test_progress_off_a_terminal_prints_lines_not_frames(capsys: pytest.CaptureF
     assert capsys.readouterr().err == ""
 
 
+def test_a_bar_closed_by_an_error_or_ctrl_c_says_where_it_stopped_not_done(
+    capsys: pytest.CaptureFixture,
+) -> None:
+    """An interrupted run's bars said "done, 1 epochs", which reads as finished (an epoch bar
+    ends early by design, so the count alone cannot tell): a step ended by an error or Ctrl-C
+    says where it stopped, each model's epochs in `crank run`'s chain included."""
+    from crank.chain import RunConfig
+    from crank.chain_progress import chain_progress
+
+    bar = LineBar(total=60, desc="ppann mean", unit="epoch")
+    bar.update(7)
+    bar.close(stopped=True)
+    assert re.fullmatch(
+        r"ppann mean: stopped at 7/60 epochs after \d+\.\d s\n", capsys.readouterr().err
+    )
+    with pytest.raises(KeyboardInterrupt), Progress(10, "held-out", unit="machine") as held:
+        held.update(3)
+        held.bar.delay = 0.0  # shown at once, not after 2 s
+        raise KeyboardInterrupt
+    assert re.fullmatch(
+        r"held-out: stopped at 3/10 machines after \d+\.\d s\n", capsys.readouterr().err
+    )
+    config = RunConfig()
+    with pytest.raises(KeyboardInterrupt), chain_progress(config) as hooks:
+        hooks.on_stage("training")
+        hooks.on_epoch("ppann", "mean", 0, 0.5)
+        hooks.on_epoch("blackbox", "mean", 0, 0.7)
+        hooks.on_epoch("blackbox", "mean", 1, 0.6)
+        raise KeyboardInterrupt
+    epochs = config.train.max_epochs
+    assert re.fullmatch(
+        rf"training \.\.\.\n"
+        rf"ppann mean: stopped at 1/{epochs} epochs after \d+\.\d s \(loss=0\.5\)\n"
+        rf"blackbox mean: stopped at 2/{epochs} epochs after \d+\.\d s \(loss=0\.6\)\n",
+        capsys.readouterr().err,
+    )
+    with chain_progress(config) as hooks:  # ended as it should: "done"
+        hooks.on_epoch("ppann", "mean", 0, 0.5)
+    assert capsys.readouterr().err.startswith("ppann mean: done, 1 epochs in ")
+
+
 def test_a_terminal_of_no_width_gets_plain_lines_where_tqdm_would_draw_nothing() -> None:
     """A pty nobody sized (`script` without a terminal, some CI runners) has 0 columns, on
     which tqdm prints nothing at all: plain lines there; a bar once it has a width, and lines
