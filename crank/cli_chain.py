@@ -44,7 +44,6 @@ from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.plan_config import PlanConfig
-from twin.variability import Variability
 
 if TYPE_CHECKING:
     from crank.chain import RunConfig
@@ -132,11 +131,7 @@ def run_command(
     from crank.config_file import build, defaults, merge, read_values
     from crank.resume import check_new_run, resumed_config, with_settings
 
-    given = {
-        p: v
-        for p, v in context.params.items()
-        if getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
-    }
+    given = _given(context)
     if resume is not None:
         others = [p for p in given if p != "resume" and p not in RESUME_FLAGS]
         if others:
@@ -161,6 +156,15 @@ def run_command(
     _run(run_config, logs / name, resume=False)
 
 
+def _given(context: typer.Context) -> dict[str, Any]:
+    """The options given on the command line (not left at their defaults), by name."""
+    return {
+        p: v
+        for p, v in context.params.items()
+        if getattr(context.get_parameter_source(p), "name", "") != "DEFAULT"
+    }
+
+
 FLAG_KEYS = {
     "seed": ("seed",),
     "seconds": ("generation", "seconds"),
@@ -177,8 +181,15 @@ FLAG_KEYS = {
     "model": ("model",),
     "plan_episodes": ("plan", "episodes"),
     "figures": ("figures",),
+    "mc_mode": ("ocp", "mc_mode"),
+    "tightening": ("ocp", "tightening"),
+    "baselines": ("baselines",),
 }
-"""Where each flag of `crank run` sits in the config file (crank/config_file.py)."""
+"""Where each flag of `crank run` and `crank study` sits in the config file
+(crank/config_file.py)."""
+STUDY_SETTINGS = {"baselines": False}
+"""Where `crank study` differs from `crank run` if neither its file nor a flag says: no
+baselines (a seed's row needs the PPANN's torques alone)."""
 RESUME_FLAGS = (
     "profiles",
     "fallback",
@@ -289,6 +300,7 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
 @app.command("study", short_help="The chain once per seed, each checked on held-out machines.")
 @one_line_errors
 def study_command(
+    context: typer.Context,
     seeds: Annotated[str, typer.Option(help="Seeds: a range like 0-9 or a list like 0,3,7.")] = (
         "0-9"
     ),
@@ -315,38 +327,29 @@ def study_command(
     baselines: Annotated[bool, typer.Option(help="Also train the two baselines.")] = False,
     figures: FiguresOption = True,
     resume: Annotated[bool, typer.Option(help="Continue a study, keeping done seeds.")] = False,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="A crank.toml with any of the chain's settings (crank config --show), its seed "
+            "replaced by each of --seeds; the flags given here override it."
+        ),
+    ] = None,
 ) -> None:
     """The chain once per seed, each robust torque checked on held-out machines: study.md,
     study.csv, study.json and study.png (violation rate and premium against seed)."""
     check_creatable(out)  # before the chain's modules load
-    from crank.chain import Hooks, RunConfig
+    from crank.chain import Hooks
+    from crank.config_file import build, defaults, merge, read_values
     from crank.estimate import Span, describe
     from crank.study import parse_seeds, run_study
 
     chosen = parse_seeds(seeds)
-    kp, kd = pd_gains(pd) if pd is not None else (ReplayConfig.kp, ReplayConfig.kd)
-    base = RunConfig.for_seed(
-        chosen[0],
-        generation={
-            "seconds": seconds,
-            "episode_seconds": episode_seconds,
-            "variability": Variability.resolve(variability),
-        },
-        ocp={
-            "mc_mode": mc_mode,
-            "tightening": tightening,
-            "confidence": confidence,
-            "profiles": profiles_list(profiles),
-            "fallback": fallback_list(fallback),
-            "pd_kp": kp,
-            "pd_kd": kd,
-        },
-        replay={"runs": runs, "kp": kp, "kd": kd},
-        heldout_runs=heldout_runs,
-        heldout_seed=heldout_seed,
-        baselines=baselines,
-        figures=figures,
-        plan={"episodes": plan_episodes},
+    values = merge(defaults(), STUDY_SETTINGS, source="crank study")
+    if config is not None:
+        values = read_values(config, base=values)
+    values = merge(values, flag_values(_given(context)), source="the command line")
+    base = build(
+        {**values, "seed": chosen[0]}, source=str(config) if config is not None else "command line"
     )
 
     def progress(seed: int) -> AbstractContextManager[Hooks]:

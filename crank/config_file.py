@@ -76,8 +76,8 @@ def defaults() -> dict[str, Any]:
     }
 
 
-def read_values(path: str | Path) -> dict[str, Any]:
-    """The file's values merged onto `defaults()`, every key and type checked.
+def read_values(path: str | Path, *, base: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The file's values merged onto `base` (`defaults()` if none), every key and type checked.
 
     Raises:
       ConfigError: the file cannot be read or parsed, a key is unknown, a value has another type.
@@ -89,7 +89,9 @@ def read_values(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"cannot read config {path}: {exc.strerror or exc}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"config {path} is not TOML: {exc}") from None
-    return follow_dataset(merge(defaults(), given, source=str(path)), given)
+    return follow_dataset(
+        merge(defaults() if base is None else base, given, source=str(path)), given
+    )
 
 
 def follow_dataset(values: dict[str, Any], *given: dict[str, Any]) -> dict[str, Any]:

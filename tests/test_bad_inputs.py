@@ -428,6 +428,10 @@ CASES: list[tuple[str, str]] = [
         "profiles must be distinct names among robust, robust-fb, robust-pd, got nominal",
     ),
     ("study --out {file}/S --seeds 0-1", "cannot write"),
+    ("study --out S --seeds 0-1 --config {cfg_unknown.toml}", "unknown key 'ocp.heigth'"),
+    ("study --out S --seeds 0-1 --config {cfg_range.toml}", "horizon must be >= 3 samples"),
+    ("study --out S --seeds 0-1 --config {broken.toml}", "is not TOML"),
+    ("study --out S --seeds 0- --config {cfg_range.toml}", "--seeds takes a range like 0-9"),
     # --- import ---
     (
         "import {rig.csv} --map t=time,theta=enc,tau=cmd,omega=speed --out o/r.mcap",

@@ -7,7 +7,9 @@ import json
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mcap.writer import Writer
@@ -414,6 +416,45 @@ def test_an_interrupted_run_says_how_to_continue_it(
         "error: interrupted; no unfinished file was put at a target path"
     )
     assert not (tmp_path / "never").exists()
+
+
+def test_a_study_takes_a_config_file_as_crank_run_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`crank study --config FILE`: the file's settings over the defaults, its seed replaced by
+    each of --seeds, the flags given over the file; without a file the study is `crank run`'s
+    defaults but for the baselines, which a study leaves out unless its file or flag asks."""
+    import crank.study
+    from crank.cli import main
+    from crank.config_file import build, defaults
+
+    studied: list[Any] = []
+
+    def captured(base: Any, seeds: tuple[int, ...], out: Path, **_: object) -> dict[str, float]:
+        studied.append((base, seeds))
+        return {"wall_s": 0.0}
+
+    def study(*args: str) -> None:
+        monkeypatch.setattr(sys, "argv", ["crank", "study", "--out", str(tmp_path / "s"), *args])
+        with pytest.raises(SystemExit) as ended:
+            main()
+        assert ended.value.code == 0
+
+    monkeypatch.setattr(crank.study, "run_study", captured)
+    toml = tmp_path / "line.toml"
+    toml.write_text(
+        'seed = 7\nbaselines = true\n[generation]\nseconds = 100.0\nvariability = "line-15"\n'
+        "[ocp]\nheight = 0.085\nconfidence = 0.8\n"
+    )
+    study("--seeds", "2,4", "--config", str(toml), "--confidence", "0.9", "--runs", "50")
+    base, seeds = studied[-1]
+    assert seeds == (2, 4) and base.seed == 2 and base.train.seed == 2
+    assert base.ocp.height == 0.085 and base.generation.seconds == 100.0
+    assert base.generation.variability.name == "line-15" and base.baselines
+    assert base.ocp.confidence == 0.9 and base.replay.runs == 50  # the flags over the file
+    study("--seeds", "3")
+    base, seeds = studied[-1]
+    assert base == replace(build({**defaults(), "seed": 3}), baselines=False)
 
 
 def test_an_interrupted_study_says_how_to_continue_it(
