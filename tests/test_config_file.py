@@ -11,7 +11,7 @@ import pytest
 
 from common.errors import CrankError
 from crank.chain import RunConfig
-from crank.cli_chain import FLAG_KEYS, flag_values, run_command
+from crank.cli_chain import FLAG_KEYS, STUDY_SETTINGS, flag_values, run_command, study_command
 from crank.config_file import build, defaults, merge, read_values, to_toml
 from crank.console import HELDOUT_RUNS, HELDOUT_SEED, fallback_list, profiles_list
 from twin import MODEL_PATH
@@ -25,16 +25,23 @@ def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
     text = to_toml(values, header="a header\nof two lines")
     assert text.startswith("# a header\n# of two lines\n")
     assert merge(defaults(), tomllib.loads(text), source="t") == values
-    # every flag of crank run shows the default the file's defaults hold
-    signature = inspect.signature(run_command).parameters
-    for flag, path in FLAG_KEYS.items():
-        value = values
-        for key in path:
-            value = value[key]
-        default = signature[flag].default
-        if flag in ("profiles", "fallback"):  # given as comma-separated text
-            default = (profiles_list if flag == "profiles" else fallback_list)(default)
-        assert (str(default) if isinstance(default, Path) else default) == value, flag
+    # every flag of crank run and crank study shows the default its file's defaults hold
+    studied = merge(values, STUDY_SETTINGS, source="crank study")
+    for command, held in ((run_command, values), (study_command, studied)):
+        signature = inspect.signature(command).parameters
+        for flag, path in FLAG_KEYS.items():
+            if flag not in signature:  # a flag of the other command
+                continue
+            value = held
+            for key in path:
+                value = value[key]
+            default = signature[flag].default
+            if flag in ("profiles", "fallback"):  # given as comma-separated text
+                default = (profiles_list if flag == "profiles" else fallback_list)(default)
+            assert (str(default) if isinstance(default, Path) else default) == value, flag
+    assert set(FLAG_KEYS) <= set(inspect.signature(run_command).parameters) | set(
+        inspect.signature(study_command).parameters
+    )
 
 
 def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
