@@ -179,7 +179,9 @@ class OCPConfig:
         for name in ("smoothness_weight", "k_sigma", "pd_kp", "pd_kd"):
             check_finite(name, getattr(self, name), nonneg=True, error=OCPConfigError)
         samples = self.constraint_samples
-        if not samples or len(set(samples)) != len(samples):
+        if not samples:
+            raise OCPConfigError("constraint_samples must name at least one sample, got none")
+        if len(set(samples)) != len(samples):
             raise OCPConfigError(f"constraint_samples must be distinct, got {samples}")
         bad = [k for k in samples if not 1 < k < self.horizon]
         if bad:

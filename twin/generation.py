@@ -77,7 +77,7 @@ def check_generation_memory(config: GenerationConfig) -> None:
     """Refuse a dataset that cannot fit in memory before anything is simulated (ResourceError)."""
     check_memory(
         config.n_samples * BYTES_PER_SAMPLE,
-        what=f"a dataset of {config.n_samples} samples ({config.seconds:g} s)",
+        what=f"a dataset of {config.n_samples:.4g} samples ({config.seconds:g} s)",
     )
 
 
