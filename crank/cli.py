@@ -373,7 +373,7 @@ def main() -> None:
     that does not parse) as one `error:` line and exit code 2 like every other input error."""
     # register the other commands on the app, in the help's order: replay, heldout, recover
     # (crank/cli_campaign.py), view (crank/cli_view.py), run and study (crank/cli_chain.py),
-    # import (crank/cli_import.py), sweep (crank/cli_sweep.py)
+    # import and export (crank/cli_import.py), sweep (crank/cli_sweep.py)
     import crank.cli_campaign  # noqa: I001 (the help's order, not the alphabet's)
     import crank.cli_view
     import crank.cli_chain

@@ -1,4 +1,5 @@
-"""`crank import`: a real machine's measurements (CSV or Parquet) into the dataset contract."""
+"""`crank import` and `crank export`: a real machine's measurements (CSV, Parquet, MCAP) into the
+dataset contract, and a solved profile out as a table its controller plays."""
 
 from __future__ import annotations
 
@@ -71,3 +72,41 @@ def import_command(
         "derived": ", ".join(run["derived"]) or "none",
     }
     print_summary(f"wrote {out} from {data}", summary)
+
+
+@app.command("export", short_help="A profile of an ocp.json as a CSV a machine's controller plays.")
+@one_line_errors
+def export_command(
+    ocp: Annotated[Path, typer.Argument(help="The ocp.json of `crank solve` or `crank run`.")],
+    out: Annotated[Path, typer.Option(help="CSV to write.")] = Path("logs/profile.csv"),
+    profile: Annotated[
+        str | None,
+        typer.Option(
+            help="The profile (nominal, robust, robust-fb, robust-pd); default: the "
+            "file's first robust one."
+        ),
+    ] = None,
+    units: Annotated[
+        str,
+        typer.Option(
+            help="field=unit pairs for the rig's units, as `crank import` takes them (t: ms, "
+            "us; theta: deg, rev; omega: rpm, deg/s; tau: mN*m; slider_position: mm, cm)."
+        ),
+    ] = "",
+    flip: Annotated[
+        str, typer.Option(help="Fields whose sign on the rig is the opposite of the contract's.")
+    ] = "",
+) -> None:
+    """One row per sample: the planned torque, the angle and speed to track, the gains of the
+    profile's law and the slider it predicts; the law to play and the task in the "#" lines
+    before the header. Open loop a machine plays the torque alone; closed loop the law."""
+    from common.atomic import check_output
+    from control.export import ExportSpec, export_file
+
+    check_output("out", out, suffix=".csv", inputs={"ocp_path": ocp})
+    spec = ExportSpec.parse(units=units, flip=flip)
+    written = export_file(ocp, out, profile=profile, spec=spec)
+    typer.echo(
+        f"wrote {out}: profile {written['profile']} ({written['loop']} loop), "
+        f"{written['rows']} rows of {', '.join(written['columns'])}"
+    )

@@ -111,6 +111,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     (d / "no_geometry.json").write_text(json.dumps(unmeasured))
     unmeasured["geometry"] = {"crank_length": 0.5, "rod_length": 0.3}
     (d / "locked.json").write_text(json.dumps(unmeasured))
+    refused = json.loads(ocp.read_text()) | {"refused": {"robust-fb": "the spread is too wide"}}
+    (d / "refused.json").write_text(json.dumps(refused))
     (d / "nameless.xml").write_text("<mujoco/>")
     (d / "folder").mkdir()
     (d / "unrun").mkdir()  # a sweep folder none of whose leaves finished
@@ -435,6 +437,19 @@ CASES: list[tuple[str, str]] = [
     ("study --out S --seeds 0-1 --config {cfg_range.toml}", "horizon must be >= 3 samples"),
     ("study --out S --seeds 0-1 --config {broken.toml}", "is not TOML"),
     ("study --out S --seeds 0- --config {cfg_range.toml}", "--seeds takes a range like 0-9"),
+    # --- export ---
+    ("export {ocp.json} --out o/p.csv --profile robust-pd", "has no profile 'robust-pd' (it has"),
+    ("export {refused.json} --out o/p.csv --profile robust-fb", "robust-fb was refused in this"),
+    ("export {ocp.json} --out o/p.txt", "must end in .csv"),
+    ("export {ocp.json} --out {ocp.json}", "must end in .csv"),
+    ("export {text.json} --out o/p.csv", "not a JSON file"),
+    ("export {other.json} --out o/p.csv", "not a crank-ocp file"),
+    ("export {dir}/absent.json --out o/p.csv", "OCP file not found"),
+    ("export {ocp.json} --out o/p.csv --units tau=kN*m", "--units: tau in 'kN*m'? use one of"),
+    ("export {ocp.json} --out o/p.csv --units force=N", "--units: unknown field 'force'"),
+    ("export {ocp.json} --out o/p.csv --units tau", "--units: 'tau' is not field=value"),
+    ("export {ocp.json} --out o/p.csv --flip t", "--flip: 't' has no sign here"),
+    ("export {ocp.json} --out {file}/p.csv", "cannot write"),
     # --- import ---
     (
         "import {rig.csv} --map t=time,theta=enc,tau=cmd,omega=speed --out o/r.mcap",
@@ -584,5 +599,5 @@ def test_a_bad_rollout_thread_count_in_the_environment_is_one_line(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study", "config", "sweep", "import", "compare"}
+    assert commands >= expected | {"run", "study", "config", "sweep", "import", "export", "compare"}
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

@@ -102,8 +102,8 @@ class ImportSpec:
     def parse(cls, *, columns: str, units: str = "", flip: str = "", **options: Any) -> ImportSpec:
         """From the command line's `field=column,...`, `field=unit,...` and `field,...`."""
         return cls(
-            columns=_pairs(columns, "--map"),
-            units=_pairs(units, "--units"),
+            columns=option_pairs(columns, "--map"),
+            units=option_pairs(units, "--units"),
             flip=tuple(n.strip() for n in flip.split(",") if n.strip()),
             **options,
         )
@@ -119,7 +119,8 @@ class ImportSpec:
         }
 
 
-def _pairs(text: str, option: str) -> dict[str, str]:
+def option_pairs(text: str, option: str) -> dict[str, str]:
+    """A command line's `name=value,...` as a dict (`--map`, `--units`; crank export's too)."""
     out = {}
     for item in (i.strip() for i in text.split(",") if i.strip()):
         name, sep, value = item.partition("=")
