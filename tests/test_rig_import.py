@@ -274,7 +274,7 @@ def test_the_spec_names_what_is_wrong() -> None:
 
 
 def test_rig_data_imports_inspects_trains_and_solves(twin_data, tmp_path: Path) -> None:
-    """The end-to-end path of a user with a rig: import, inspect, train, solve; no twin
+    """The end-to-end path of a user with a rig: import, inspect, train, solve, export; no twin
     calibration in the report (there is no twin)."""
     _, dataset = twin_data
     table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
@@ -305,3 +305,13 @@ def test_rig_data_imports_inspects_trains_and_solves(twin_data, tmp_path: Path) 
     assert ocp["variability"] == RIG_SCENARIO
     replay = crank("replay", "--ocp", str(tmp_path / "ocp.json"), "--out", str(tmp_path / "r.mcap"))
     assert replay.returncode == 2 and "trained on rig data" in replay.stderr
+    # ... and the torque goes back to the rig in its own units and signs (tests/test_export.py)
+    out = tmp_path / "robust.csv"
+    back = crank(
+        "export", str(tmp_path / "ocp.json"), "--units", UNITS, "--flip", "tau", "--out", str(out)
+    )
+    assert back.returncode == 0, back.stderr
+    rows = [r for r in out.read_text().splitlines() if not r.startswith("#")]
+    assert rows[0].split(",")[:4] == ["sample", "t[ms]", "tau[N*m]", "theta[deg]"]
+    first = rows[1].split(",")
+    assert float(first[2]) == -ocp["robust"]["tau"][0] and float(first[3]) == 180.0
