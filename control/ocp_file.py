@@ -210,6 +210,11 @@ def read_ocp(path: str | Path) -> OCPFile:
         raw = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise OCPFileError(f"{path}: not a JSON file ({exc})") from None
+    if isinstance(raw, dict) and raw.get("format") == FAILED_FORMAT:
+        raise OCPFileError(
+            f"{path}: the record of a solve that found no robust torque ({FAILED_FORMAT}: its "
+            "error, nominal plan and margins), not an ocp.json to play"
+        )
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise OCPFileError(f"{path}: not a {FORMAT} file")
     if raw.get("version") != VERSION:

@@ -113,6 +113,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
     (d / "locked.json").write_text(json.dumps(unmeasured))
     refused = json.loads(ocp.read_text()) | {"refused": {"robust-fb": "the spread is too wide"}}
     (d / "refused.json").write_text(json.dumps(refused))
+    failed = {"format": "crank-ocp-failed", "status": "failed", "error": "no robust profile"}
+    (d / "failed.json").write_text(json.dumps(failed))  # what a solve without a torque leaves
     (d / "nameless.xml").write_text("<mujoco/>")
     (d / "folder").mkdir()
     (d / "unrun").mkdir()  # a sweep folder none of whose leaves finished
@@ -443,6 +445,8 @@ CASES: list[tuple[str, str]] = [
     ("export {ocp.json} --out o/p.txt", "must end in .csv"),
     ("export {ocp.json} --out {ocp.json}", "must end in .csv"),
     ("export {text.json} --out o/p.csv", "not a JSON file"),
+    ("export {failed.json} --out o/p.csv", "the record of a solve that found no robust torque"),
+    ("replay --ocp {failed.json} --out o/r.mcap", "crank-ocp-failed: its error, nominal plan"),
     ("export {other.json} --out o/p.csv", "not a crank-ocp file"),
     ("export {dir}/absent.json --out o/p.csv", "OCP file not found"),
     ("export {ocp.json} --out o/p.csv --units tau=kN*m", "--units: tau in 'kN*m'? use one of"),
