@@ -9,7 +9,8 @@ twin's closed loop applies, row by row, from t_k to t_{k+1} (replay/campaign.py 
     u_k = clip(tau_k + gain_theta_k (theta_k - θ measured at t_k)
                      + gain_omega_k (omega_k - ω measured at t_k), ±torque_limit)
 
-and open loop u_k = tau_k. Row N holds the last gain (as the twin does). Lines starting with
+and open loop u_k = tau_k, θ and ω being the motor's encoder (the dataset's theta and omega).
+Row N holds the last gain (as the twin does). Lines starting with
 "#" before the header say which profile, file and law, and the task it was solved for; numbers
 are written to the last bit (Python's repr), so reading them back gives the plan's floats.
 """
