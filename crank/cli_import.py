@@ -12,6 +12,17 @@ from crank.console import ModelPath, app, one_line_errors, print_summary
 from twin import MODEL_PATH
 from twin.physics import SAMPLE_RATE
 
+UnitsOption = Annotated[
+    str,
+    typer.Option(
+        help="field=unit pairs where the rig's table differs from s, rad, rad/s, N*m, m (t: ms, "
+        "us, ns; theta: deg, rev; omega: rpm, deg/s, rev/s; tau: mN*m; slider_position: mm, cm)."
+    ),
+]
+FlipOption = Annotated[
+    str, typer.Option(help="Fields whose sign on the rig is the opposite of the contract's.")
+]
+
 
 @app.command("import", short_help="Rig data (CSV, Parquet, MCAP) into a dataset to train on.")
 @one_line_errors
@@ -30,16 +41,8 @@ def import_command(
         ),
     ],
     out: Annotated[Path, typer.Option(help="Dataset MCAP to write.")] = Path("logs/rig.mcap"),
-    units: Annotated[
-        str,
-        typer.Option(
-            help="field=unit pairs where the table differs from s, rad, rad/s, N*m, m "
-            "(ms, us; deg, rev; rpm, deg/s; mN*m; mm, cm)."
-        ),
-    ] = "",
-    flip: Annotated[
-        str, typer.Option(help="Fields whose sign is the opposite of the contract's.")
-    ] = "",
+    units: UnitsOption = "",
+    flip: FlipOption = "",
     rate: Annotated[float, typer.Option(help="Rate to resample to, Hz (the PPANN's).")] = (
         SAMPLE_RATE
     ),
@@ -86,16 +89,8 @@ def export_command(
             "file's first robust one."
         ),
     ] = None,
-    units: Annotated[
-        str,
-        typer.Option(
-            help="field=unit pairs for the rig's units, as `crank import` takes them (t: ms, "
-            "us; theta: deg, rev; omega: rpm, deg/s; tau: mN*m; slider_position: mm, cm)."
-        ),
-    ] = "",
-    flip: Annotated[
-        str, typer.Option(help="Fields whose sign on the rig is the opposite of the contract's.")
-    ] = "",
+    units: UnitsOption = "",
+    flip: FlipOption = "",
 ) -> None:
     """One row per sample: the planned torque, the angle and speed to track, the gains of the
     profile's law and the slider it predicts; the law to play and the task in the "#" lines
