@@ -31,6 +31,7 @@ from crank.console import (
     Seed,
     VariabilityOption,
     app,
+    continue_hint,
     fallback_list,
     one_line_errors,
     print_heldout,
@@ -270,11 +271,8 @@ def _run(config: RunConfig, run_dir: Path, *, resume: bool) -> None:
                 shown, on_estimate=lambda stages: typer.echo(describe(stages), err=True)
             )
             try:
-                report = run_chain(config, run_dir, hooks=hooks, resume=resume)
-            except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the finished stages are kept
-                if run_dir.is_dir():
-                    exc.args = (f"continue it with: crank run --resume {run_dir}",)
-                raise
+                with continue_hint(run_dir, f"continue it with: crank run --resume {run_dir}"):
+                    report = run_chain(config, run_dir, hooks=hooks, resume=resume)
             except RobustError as exc:  # every profile refused: the closed loop is one resume away
                 if "robust-fb" not in (*config.ocp.profiles, *config.ocp.fallback):
                     exc.args = (
@@ -371,12 +369,8 @@ def study_command(
     def estimate(times: dict[str, Span], left: int) -> None:
         typer.echo(f"{left} of {len(chosen)} seeds to run; {describe(times, times=left)}", err=True)
 
-    try:
+    with continue_hint(out, "continue it with the same command and --resume"):  # seeds kept
         study = run_study(
             base, chosen, out, resume=resume, progress=progress, on_row=show, on_estimate=estimate
         )
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the finished seeds are kept
-        if out.is_dir():
-            exc.args = ("continue it with the same command and --resume",)
-        raise
     typer.echo(f"wrote {out / 'study.md'} ({study['wall_s'] / 60:.1f} min)")

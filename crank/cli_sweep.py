@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from common.errors import ConfigError
-from crank.console import HELDOUT_RUNS, HELDOUT_SEED, app, one_line_errors
+from crank.console import HELDOUT_RUNS, HELDOUT_SEED, app, continue_hint, one_line_errors
 
 if TYPE_CHECKING:
     from crank.sweep_spec import Node
@@ -76,7 +76,7 @@ def sweep_command(
             typer.echo(f"{where}: {result['seconds']:.1f} s", err=True)
 
     folder = resume if resume is not None else out
-    try:
+    with continue_hint(folder, f"continue it with: crank sweep --resume {folder}"):  # steps kept
         sweep = run_sweep(
             spec,
             folder,
@@ -87,10 +87,6 @@ def sweep_command(
             on_start=started,
             on_done=done,
         )
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the finished steps are kept
-        if folder.is_dir():
-            exc.args = (f"continue it with: crank sweep --resume {folder}",)
-        raise
     from crank.sweep_report import failure
 
     rows = sweep["rows"]

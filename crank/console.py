@@ -96,6 +96,18 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+@contextlib.contextmanager
+def continue_hint(folder: Path, hint: str) -> Iterator[None]:
+    """Ctrl-C or SIGTERM in the block, once `folder` exists (its finished work kept): the
+    command's error line ends with `hint`, how to go on (`error_line`)."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        if folder.is_dir():
+            exc.args = (hint,)
+        raise
+
+
 def error_line(exc: BaseException) -> str:
     """The one line a command prints (and `transcript` logs) for an input error, Ctrl-C or
     SIGTERM (with what to do next, if the command said: `exc.args`)."""
