@@ -100,7 +100,7 @@ def profile_table(ocp: OCPFile, name: str, spec: ExportSpec) -> dict[str, np.nda
     }
 
 
-def _chosen(ocp: OCPFile, path: Path, profile: str | None) -> str:
+def chosen_profile(ocp: OCPFile, path: Path, profile: str | None) -> str:
     """`profile`, or the file's first robust one; a refused or absent one is a ConfigError."""
     name = ocp.robust_names[0] if profile is None else profile
     if name in ocp.refused:
@@ -152,7 +152,7 @@ def export_file(
     """
     ocp_path = Path(ocp_path)
     ocp = read_ocp(ocp_path)
-    name = _chosen(ocp, ocp_path, profile)
+    name = chosen_profile(ocp, ocp_path, profile)
     table = profile_table(ocp, name, spec)
     with atomic_path(out) as tmp, open(tmp, "w", newline="", encoding="utf-8") as handle:
         for line in _preamble(ocp, ocp_path, name, spec):

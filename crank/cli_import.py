@@ -1,5 +1,6 @@
-"""`crank import` and `crank export`: a real machine's measurements (CSV, Parquet, MCAP) into the
-dataset contract, and a solved profile out as a table its controller plays."""
+"""`crank import`, `crank export` and `crank verify`: a real machine's measurements (CSV, Parquet,
+MCAP) into the dataset contract, a solved profile out as a table its controller plays, and the
+runs it played there checked against the plan."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Annotated
 import typer
 
 from crank.console import ModelPath, app, one_line_errors, print_summary
+from replay.verify import ALIGNS, PLAYED_TOLERANCE
 from twin import MODEL_PATH
 from twin.physics import SAMPLE_RATE
 
@@ -105,3 +107,59 @@ def export_command(
         f"wrote {out}: profile {written['profile']} ({written['loop']} loop), "
         f"{written['rows']} rows of {', '.join(written['columns'])}"
     )
+
+
+@app.command("verify", short_help="Runs of a profile recorded on a machine, against its plan.")
+@one_line_errors
+def verify_command(
+    ocp: Annotated[Path, typer.Argument(help="The ocp.json the profile came from.")],
+    data: Annotated[
+        Path,
+        typer.Argument(help="The runs, imported by `crank import`: one episode per run."),
+    ],
+    out: Annotated[
+        Path, typer.Option(help="verify.json to write; verify.md and verify.png beside it.")
+    ] = Path("logs/verify.json"),
+    profile: Annotated[
+        str | None,
+        typer.Option(help="The profile the runs played; default: the file's first robust one."),
+    ] = None,
+    align: Annotated[
+        str,
+        typer.Option(
+            help=f"{' or '.join(ALIGNS)}. start: each run's first sample is the plan's first; "
+            "torque: from the sample where its torque is nearest the profile's law (a "
+            "recording with a lead-in)."
+        ),
+    ] = "start",
+    played_tolerance: Annotated[
+        float,
+        typer.Option(
+            help="A run whose torque is further than this share of the torque limit (RMS) from "
+            "the profile's law played something else, and is refused."
+        ),
+    ] = PLAYED_TOLERANCE,
+    figures: Annotated[bool, typer.Option(help="Write verify.png.")] = True,
+) -> None:
+    """Count the runs below the height at each constraint sample and set the slider's observed
+    mean and spread beside what the PPANN predicted in the profile's loop; each run is first
+    checked to have played the profile's law (open: its torque; closed: its tracking law)."""
+    from common.atomic import check_output
+
+    check_output("out", out, suffix=".json", inputs={"ocp_path": ocp, "data_path": data})
+    from replay.statistics import format_table
+    from replay.verify_report import claim_text, output_paths, sample_rows, verify_file
+
+    stats = verify_file(
+        ocp,
+        data,
+        out,
+        profile=profile,
+        align=align,
+        played_tolerance=played_tolerance,
+        figures=figures,
+    )
+    typer.echo(format_table(sample_rows(stats)))
+    typer.echo(claim_text(stats))
+    written = [p for kind, p in output_paths(out).items() if figures or kind != "figure"]
+    typer.echo(f"wrote {', '.join(map(str, written))}")

@@ -184,7 +184,8 @@ def markdown(report: dict[str, Any], *, stats: dict[str, Any], run_dir: Path) ->
         "- `dataset.mcap`: the training dataset (Foxglove; `crank inspect`)",
         "- `model.pt`, `model.report.json`: the PPANN and its validation",
         "- `ocp.json`: nominal and robust torques with their predicted bands (a profile as the "
-        "CSV a machine's controller plays: `crank export ocp.json --profile NAME`)",
+        "CSV a machine's controller plays: `crank export ocp.json --profile NAME`; the runs "
+        "it plays there, recorded and imported, against the plan: `crank verify`)",
         "- `replay.mcap`: every replay, tagged by run, profile and mode (Foxglove)",
         "- `replay.rrd`: the same for the Rerun viewer (`crank view replay.rrd`)",
         "- `replay.stats.json`: the statistics above, per sample",

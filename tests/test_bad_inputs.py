@@ -19,9 +19,11 @@ import pytest
 
 from crank.cli import main
 from tests.checkpoints import constant_checkpoint
+from tests.rig_runs import import_runs, play_runs
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
 from twin.generation import generate_file
+from twin.physics import SliderCrank
 from twin.rig_import import ImportSpec, import_table
 
 RANGES = {
@@ -80,7 +82,9 @@ RIG_TABLES = {
 
 
 @pytest.fixture(scope="module")
-def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str, Path]:
+def inputs(
+    tmp_path_factory: pytest.TempPathFactory, ocp_path: Path, physics: SliderCrank
+) -> dict[str, Path]:
     """Valid inputs of every stage and broken ones, in a folder of their own."""
     d = tmp_path_factory.mktemp("inputs")
     ds = d / "ds.mcap"
@@ -126,7 +130,15 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, ocp_path: Path) -> dict[str
         (d / f"{name}.csv").write_text(text)
     (d / "text.parquet").write_text("not parquet\n")
     import_table(d / "rig.csv", d / "rig250.mcap", spec=ImportSpec.parse(columns=RIG, rate_hz=250))
-    return {p.name: p for p in d.iterdir()} | {"dir": d}
+    played = play_runs(physics, ocp, profile="robust", mode="open", runs=3, seed=1)
+    rigs = d / "rigs"  # the tables beside them are not inputs of the cases
+    rigs.mkdir()
+    for name, options in (("runs", {}), ("short", {"keep": 60}), ("lead", {"lead": 20})):
+        import_runs(played, rigs / f"{name}.mcap", **options)
+    other = json.loads(ocp.read_text())
+    other["geometry"]["crank_length"] = 0.04
+    (d / "other_geometry.json").write_text(json.dumps(other))
+    return {p.name: p for p in (*d.iterdir(), *rigs.glob("*.mcap"))} | {"dir": d}
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[int, int]]:
@@ -454,6 +466,26 @@ CASES: list[tuple[str, str]] = [
     ("export {ocp.json} --out o/p.csv --units tau", "--units: 'tau' is not field=value"),
     ("export {ocp.json} --out o/p.csv --flip t", "--flip: 't' has no sign here"),
     ("export {ocp.json} --out {file}/p.csv", "cannot write"),
+    # --- verify ---
+    ("verify {ocp.json} {ds.mcap} --out o/v.json", "did not play profile robust: its torque is"),
+    ("verify {ocp.json} {lead.mcap} --out o/v.json", "it is nearest from its sample 21 (t = 0.04"),
+    ("verify {ocp.json} {short.mcap} --out o/v.json", "has 59 samples; the constraint's last is"),
+    ("verify {ocp.json} {rig250.mcap} --out o/v.json", "again with --rate 500"),
+    ("verify {other_geometry.json} {runs.mcap} --out o/v.json", "a mechanism with l1 = 0.04 m"),
+    ("verify {ocp.json} {runs.mcap} --profile robust-pd --out o/v.json", "has no profile"),
+    ("verify {refused.json} {runs.mcap} --profile robust-fb --out o/v.json", "was refused"),
+    ("verify {failed.json} {runs.mcap} --out o/v.json", "found no robust torque"),
+    ("verify {text.json} {runs.mcap} --out o/v.json", "not a JSON file"),
+    ("verify {dir}/absent.json {runs.mcap} --out o/v.json", "OCP file not found"),
+    ("verify {ocp.json} {dir}/absent.mcap --out o/v.json", "dataset not found"),
+    ("verify {ocp.json} {text.mcap} --out o/v.json", "not an MCAP file"),
+    ("verify {ocp.json} {runs.mcap} --align best --out o/v.json", "--align must be one of start,"),
+    ("verify {ocp.json} {runs.mcap} --played-tolerance 0 --out o/v.json", "must be within (0, 1]"),
+    ("verify {ocp.json} {runs.mcap} --played-tolerance nan --out o/v.json", "within (0, 1]"),
+    ("verify {ocp.json} {runs.mcap} --out o/v.txt", "it must end in .json"),
+    ("verify {ocp.json} {runs.mcap} --out {ocp.json}", "would overwrite the ocp_path"),
+    ("verify {ocp.json} {runs.mcap} --out {file}/v.json", "cannot write"),
+    ("verify {ocp.json} --out o/v.json", "Missing argument"),
     # --- import ---
     (
         "import {rig.csv} --map t=time,theta=enc,tau=cmd,omega=speed --out o/r.mcap",
@@ -603,5 +635,6 @@ def test_a_bad_rollout_thread_count_in_the_environment_is_one_line(
 def test_the_table_covers_every_subcommand_with_130_cases() -> None:
     commands = {c.split(" ")[0] for c, _ in CASES}
     expected = {"generate", "inspect", "train", "solve", "replay", "heldout", "recover", "view"}
-    assert commands >= expected | {"run", "study", "config", "sweep", "import", "export", "compare"}
+    assert commands >= expected | {"run", "study", "config", "sweep", "import", "export", "verify"}
+    assert "compare" in commands
     assert len(CASES) >= 130 and len({c for c, _ in CASES}) == len(CASES)

@@ -1,0 +1,308 @@
+"""The lab's side of the loop (`crank verify`): runs of a profile played on a real machine,
+recorded and imported (`crank import`), checked against the plan as the twin's replays are.
+
+A rig user takes a profile out with `crank export`, plays it on the machine several times (each
+run from the plan's start state), records the motor's angle and speed, the torque applied and the
+slider if a sensor reads it, and imports the recording with the export's `--units`/`--flip`: one
+episode per run. Each run is lined up with the plan and checked to have played the profile's law
+before anything is counted; then, at each constraint sample, the runs below the height and the
+slider's observed mean and σ beside what the PPANN predicted in the profile's loop.
+
+Alignment: a run's first sample is the plan's sample 1 (`align="start"`, the recording starts
+with the profile), or the sample from which its torque is nearest the law's over the samples up
+to the last constraint sample (`align="torque"`, a recording with a lead-in).
+
+Played check: the law is the one `crank export` writes (open loop u_k = tau_k; closed loop
+u_k = clip(tau_k + gain_theta_k (theta_k - θ_k) + gain_omega_k (omega_k - ω_k), ±limit) on the
+run's own θ_k, ω_k; replay/campaign.py tracking_law). A run whose torque is more than
+`played_tolerance` of the torque limit from it (RMS over the samples compared) is refused, with
+where its torque is nearest the law: counting a run of another torque, or one started elsewhere,
+would say nothing about this profile. The samples compared are the plan's N, or the run's own if
+it stops sooner (an import ends each episode a sample before its last row); it must reach the
+last constraint sample.
+
+`verify.json` keys (stable; format "crank-verify", version 1):
+
+  ocp                {path, sha256, profile, loop, height, constraint_samples (1-based),
+                     k_sigma (the profile's own: its tail's check may have raised it), premium,
+                     dt, horizon, torque_limit}
+  data               {path, sha256, source, input, slider: measured or derived (x(θ) of the
+                     motor angle: rigid and backlash-free, blind to what the constraint is about
+                     beyond θ), episodes}
+  align, played_tolerance, bootstrap_seed, target_rate
+  runs               per run {episode, offset (its sample lined up with sample 1), start_s,
+                     samples (compared), played_rms (N·m), theta_rms (rad, from the plan's θ),
+                     slider {k: m}, below (under the height at any constraint sample)}
+  samples.<k>        {height, below, lowest, observed_mean, observed_sigma (ddof 1),
+                     observed_sigma_ci95 (bootstrap over the runs, replay/spread_interval.py),
+                     predicted_mean, predicted_sigma (the PPANN's Monte-Carlo in the
+                     profile's loop), ratio (predicted / observed σ), ratio_ci95,
+                     mean_offset_sigma ((observed − predicted mean) / predicted σ)}; σ and
+                     its ratios null with one run
+  violating_runs, rate, rate_upper_95 (exact one-sided, replay/rates.py)
+  verdict            holds | unconfirmed | fails against target_rate for a robust profile
+                     (replay/rates.py); null for the nominal one, which claims nothing
+  created            ISO time of writing
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.errors import ConfigError, CrankError
+from control.config import TARGET_RATE
+from control.ocp_file import OCPFile, Profile
+from replay.rates import rate_upper, verdict
+from replay.spread_interval import ratio_interval, sigma_interval
+from twin.dataset import Dataset
+
+FORMAT = "crank-verify"
+VERSION = 1
+PLAYED_TOLERANCE = 0.05
+"""The largest RMS of a run's torque from the law it is checked against, as a share of the
+torque limit (0.5 N·m of the paper's 10): a run beyond it played something else."""
+ALIGNS = ("start", "torque")
+BOOTSTRAP_SEED = 0
+"""The stream of the observed σ's bootstrap interval: the same runs give the same interval."""
+_BLOCK = 4096
+"""Candidate offsets scored at a time by the torque alignment."""
+
+
+class VerifyError(CrankError, ValueError):
+    """Recorded runs that cannot be checked against the plan; the message names the run."""
+
+
+@dataclass(frozen=True)
+class RigRuns:
+    """The runs lined up with the plan; arrays (runs, n), n the samples compared."""
+
+    episodes: np.ndarray
+    offsets: np.ndarray
+    start_s: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    tau: np.ndarray
+    slider: np.ndarray
+
+
+def law_torque(
+    profile: Profile, *, limit: float, theta: np.ndarray, omega: np.ndarray
+) -> np.ndarray:
+    """The torque the profile's law applies on readings `theta`, `omega` (..., n), n ≤ N: the
+    plan's torque open loop; closed loop its tracking law, clipped at ±`limit` (module
+    docstring; the last gain held for sample N, as the twin holds it)."""
+    n = theta.shape[-1]
+    tau = profile.tau[:n]
+    if profile.loop == "open":
+        return np.broadcast_to(tau, theta.shape)
+    gain_theta = np.append(profile.gain_theta, profile.gain_theta[-1])[:n]
+    gain_omega = np.append(profile.gain_omega, profile.gain_omega[-1])[:n]
+    feedback = gain_theta * (profile.theta[:n] - theta) + gain_omega * (profile.omega[:n] - omega)
+    return np.clip(tau + feedback, -limit, limit)
+
+
+def _rms_from_law(
+    profile: Profile, limit: float, theta: np.ndarray, omega: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
+    """RMS over the last axis of `tau` minus the law's torque on `theta`, `omega`."""
+    law = law_torque(profile, limit=limit, theta=theta, omega=omega)
+    return np.sqrt(np.mean((tau - law) ** 2, axis=-1))
+
+
+def nearest_offset(
+    profile: Profile, *, limit: float, theta: np.ndarray, omega: np.ndarray, tau: np.ndarray,
+    window: int,
+) -> tuple[int, float]:  # fmt: skip
+    """The sample of one run from which its torque is nearest the law's over `window` samples,
+    and that RMS (N·m)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    views = [sliding_window_view(x, window) for x in (theta, omega, tau)]
+    best, best_rms = 0, np.inf
+    for start in range(0, len(views[0]), _BLOCK):
+        block = [v[start : start + _BLOCK] for v in views]
+        rms = _rms_from_law(profile, limit, *block)
+        k = int(np.argmin(rms))
+        if rms[k] < best_rms:
+            best, best_rms = start + k, float(rms[k])
+    return best, best_rms
+
+
+def line_up(
+    dataset: Dataset, ocp: OCPFile, *, profile: str, align: str, played_tolerance: float
+) -> RigRuns:
+    """Each episode of `dataset` lined up with the plan of `profile` and checked to have played
+    its law (module docstring).
+
+    Raises:
+      VerifyError: a run too short for the last constraint sample, or one that did not play the
+        law (naming it and where its torque is nearest the law).
+    """
+    plan, limit = ocp.profiles[profile], ocp.config.torque_limit
+    last, horizon = max(ocp.config.constraint_samples), ocp.horizon
+    tolerance = played_tolerance * limit
+    loop = f"the {plan.loop} loop's law"
+    rows: dict[str, list[Any]] = {k: [] for k in ("episodes", "offsets", "start_s")}
+    series: dict[str, list[np.ndarray]] = {k: [] for k in ("theta", "omega", "tau", "slider")}
+    for number, episode in enumerate(np.unique(dataset.episode), start=1):
+        at = np.flatnonzero(dataset.episode == episode)
+        theta, omega, tau = dataset.theta[at], dataset.omega[at], dataset.tau[at]
+        name = f"run {number} (episode {episode})"
+        if len(at) < last:
+            raise VerifyError(
+                f"{name} has {len(at)} samples; the constraint's last is sample {last} "
+                f"({last * ocp.dt:.3g} s): record each run for the whole profile"
+            )
+        found, found_rms = nearest_offset(
+            plan, limit=limit, theta=theta, omega=omega, tau=tau, window=last
+        )
+        offset = found if align == "torque" else 0
+        n = min(horizon, len(at) - offset)
+        window = (x[offset : offset + n] for x in (theta, omega, tau))
+        rms = float(_rms_from_law(plan, limit, *window))
+        if rms > tolerance:
+            where = (
+                f"no stretch of it is nearer than {found_rms:.3g} N·m: was it this profile?"
+                if align == "torque" or found_rms > tolerance
+                else f"it is nearest from its sample {found + 1} (t = {found * ocp.dt:.4g} s, "
+                f"{found_rms:.3g} N·m): --align torque, or trim the recording there"
+            )
+            raise VerifyError(
+                f"{name} did not play profile {profile}: its torque is {rms:.3g} N·m RMS from "
+                f"{loop} over {n} samples, above --played-tolerance {played_tolerance:g} of the "
+                f"{limit:g} N·m limit; {where}"
+            )
+        rows["episodes"].append(int(episode))
+        rows["offsets"].append(offset)
+        rows["start_s"].append(float(dataset.t[at[offset]] - dataset.t[at[0]]))
+        for key, values in (("theta", theta), ("omega", omega), ("tau", tau)):
+            series[key].append(values[offset : offset + n])
+        series["slider"].append(dataset.slider_position[at][offset : offset + n])
+    n = min(len(s) for s in series["theta"])  # the shortest run's: every run compared alike
+    return RigRuns(
+        **{k: np.asarray(v) for k, v in rows.items()},
+        **{k: np.stack([s[:n] for s in v]) for k, v in series.items()},
+    )
+
+
+def check_data(dataset: Dataset, ocp: OCPFile, *, source: str) -> None:
+    """Refuse data of another mechanism or rate than the plan's.
+
+    Raises:
+      GeometryError: another mechanism. ConfigError: another rate (import with --rate).
+    """
+    ocp.geometry.check_same(dataset.geometry, this="the plan", that=source)
+    if len(dataset) < 2:
+        raise VerifyError(f"{source}: {len(dataset)} sample(s); nothing to check")
+    dt = float(np.median(np.diff(dataset.t)))
+    if abs(dt - ocp.dt) > 1e-6 * ocp.dt:
+        raise ConfigError(
+            f"{source}: sampled every {1e3 * dt:.4g} ms, the plan every {1e3 * ocp.dt:.4g} ms; "
+            f"import the recording again with --rate {1 / ocp.dt:g}"
+        )
+
+
+def _sample(ocp: OCPFile, plan: Profile, at: np.ndarray, sample: int) -> dict[str, Any]:
+    """What the runs' slider `at` constraint sample `sample` shows beside the prediction."""
+    height = ocp.config.height
+    predicted_mean = float(plan.slider_mc_mean[sample - 1])
+    predicted = float(plan.sigma_in(plan.loop)[sample - 1])
+    out: dict[str, Any] = {
+        "height": height,
+        "below": int(np.count_nonzero(at < height)),
+        "lowest": float(at.min()),
+        "observed_mean": float(at.mean()),
+        "observed_sigma": None,
+        "observed_sigma_ci95": None,
+        "predicted_mean": predicted_mean,
+        "predicted_sigma": predicted,
+        "ratio": None,
+        "ratio_ci95": None,
+        "mean_offset_sigma": (float(at.mean()) - predicted_mean) / predicted if predicted else None,
+    }
+    if len(at) > 1:
+        observed = float(at.std(ddof=1))
+        interval = sigma_interval(at, rng=np.random.default_rng(BOOTSTRAP_SEED))
+        out["observed_sigma"], out["observed_sigma_ci95"] = observed, list(interval)
+        if observed > 0:
+            out["ratio"] = predicted / observed
+            out["ratio_ci95"] = ratio_interval(predicted, observed, interval)
+    return out
+
+
+def verify_statistics(
+    ocp: OCPFile,
+    runs: RigRuns,
+    *,
+    profile: str,
+    ocp_path: Path,
+    data_path: Path,
+    dataset: Dataset,
+    align: str,
+    played_tolerance: float,
+) -> dict[str, Any]:
+    """verify.json's content (keys in the module docstring)."""
+    c, plan = ocp.config, ocp.profiles[profile]
+    limit, n = c.torque_limit, runs.theta.shape[1]
+    played = _rms_from_law(plan, limit, runs.theta, runs.omega, runs.tau)
+    theta_rms = np.sqrt(np.mean((runs.theta - plan.theta[:n]) ** 2, axis=1))
+    at = {k: runs.slider[:, k - 1] for k in c.constraint_samples}
+    below = np.zeros(len(runs.episodes), dtype=bool)
+    for values in at.values():
+        below |= values < c.height
+    count, total = int(np.count_nonzero(below)), len(below)
+    derived = "slider_position" in dataset.run.get("derived", [])
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "ocp": {
+            "path": str(ocp_path),
+            "sha256": hashlib.sha256(ocp_path.read_bytes()).hexdigest(),
+            "profile": profile,
+            "loop": plan.loop,
+            "height": c.height,
+            "constraint_samples": list(c.constraint_samples),
+            "k_sigma": ocp.raw.get(profile, {}).get("k_sigma", c.k_sigma),
+            "premium": ocp.premium(profile) if profile != "nominal" else 0.0,
+            "dt": ocp.dt,
+            "horizon": ocp.horizon,
+            "torque_limit": limit,
+        },
+        "data": {
+            "path": str(data_path),
+            "sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
+            "source": dataset.run.get("source"),
+            "input": dataset.run.get("input"),
+            "slider": "derived" if derived else "measured",
+            "episodes": total,
+        },
+        "align": align,
+        "played_tolerance": played_tolerance,
+        "bootstrap_seed": BOOTSTRAP_SEED,
+        "target_rate": TARGET_RATE,
+        "runs": [
+            {
+                "episode": int(runs.episodes[r]),
+                "offset": int(runs.offsets[r]),
+                "start_s": float(runs.start_s[r]),
+                "samples": n,
+                "played_rms": float(played[r]),
+                "theta_rms": float(theta_rms[r]),
+                "slider": {str(k): float(v[r]) for k, v in at.items()},
+                "below": bool(below[r]),
+            }
+            for r in range(total)
+        ],
+        "samples": {str(k): _sample(ocp, plan, v, k) for k, v in at.items()},
+        "violating_runs": count,
+        "rate": count / total,
+        "rate_upper_95": rate_upper(count, total),
+        "verdict": None if profile == "nominal" else verdict(count, total),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }

@@ -1,0 +1,268 @@
+"""`crank verify`'s files: `verify.json` (replay/verify.py), `verify.md` (what the runs showed, in
+words and tables) and `verify.png` (every run's slider against the plan's band, the torques, and
+each constraint sample's runs beside the prediction)."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from common.atomic import atomic_path, writes
+from common.errors import ConfigError
+from common.figures import save_figure
+from common.jsonio import write_json
+from control.figures import COLORS, constraint_boxes, predicted_band
+from control.ocp_file import OCPFile, read_ocp
+from replay.rates import machines_to_confirm
+from replay.verify import (
+    ALIGNS,
+    PLAYED_TOLERANCE,
+    RigRuns,
+    check_data,
+    line_up,
+    verify_statistics,
+)
+from twin.mcap_dataset import read_dataset
+
+
+def output_paths(out: str | Path) -> dict[str, Path]:
+    """Every file `crank verify` writes, by kind: the JSON at `out`, the report and figure beside
+    it."""
+    out = Path(out)
+    return {"json": out, "report": out.with_suffix(".md"), "figure": out.with_suffix(".png")}
+
+
+def claim_text(stats: dict[str, Any]) -> str:
+    """The verdict in one sentence (replay/rates.py's, said of runs rather than machines)."""
+    o = stats["ocp"]
+    count, total = stats["violating_runs"], len(stats["runs"])
+    at = ", ".join(map(str, o["constraint_samples"]))
+    below = f"{count} of {total} runs below {o['height']:g} m at samples {at}"
+    target, upper = f"{100 * stats['target_rate']:g} %", f"{100 * stats['rate_upper_95']:.2f} %"
+    said = stats["verdict"]
+    if said is None:
+        return f"{below}; the nominal profile claims nothing"
+    rate = f"{100 * stats['rate']:.1f} %"
+    if said == "fails":
+        return f"{below}: profile {o['profile']} does NOT hold ({rate} > {target})"
+    if said == "holds":
+        return f"{below}: profile {o['profile']} holds at <= {target} (95 % bound {upper})"
+    return (
+        f"{below}: profile {o['profile']} is within {target} on these runs but not confirmed "
+        f"(95 % bound {upper})"
+    )
+
+
+def _mm(value: float | None, fmt: str = ".2f") -> str:
+    return "—" if value is None else f"{1e3 * value:{fmt}}"
+
+
+def sample_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
+    """One row per constraint sample, for the terminal and verify.md."""
+    k = stats["ocp"]["k_sigma"]
+    rows = []
+    for sample, s in stats["samples"].items():
+        observed = None if s["observed_sigma"] is None else k * s["observed_sigma"]
+        ci = s["ratio_ci95"]
+        ratio = "—" if s["ratio"] is None else f"{s['ratio']:.2f}"
+        if ci is not None:
+            ratio += f" ({ci[0]:.2f}–{ci[1]:.2f})"
+        offset = s["mean_offset_sigma"]
+        rows.append(
+            {
+                "sample": sample,
+                "below": f"{s['below']}/{len(stats['runs'])}",
+                "lowest mm": _mm(s["lowest"]),
+                "mean obs/pred mm": f"{_mm(s['observed_mean'])}/{_mm(s['predicted_mean'])}",
+                f"{k:g}σ obs/pred mm": f"{_mm(observed)}/{_mm(k * s['predicted_sigma'])}",
+                "σ pred/obs (95 %)": ratio,
+                "mean offset σ": "—" if offset is None else f"{offset:+.2f}",
+            }
+        )
+    return rows
+
+
+def _table(rows: list[dict[str, str]]) -> list[str]:
+    keys = list(rows[0])
+    return [
+        "| " + " | ".join(keys) + " |",
+        "|" + " --- |" * len(keys),
+        *("| " + " | ".join(r[k] for k in keys) + " |" for r in rows),
+    ]
+
+
+def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
+    """verify.md: the verdict, the constraint samples, each run, and how to read them."""
+    o, d = stats["ocp"], stats["data"]
+    total = len(stats["runs"])
+    runs = [
+        {
+            "run": str(i),
+            "episode": str(r["episode"]),
+            "from s": f"{r['start_s']:.3f}",
+            "played RMS N·m": f"{r['played_rms']:.3g}",
+            "θ RMS rad": f"{r['theta_rms']:.3g}",
+            **{f"slider@{k} mm": _mm(v) for k, v in r["slider"].items()},
+            "below": "yes" if r["below"] else "no",
+        }
+        for i, r in enumerate(stats["runs"], start=1)
+    ]
+    slider = (
+        "measured"
+        if d["slider"] == "measured"
+        else "**not measured**: x(θ) of the motor angle, rigid and backlash-free; the constraint "
+        "is on the slider, which these runs did not see"
+    )
+    lines = [
+        f"# crank verify: profile {o['profile']} on {total} recorded runs",
+        "",
+        f"**{claim_text(stats)}.**",
+        "",
+        f"- Plan: `{o['path']}` (sha256 `{o['sha256'][:12]}…`), profile {o['profile']}, "
+        f"tightened for the {o['loop']} loop, premium {100 * o['premium']:+.1f} %.",
+        f"- Runs: `{d['path']}` ({d['source'] or 'no source'}"
+        + (f", from `{d['input']}`" if d["input"] else "")
+        + f"), {total} episodes; slider {slider}.",
+        f"- Each run lined up by its {stats['align']} and checked to have played the "
+        f"{o['loop']} loop's law within {stats['played_tolerance']:g} of the "
+        f"{o['torque_limit']:g} N·m limit (RMS).",
+        f"- {total} runs cannot confirm a rate of {100 * stats['target_rate']:g} % "
+        f"({machines_to_confirm()} with none below would); they measure the spread, within the "
+        "intervals below. The PPANN's σ is the product line's (machine to machine and run to "
+        "run): runs on one machine show its run-to-run spread alone, a smaller one (a ratio "
+        "above 1), and its mean offset says where that machine sits in the line.",
+        "",
+        "## At the constraint samples",
+        "",
+        *_table(sample_rows(stats)),
+        "",
+        f"σ pred/obs: the PPANN's Monte-Carlo σ in the {o['loop']} loop over the runs' (95 % "
+        "bootstrap interval over the runs); mean offset: the runs' mean slider minus the "
+        "predicted one, in predicted σ.",
+        "",
+        "## Runs",
+        "",
+        *_table(runs),
+        "",
+        f"Files: `{paths['json'].name}` (every number here), "
+        + (f"`{paths['figure'].name}`." if paths.get("figure") else "no figure (--no-figures)."),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
+    """Left: every run's slider against the plan's ±kσ band in its loop, the torques below;
+    right: each constraint sample's runs beside the predicted mean ± kσ and the height."""
+    o = stats["ocp"]
+    plan, name = ocp.profiles[o["profile"]], o["profile"]
+    k = o["k_sigma"]
+    samples = o["constraint_samples"]
+    fig = Figure(figsize=(12, 6.5), layout="constrained")
+    grid = fig.add_gridspec(2, 1 + len(samples), width_ratios=(4, *[1] * len(samples)))
+    slider_ax, torque_ax = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0])
+    n = runs.theta.shape[1]
+    t = np.arange(n) * ocp.dt
+    below = np.array([r["below"] for r in stats["runs"]])
+    color = COLORS.get(name, "C3")
+    lower, upper = predicted_band(plan, plan.sigma_in(plan.loop), k, geometry=ocp.geometry)
+    slider_ax.fill_between(
+        plan.time, lower, upper, color=color, alpha=0.2, label=f"PPANN ±{k:g}σ ({plan.loop} loop)"
+    )
+    slider_ax.plot(plan.time, plan.slider, color=color, lw=1.2, label="PPANN mean")
+    for rows, shade, label in ((~below, "k", "runs"), (below, "C3", "runs below")):
+        if rows.any():
+            lines = slider_ax.plot(t, runs.slider[rows].T, color=shade, lw=0.6, alpha=0.6)
+            lines[0].set_label(f"{label} ({rows.sum()})")
+    constraint_boxes(slider_ax, ocp)
+    slider_ax.set_ylim(-0.005, ocp.geometry.stroke_top + 0.005)
+    slider_ax.set_ylabel("slider position [m]")
+    fig.suptitle("\n".join(textwrap.wrap(claim_text(stats), 120)), fontsize=10)
+    slider_ax.legend(loc="lower right", fontsize=7)
+    torque_ax.plot(t, runs.tau.T, color="k", lw=0.5, alpha=0.5)
+    torque_ax.plot(plan.time, plan.tau, color=color, lw=1.2, label=f"{name}: planned")
+    torque_ax.set_xlabel("t [s]")
+    torque_ax.set_ylabel("torque applied [N·m]")
+    torque_ax.set_title(f"each run's applied torque ({o['loop']} loop)", fontsize=9)
+    torque_ax.legend(loc="lower right", fontsize=7)
+    for column, sample in enumerate(samples, start=1):
+        ax = fig.add_subplot(grid[:, column])
+        s = stats["samples"][str(sample)]
+        values = runs.slider[:, sample - 1]
+        spread = np.random.default_rng(0).uniform(-0.25, 0.25, len(values))  # only to see them
+        ax.scatter(spread, 1e3 * values, s=12, c=np.where(below, "C3", "k"), zorder=3)
+        mean, sigma = s["predicted_mean"], s["predicted_sigma"]
+        low, high = ocp.geometry.within_stroke(np.array([mean - k * sigma, mean + k * sigma]))
+        ax.errorbar(
+            [0.6], [1e3 * mean], yerr=[[1e3 * (mean - low)], [1e3 * (high - mean)]], fmt="o",
+            color=color, capsize=4, label=f"PPANN mean ±{k:g}σ",
+        )  # fmt: skip
+        ax.axhline(1e3 * s["height"], color="k", ls="--", lw=1, label="height")
+        ax.set_xlim(-0.6, 1.0)
+        ax.set_xticks([0.0, 0.6], ["runs", "PPANN"])
+        floor = min(s["height"], s["lowest"], low)
+        ax.set_ylim(1e3 * floor - 2.0, 1e3 * max(values.max(), high) + 1.0)
+        ax.set_title(f"sample {sample}: {s['below']} below", fontsize=9)
+        ax.set_ylabel("slider position [mm]")
+        if column == 1:
+            ax.legend(loc="lower left", fontsize=7)
+    return fig
+
+
+@writes("out", inputs=("ocp_path", "data_path"), suffix=".json")
+def verify_file(
+    ocp_path: str | Path,
+    data_path: str | Path,
+    out: str | Path,
+    *,
+    profile: str | None = None,
+    align: str = "start",
+    played_tolerance: float = PLAYED_TOLERANCE,
+    figures: bool = True,
+) -> dict[str, Any]:
+    """Check the runs recorded in `data_path` (a dataset MCAP, one episode per run) against
+    profile `profile` of `ocp_path` (default: its first robust one); write verify.json at `out`
+    and verify.md, verify.png beside it; return the statistics.
+
+    Raises:
+      OCPFileError, ContractError: an input is not what it should be. ConfigError: a bad option,
+        no such profile, another rate. GeometryError: another mechanism. VerifyError: a run too
+        short or one that did not play the profile's law.
+    """
+    from control.export import chosen_profile
+
+    if align not in ALIGNS:
+        raise ConfigError(f"--align must be one of {', '.join(ALIGNS)}, got {align!r}")
+    if not (np.isfinite(played_tolerance) and 0 < played_tolerance <= 1):
+        raise ConfigError(
+            f"--played-tolerance must be within (0, 1] of the torque limit, got {played_tolerance}"
+        )
+    ocp_path, data_path = Path(ocp_path), Path(data_path)
+    ocp = read_ocp(ocp_path)
+    name = chosen_profile(ocp, ocp_path, profile)
+    dataset = read_dataset(data_path)
+    check_data(dataset, ocp, source=str(data_path))
+    runs = line_up(dataset, ocp, profile=name, align=align, played_tolerance=played_tolerance)
+    stats = verify_statistics(
+        ocp,
+        runs,
+        profile=name,
+        ocp_path=ocp_path,
+        data_path=data_path,
+        dataset=dataset,
+        align=align,
+        played_tolerance=played_tolerance,
+    )
+    paths = output_paths(out)
+    if not figures:
+        del paths["figure"]
+    write_json(paths["json"], stats)
+    with atomic_path(paths["report"]) as tmp:
+        tmp.write_text(report_markdown(stats, paths), encoding="utf-8")
+    if figures:
+        save_figure(verify_figure(ocp, runs, stats), paths["figure"])
+    return stats

@@ -1,0 +1,70 @@
+"""The twin as a rig for `crank verify`'s tests: a profile played on twin machines, written as a
+rig logs it (1 kHz, ms, degrees, rpm, mN·m, mm, angle, speed and torque counted the other way,
+one run per episode) and imported as `crank import` does."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from control.ocp_file import read_ocp
+from replay.campaign import Replay, draw_machines, play
+from replay.config import ReplayConfig
+from twin.physics import SliderCrank
+from twin.rig_import import ImportSpec, import_table
+
+MAP = "t=time_ms,theta=enc_deg,omega=speed_rpm,tau=cmd_mNm,slider_position=x_mm,episode=run"
+UNITS = "t=ms,theta=deg,omega=rpm,tau=mN*m,slider_position=mm"
+FLIP = "theta,omega,tau"
+SPEC = ImportSpec.parse(columns=MAP, units=UNITS, flip=FLIP)
+
+
+def play_runs(
+    physics: SliderCrank, ocp_path: Path, *, profile: str, mode: str, runs: int, seed: int
+) -> Replay:
+    """`profile` of `ocp_path` played on `runs` twin machines of the replay streams at `seed`."""
+    config = ReplayConfig(runs=runs, seed=seed)
+    ocp = read_ocp(ocp_path)
+    machines = draw_machines(config, ocp.horizon)
+    return play(physics, ocp, profile=profile, mode=mode, machines=machines, config=config)
+
+
+def write_rig_csv(replay: Replay, path: Path, *, lead: int = 0, keep: int | None = None) -> Path:
+    """Each run as a 1 kHz rig logs it: a row at every sample and one midway (states
+    interpolated, the torque held), after `lead` samples at rest at its start angle with no
+    torque, its first `keep` samples only if given; runs 1 s apart."""
+    rows = []
+    for run in range(replay.runs):
+        series = [replay.theta[run], replay.omega[run], replay.slider_position[run]]
+        tau = replay.tau[run]
+        if keep is not None:
+            series, tau = [s[:keep] for s in series], tau[:keep]
+        theta, omega, slider = (
+            np.r_[np.full(lead, s[0] if i != 1 else 0.0), s] for i, s in enumerate(series)
+        )
+        tau = np.r_[np.zeros(lead), tau]
+        fine = np.arange(2 * len(theta) - 1) / 2.0
+        index = np.arange(len(theta))
+        columns = (
+            1e3 * (2e-3 * fine + run),
+            -np.degrees(np.interp(fine, index, theta)),
+            -np.interp(fine, index, omega) * 60 / (2 * np.pi),
+            -1e3 * tau[np.floor(fine).astype(int)],
+            1e3 * np.interp(fine, index, slider),
+            np.full(len(fine), run),
+        )
+        rows += zip(*(c.tolist() for c in columns), strict=True)
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["time_ms", "enc_deg", "speed_rpm", "cmd_mNm", "x_mm", "run"])
+        writer.writerows(rows)
+    return path
+
+
+def import_runs(replay: Replay, out: Path, **options: int | None) -> Path:
+    """The runs of `replay` as a rig's table (write_rig_csv `options`), imported to `out`."""
+    table = write_rig_csv(replay, out.with_suffix(".csv"), **options)
+    import_table(table, out, spec=SPEC)
+    return out
