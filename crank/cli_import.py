@@ -139,6 +139,13 @@ def verify_command(
             "the profile's law played something else, and is refused."
         ),
     ] = PLAYED_TOLERANCE,
+    ppann: Annotated[
+        Path | None,
+        typer.Option(
+            help="The PPANN the plan was solved on, to split the spread into its white and "
+            "machine parts (default: the checkpoint ocp.json names, if it is there)."
+        ),
+    ] = None,
     figures: Annotated[bool, typer.Option(help="Write verify.png.")] = True,
 ) -> None:
     """Count the runs below the height at each constraint sample and set the slider's observed
@@ -146,9 +153,17 @@ def verify_command(
     checked to have played the profile's law (open: its torque; closed: its tracking law)."""
     from common.atomic import check_output
 
-    check_output("out", out, suffix=".json", inputs={"ocp_path": ocp, "data_path": data})
+    check_output(
+        "out", out, suffix=".json", inputs={"ocp_path": ocp, "data_path": data, "ppann": ppann}
+    )
     from replay.statistics import format_table
-    from replay.verify_report import claim_text, output_paths, sample_rows, verify_file
+    from replay.verify_report import (
+        claim_text,
+        machine_rows,
+        output_paths,
+        sample_rows,
+        verify_file,
+    )
 
     stats = verify_file(
         ocp,
@@ -157,9 +172,13 @@ def verify_command(
         profile=profile,
         align=align,
         played_tolerance=played_tolerance,
+        ppann=ppann,
         figures=figures,
     )
     typer.echo(format_table(sample_rows(stats)))
+    if stats["model"] is not None:
+        typer.echo("if the runs are one machine's:")
+        typer.echo(format_table(machine_rows(stats)))
     typer.echo(claim_text(stats))
     written = [p for kind, p in output_paths(out).items() if figures or kind != "figure"]
     typer.echo(f"wrote {', '.join(map(str, written))}")

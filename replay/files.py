@@ -61,14 +61,9 @@ def plan_model(
     from ppann.checkpoint import CheckpointError, load
     from ppann.model import PPANN
 
-    record = (ocp if ocp is not None else read_ocp(ocp_path)).raw.get("model") or {}
-    if override is not None:
-        path = Path(override)
-    elif "path" in record:
-        named = Path(record["path"])
-        path = named if named.is_absolute() else Path(ocp_path).parent / named
-    else:
-        raise CheckpointError(f"{ocp_path} names no checkpoint; give the PPANN with --ppann")
+    ocp = ocp if ocp is not None else read_ocp(ocp_path)
+    record = ocp.raw.get("model") or {}
+    path = plan_model_path(ocp_path, override=override, ocp=ocp)
     if not path.is_file():
         raise CheckpointError(
             f"the MPC and the prediction of a law other than a profile's own use the PPANN "
@@ -86,7 +81,27 @@ def plan_model(
     return model
 
 
-def _prediction_model(
+def plan_model_path(
+    ocp_path: str | Path, *, override: str | Path | None = None, ocp: OCPFile | None = None
+) -> Path:
+    """Where `plan_model` reads the plan's PPANN: `override`, or the checkpoint ocp.json names
+    (relative to its folder).
+
+    Raises:
+      CheckpointError: ocp.json names none and there is no `override`.
+    """
+    from ppann.checkpoint import CheckpointError
+
+    if override is not None:
+        return Path(override)
+    record = (ocp if ocp is not None else read_ocp(ocp_path)).raw.get("model") or {}
+    if "path" not in record:
+        raise CheckpointError(f"{ocp_path} names no checkpoint; give the PPANN with --ppann")
+    named = Path(record["path"])
+    return named if named.is_absolute() else Path(ocp_path).parent / named
+
+
+def prediction_model(
     ocp_path: str | Path, *, override: str | Path | None, ocp: OCPFile
 ) -> PPANN | None:
     """The plan's PPANN for a prediction the campaign can do without: None if ocp.json's
@@ -163,7 +178,7 @@ def replay_file(
     elif "closed" in config.modes and not all(
         plays_own_law(p, config) for p in ocp.profiles.values()
     ):  # the prediction under the replay's PD runs the PPANN's Monte-Carlo (replay/laws.py)
-        predictor = _prediction_model(ocp_path, override=ppann, ocp=ocp)
+        predictor = prediction_model(ocp_path, override=ppann, ocp=ocp)
     model, model_xml = load_model(model_path)
     physics = SliderCrank(model)
     ocp.geometry.check_same(physics.geometry, this=str(ocp_path), that=f"the twin {model_path}")

@@ -83,12 +83,10 @@ from control.tightening import sigma_relative_se
 from ppann.checkpoint import CheckpointError, load
 from ppann.heads import FusedHeads
 from ppann.model import PPANN
-from ppann.modes import MODES
-from ppann.montecarlo import Bands, Feedback, monte_carlo
-from ppann.transmission import draw
+from ppann.montecarlo import Bands, Feedback
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
-from replay.laws import played_gains, plays_own_law
+from replay.laws import played_gains, plays_own_law, predicted_bands
 from replay.model_rate import model_rate
 from replay.placement import placements
 from replay.rates import TARGET_RATE, rate_upper, verdict
@@ -241,22 +239,8 @@ def heldout_check(
             states = np.stack([planned.theta, planned.omega], axis=-1)
             law = Feedback(states, gains, c.torque_limit)
         t0 = time.perf_counter()
-        predicted = {
-            mc_mode: monte_carlo(
-                heads,
-                [planned.theta[0], planned.omega[0]],
-                planned.tau[:-1],
-                n_samples=mc_samples,
-                mode=mc_mode,
-                seed=streams.stream(c.mc_seed, "monte_carlo"),
-                feedback=law,
-            )
-            for mc_mode in MODES
-        }
+        predicted, delta = predicted_bands(heads, ocp, planned, law=law, n_samples=mc_samples)
         mc_s += time.perf_counter() - t0
-        # the crank's angle to the motor (ppann/transmission.py): one draw per trajectory, the
-        # same for every mode and constraint sample
-        delta = draw(heads.transmission, (mc_samples,), streams.rng(c.mc_seed, "transmission"))
         below = np.zeros(runs, dtype=bool)
         samples: dict[str, Any] = {}
         for k in c.constraint_samples:

@@ -9,7 +9,9 @@ Beside a replay of another law (the fixed PD on a profile whose own gains are an
 MPC) that σ is the prediction for a law nobody played: `predicted_sigma` runs the solve's own
 Monte-Carlo (control/tightening.py slider_uncertainty: the plan's OCP settings and draws) under
 the law that was played instead. For the profile's own law it returns the file's σ, which that
-Monte-Carlo reproduces bit for bit (tests/test_replay.py).
+Monte-Carlo reproduces bit for bit (tests/test_replay.py). `predicted_bands` is the PPANN's
+Monte-Carlo of a plan in each mode, as the held-out check and `crank verify` set it beside
+the machines'.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from replay.config import ReplayConfig
 if TYPE_CHECKING:
     from control.ocp import Solution
     from ppann.heads import FusedHeads
+    from ppann.montecarlo import Bands, Feedback
 
 
 def closed_loop_gains(profile: Profile, config: ReplayConfig) -> np.ndarray:
@@ -102,3 +105,37 @@ def predicted_sigma(
     from control.tightening import slider_uncertainty
 
     return slider_uncertainty(heads, profile_solution(planned, ocp), ocp.config, gains=gains).std
+
+
+def predicted_bands(
+    heads: FusedHeads,
+    ocp: OCPFile,
+    planned: Profile,
+    *,
+    law: Feedback | None,
+    n_samples: int,
+    modes: tuple[str, ...] | None = None,
+) -> tuple[dict[str, Bands], np.ndarray]:
+    """The PPANN's Monte-Carlo of `planned` in each of `modes` (default every mode), open loop
+    or under `law`, on the plan's own stream; and the crank's angle to the motor
+    (ppann/transmission.py), one draw per trajectory, the same for every mode and sample: the
+    slider of trajectory i at sample k is x(θ_ik + delta_i)."""
+    from common import streams
+    from ppann.modes import MODES
+    from ppann.montecarlo import monte_carlo
+    from ppann.transmission import draw
+
+    seed = ocp.config.mc_seed
+    bands = {
+        mode: monte_carlo(
+            heads,
+            [planned.theta[0], planned.omega[0]],
+            planned.tau[:-1],
+            n_samples=n_samples,
+            mode=mode,
+            seed=streams.stream(seed, "monte_carlo"),
+            feedback=law,
+        )
+        for mode in (MODES if modes is None else modes)
+    }
+    return bands, draw(heads.transmission, (n_samples,), streams.rng(seed, "transmission"))

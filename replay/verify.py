@@ -21,6 +21,16 @@ would say nothing about this profile. The samples compared are the plan's N, or 
 it stops sooner (an import ends each episode a sample before its last row); it must reach the
 last constraint sample.
 
+Runs on one machine are not the line's machines: their spread is that machine's run to run
+(the disturbance, the warm-up), not the product line's, which the PPANN's σ in ocp.json stands
+for. With the plan's PPANN the spread is split as its Monte-Carlo draws it: the white part
+alone (mode step, one machine at the line's centre) and the machines alone (mode machine).
+The white part is set against the runs' spread in the motor angle θ, not in the slider: near
+top dead centre the slider is a flat function of θ, so one machine's slider spread there
+depends on where that machine sits (a machine 1.3 machine σ high showed 2.0 mm where the line's
+centre predicts 3.0), while its θ spread does not (the same runs: 150 against 140 mrad). The
+machines' part is the scale on which the runs' mean slider says where their machine sits.
+
 `verify.json` keys (stable; format "crank-verify", version 1):
 
   ocp                {path, sha256, profile, loop, height, constraint_samples (1-based),
@@ -29,6 +39,9 @@ last constraint sample.
   data               {path, sha256, source, input, slider: measured or derived (x(θ) of the
                      motor angle: rigid and backlash-free, blind to what the constraint is about
                      beyond θ), episodes}
+  model              {path, sha256} of the PPANN that split the spread (the plan's own), or
+                     null
+  split_trajectories trajectories of each part's σ
   align, played_tolerance, bootstrap_seed, target_rate
   runs               per run {episode, offset (its sample lined up with sample 1), start_s,
                      samples (compared), played_rms (N·m), theta_rms (rad, from the plan's θ),
@@ -37,8 +50,16 @@ last constraint sample.
                      observed_sigma_ci95 (bootstrap over the runs, replay/spread_interval.py),
                      predicted_mean, predicted_sigma (the PPANN's Monte-Carlo in the
                      profile's loop), ratio (predicted / observed σ), ratio_ci95,
-                     mean_offset_sigma ((observed − predicted mean) / predicted σ)}; σ and
-                     its ratios null with one run
+                     mean_offset_sigma ((observed − predicted mean) / predicted σ),
+                     white_sigma, machine_sigma (the PPANN's σ from its white part alone, a
+                     machine at the line's centre: one machine's run-to-run spread; and from
+                     its machines alone: the line's machine-to-machine spread; null without
+                     the PPANN), machine_offset ((observed − predicted mean) / machine σ:
+                     where the runs' machine sits in the line, if they are one machine's),
+                     theta {observed_sigma, observed_sigma_ci95, white_sigma, white_ratio,
+                     white_ratio_ci95}: the motor angle's spread over the runs against the
+                     white part's (white σ / observed σ: the runs read as one machine's)};
+                     σ and its ratios null with one run, the split's without the PPANN
   violating_runs, rate, rate_upper_95 (exact one-sided, replay/rates.py)
   verdict            holds | unconfirmed | fails against target_rate for a robust profile
                      (replay/rates.py); null for the nominal one, which claims nothing
@@ -59,7 +80,7 @@ from common.errors import ConfigError, CrankError
 from control.config import TARGET_RATE
 from control.ocp_file import OCPFile, Profile
 from replay.rates import rate_upper, verdict
-from replay.spread_interval import ratio_interval, sigma_interval
+from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
 from twin.dataset import Dataset
 
 FORMAT = "crank-verify"
@@ -208,8 +229,16 @@ def check_data(dataset: Dataset, ocp: OCPFile, *, source: str) -> None:
         )
 
 
-def _sample(ocp: OCPFile, plan: Profile, at: np.ndarray, sample: int) -> dict[str, Any]:
-    """What the runs' slider `at` constraint sample `sample` shows beside the prediction."""
+def _sample(
+    ocp: OCPFile,
+    plan: Profile,
+    at: np.ndarray,
+    theta: np.ndarray,
+    sample: int,
+    split: dict[str, float] | None,
+) -> dict[str, Any]:
+    """What the runs' slider `at` constraint sample `sample` shows beside the prediction, and
+    (with its parts, `split`) their motor angle `theta` there beside the white part's."""
     height = ocp.config.height
     predicted_mean = float(plan.slider_mc_mean[sample - 1])
     predicted = float(plan.sigma_in(plan.loop)[sample - 1])
@@ -225,7 +254,13 @@ def _sample(ocp: OCPFile, plan: Profile, at: np.ndarray, sample: int) -> dict[st
         "ratio": None,
         "ratio_ci95": None,
         "mean_offset_sigma": (float(at.mean()) - predicted_mean) / predicted if predicted else None,
+        "white_sigma": None if split is None else split["white"],
+        "machine_sigma": None if split is None else split["machine"],
+        "machine_offset": None,
+        "theta": _theta(theta, split),
     }
+    if split is not None and split["machine"] > 0:
+        out["machine_offset"] = (float(at.mean()) - predicted_mean) / split["machine"]
     if len(at) > 1:
         observed = float(at.std(ddof=1))
         interval = sigma_interval(at, rng=np.random.default_rng(BOOTSTRAP_SEED))
@@ -233,6 +268,23 @@ def _sample(ocp: OCPFile, plan: Profile, at: np.ndarray, sample: int) -> dict[st
         if observed > 0:
             out["ratio"] = predicted / observed
             out["ratio_ci95"] = ratio_interval(predicted, observed, interval)
+    return out
+
+
+def _theta(theta: np.ndarray, split: dict[str, float] | None) -> dict[str, Any]:
+    """The runs' θ spread at one sample beside the PPANN's white part's (None without it)."""
+    out: dict[str, Any] = dict.fromkeys(
+        ("observed_sigma", "observed_sigma_ci95", "white_sigma", "white_ratio", "white_ratio_ci95")
+    )
+    out["white_sigma"] = None if split is None else split["theta_white"]
+    if len(theta) < 2:
+        return out
+    observed = float(theta.std(ddof=1))
+    interval = sigma_interval(theta, rng=np.random.default_rng(BOOTSTRAP_SEED))
+    out["observed_sigma"], out["observed_sigma_ci95"] = observed, list(interval)
+    if split is not None and observed > 0:
+        out["white_ratio"] = split["theta_white"] / observed
+        out["white_ratio_ci95"] = ratio_interval(split["theta_white"], observed, interval)
     return out
 
 
@@ -246,8 +298,11 @@ def verify_statistics(
     dataset: Dataset,
     align: str,
     played_tolerance: float,
+    model_path: Path | None = None,
+    split: dict[int, dict[str, float]] | None = None,
 ) -> dict[str, Any]:
-    """verify.json's content (keys in the module docstring)."""
+    """verify.json's content (keys in the module docstring); `split`: spread_split's, by the
+    PPANN at `model_path`."""
     c, plan = ocp.config, ocp.profiles[profile]
     limit, n = c.torque_limit, runs.theta.shape[1]
     played = _rms_from_law(plan, limit, runs.theta, runs.omega, runs.tau)
@@ -282,6 +337,13 @@ def verify_statistics(
             "slider": "derived" if derived else "measured",
             "episodes": total,
         },
+        "model": None
+        if model_path is None
+        else {
+            "path": str(model_path),
+            "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
+        },
+        "split_trajectories": None if split is None else CALIBRATION_TRAJECTORIES,
         "align": align,
         "played_tolerance": played_tolerance,
         "bootstrap_seed": BOOTSTRAP_SEED,
@@ -299,7 +361,12 @@ def verify_statistics(
             }
             for r in range(total)
         ],
-        "samples": {str(k): _sample(ocp, plan, v, k) for k, v in at.items()},
+        "samples": {
+            str(k): _sample(
+                ocp, plan, v, runs.theta[:, k - 1], k, None if split is None else split[k]
+            )
+            for k, v in at.items()
+        },
         "violating_runs": count,
         "rate": count / total,
         "rate_upper_95": rate_upper(count, total),

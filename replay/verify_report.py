@@ -26,6 +26,7 @@ from replay.verify import (
     line_up,
     verify_statistics,
 )
+from replay.verify_split import spread_split
 from twin.mcap_dataset import read_dataset
 
 
@@ -81,6 +82,32 @@ def sample_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
                 f"{k:g}σ obs/pred mm": f"{_mm(observed)}/{_mm(k * s['predicted_sigma'])}",
                 "σ pred/obs (95 %)": ratio,
                 "mean offset σ": "—" if offset is None else f"{offset:+.2f}",
+            }
+        )
+    return rows
+
+
+def machine_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
+    """One row per constraint sample reading the runs as one machine's (no rows without the
+    PPANN's split)."""
+    if stats["model"] is None:
+        return []
+    rows = []
+    for sample, s in stats["samples"].items():
+        theta = s["theta"]
+        ratio, ci = theta["white_ratio"], theta["white_ratio_ci95"]
+        shown = "—" if ratio is None else f"{ratio:.2f}"
+        if ci is not None:
+            shown += f" ({ci[0]:.2f}–{ci[1]:.2f})"
+        offset = s["machine_offset"]
+        observed = theta["observed_sigma"]
+        rows.append(
+            {
+                "sample": sample,
+                "θ σ obs/white mrad": f"{_mm(observed, '.1f')}/{_mm(theta['white_sigma'], '.1f')}",
+                "θ σ white/obs (95 %)": shown,
+                "slider σ machines mm": _mm(s["machine_sigma"]),
+                "machine offset": "—" if offset is None else f"{offset:+.2f}",
             }
         )
     return rows
@@ -144,6 +171,7 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
         "bootstrap interval over the runs); mean offset: the runs' mean slider minus the "
         "predicted one, in predicted σ.",
         "",
+        *_one_machine(stats),
         "## Runs",
         "",
         *_table(runs),
@@ -153,6 +181,30 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _one_machine(stats: dict[str, Any]) -> list[str]:
+    """verify.md's section reading the runs as one machine's, with the PPANN's split."""
+    rows = machine_rows(stats)
+    if not rows:
+        return [
+            "No split of the spread: the plan's PPANN is not beside it (give it with --ppann).",
+            "",
+        ]
+    model = stats["model"]
+    return [
+        "## If the runs are one machine's",
+        "",
+        f"The PPANN's spread split as its Monte-Carlo draws it (`{model['path']}`, "
+        f"{stats['split_trajectories']} trajectories a part): its white part alone, a machine "
+        "at the line's centre run after run, against the runs' spread in the motor angle θ "
+        "(near top dead centre one machine's slider spread depends on where the machine "
+        "sits; its θ spread does not); and its machines alone, the scale of the machine "
+        "offset (the runs' mean slider minus the predicted one, in the machines' σ).",
+        "",
+        *_table(rows),
+        "",
+    ]
 
 
 def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
@@ -213,7 +265,7 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
     return fig
 
 
-@writes("out", inputs=("ocp_path", "data_path"), suffix=".json")
+@writes("out", inputs=("ocp_path", "data_path", "ppann"), suffix=".json")
 def verify_file(
     ocp_path: str | Path,
     data_path: str | Path,
@@ -222,11 +274,14 @@ def verify_file(
     profile: str | None = None,
     align: str = "start",
     played_tolerance: float = PLAYED_TOLERANCE,
+    ppann: str | Path | None = None,
     figures: bool = True,
 ) -> dict[str, Any]:
     """Check the runs recorded in `data_path` (a dataset MCAP, one episode per run) against
     profile `profile` of `ocp_path` (default: its first robust one); write verify.json at `out`
-    and verify.md, verify.png beside it; return the statistics.
+    and verify.md, verify.png beside it; return the statistics. The spread is split into its
+    white and machine parts with the plan's PPANN: `ppann`, which must be the checkpoint the
+    plan names (sha256), or that checkpoint if it is there (else no split).
 
     Raises:
       OCPFileError, ContractError: an input is not what it should be. ConfigError: a bad option,
@@ -234,6 +289,7 @@ def verify_file(
         short or one that did not play the profile's law.
     """
     from control.export import chosen_profile
+    from replay.files import plan_model_path, prediction_model
 
     if align not in ALIGNS:
         raise ConfigError(f"--align must be one of {', '.join(ALIGNS)}, got {align!r}")
@@ -247,6 +303,8 @@ def verify_file(
     dataset = read_dataset(data_path)
     check_data(dataset, ocp, source=str(data_path))
     runs = line_up(dataset, ocp, profile=name, align=align, played_tolerance=played_tolerance)
+    model = prediction_model(ocp_path, override=ppann, ocp=ocp)
+    split = None if model is None else spread_split(ocp, name, model)
     stats = verify_statistics(
         ocp,
         runs,
@@ -256,6 +314,8 @@ def verify_file(
         dataset=dataset,
         align=align,
         played_tolerance=played_tolerance,
+        model_path=None if model is None else plan_model_path(ocp_path, override=ppann, ocp=ocp),
+        split=split,
     )
     paths = output_paths(out)
     if not figures:

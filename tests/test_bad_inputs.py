@@ -486,6 +486,9 @@ CASES: list[tuple[str, str]] = [
     ("verify {ocp.json} {runs.mcap} --out {ocp.json}", "would overwrite the ocp_path"),
     ("verify {ocp.json} {runs.mcap} --out {file}/v.json", "cannot write"),
     ("verify {ocp.json} --out o/v.json", "Missing argument"),
+    ("verify {ocp.json} {runs.mcap} --ppann {dir}/no.pt --out o/v.json", "no.pt is not there"),
+    ("verify {ocp.json} {runs.mcap} --ppann {m.pt} --out o/v.json", "is not the checkpoint"),
+    ("verify {ocp.json} {runs.mcap} --ppann {m.pt} --out {m.pt}", "it must end in .json"),
     # --- import ---
     (
         "import {rig.csv} --map t=time,theta=enc,tau=cmd,omega=speed --out o/r.mcap",

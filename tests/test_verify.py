@@ -172,3 +172,97 @@ def test_the_command_prints_the_verdict_and_writes_three_files(
         "verify.md",
         "verify.png",
     ]
+
+
+@pytest.fixture(scope="module")
+def ppann_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A constant PPANN with a machine spread and a transmission error, saved."""
+    import torch
+
+    from ppann.checkpoint import save
+    from ppann.model import constant_ppann
+
+    model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.03, 0.05, 0.05))
+    with torch.no_grad():
+        model.machine_sigma.copy_(torch.tensor([0.08, 0.05, 0.05], dtype=torch.float64))
+        model.transmission.copy_(torch.linspace(-0.01, 0.01, len(model.transmission)))
+    path = tmp_path_factory.mktemp("ppann") / "model.pt"
+    save(path, model, kind="ppann", extra={"history": {}})
+    return path
+
+
+@pytest.mark.parametrize("profile", ["robust", "robust-fb"])
+def test_the_split_is_the_monte_carlo_of_each_part_alone(
+    split_ocp: Path, ppann_path: Path, profile: str
+) -> None:
+    """White part: the step mode's draws; machines: the machine mode's; each in the profile's
+    loop (robust-fb: under its own gains, clipped), the slider through the drawn transmission
+    error — the Monte-Carlo called directly, with the plan's streams."""
+    from common.streams import rng, stream
+    from control.ocp_file import read_ocp
+    from ppann.checkpoint import load
+    from ppann.heads import FusedHeads
+    from ppann.montecarlo import Feedback, monte_carlo
+    from ppann.transmission import draw
+    from replay.verify_split import spread_split
+
+    ocp, model = read_ocp(split_ocp), load(ppann_path)[0]
+    plan, seed = ocp.profiles[profile], ocp.config.mc_seed
+    split = spread_split(ocp, profile, model, n_samples=400)
+    heads = FusedHeads(model)
+    law = None
+    if plan.loop == "closed":
+        gains = np.stack([plan.gain_theta, plan.gain_omega], axis=-1)
+        law = Feedback(np.stack([plan.theta, plan.omega], axis=-1), gains, 10.0)
+    delta = draw(heads.transmission, (400,), rng(seed, "transmission"))
+    assert np.std(delta) > 1e-3
+    for part, mode in (("white", "step"), ("machine", "machine")):
+        bands = monte_carlo(
+            heads,
+            [plan.theta[0], plan.omega[0]],
+            plan.tau[:-1],
+            n_samples=400,
+            mode=mode,
+            seed=stream(seed, "monte_carlo"),
+            feedback=law,
+        )
+        for k in SAMPLES:
+            theta = bands.samples[:, k - 1, 0]
+            slider = ocp.geometry.slider_position(theta + delta)
+            assert split[k][part] == np.std(slider, ddof=1) > 0
+            assert split[k][f"theta_{part}"] == np.std(theta, ddof=1) > 0
+
+
+def test_runs_read_as_one_machines_beside_the_white_part(
+    split_ocp: Path, ppann_path: Path, played: dict[str, Replay], tmp_path: Path
+) -> None:
+    """With the PPANN, each constraint sample sets the runs' θ spread beside the white part's
+    and says where their mean sits in the machines' σ; without it, no split (and the report
+    says how to get one)."""
+    import hashlib
+
+    runs = import_runs(played["open"], tmp_path / "r.mcap")
+    digest = hashlib.sha256(ppann_path.read_bytes()).hexdigest()
+    named = json.loads(split_ocp.read_text())  # the plan as a solve on the PPANN names it
+    named["model"] = {"path": str(ppann_path), "sha256": digest, "kind": "ppann"}
+    plan = tmp_path / "ocp.json"
+    plan.write_text(json.dumps(named))
+    stats = verify_file(plan, runs, tmp_path / "a" / "v.json")  # the PPANN it names
+    assert stats["model"] == {"path": str(ppann_path), "sha256": digest}
+    replay = played["open"]
+    for k in SAMPLES:
+        s = stats["samples"][str(k)]
+        theta = replay.theta[:, k - 1]
+        assert s["theta"]["observed_sigma"] == pytest.approx(theta.std(ddof=1), rel=1e-9)
+        assert s["theta"]["white_ratio"] == pytest.approx(
+            s["theta"]["white_sigma"] / theta.std(ddof=1), rel=1e-9
+        )
+        offset = (replay.slider_position[:, k - 1].mean() - s["predicted_mean"]) / s[
+            "machine_sigma"
+        ]
+        assert s["machine_offset"] == pytest.approx(offset, rel=1e-9)
+    assert "## If the runs are one machine's" in (tmp_path / "a" / "v.md").read_text()
+    bare = verify_file(split_ocp, runs, tmp_path / "b" / "v.json")  # the plan names no PPANN
+    assert bare["model"] is None and bare["samples"]["50"]["machine_offset"] is None
+    assert bare["samples"]["50"]["theta"]["white_ratio"] is None
+    assert "give it with --ppann" in (tmp_path / "b" / "v.md").read_text()
