@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from common.errors import ConfigError
+from tests import rig_runs
 from tests.conftest import crank
+from tests.rig_runs import play_runs, write_rig_csv
 from twin.dataset import Dataset, GenerationConfig
 from twin.generation import generate_file
 from twin.mcap_dataset import has_model_xml, read_dataset
@@ -273,9 +275,12 @@ def test_the_spec_names_what_is_wrong() -> None:
         ImportSpec.parse(columns="t=a,theta=b,tau=c", units="theta=grad")
 
 
-def test_rig_data_imports_inspects_trains_and_solves(twin_data, tmp_path: Path) -> None:
-    """The end-to-end path of a user with a rig: import, inspect, train, solve, export; no twin
-    calibration in the report (there is no twin)."""
+def test_rig_data_imports_inspects_trains_and_solves(
+    twin_data, tmp_path: Path, physics: SliderCrank
+) -> None:
+    """The end-to-end path of a user with a rig: import, inspect, train, solve, export, and the
+    runs played there imported and verified; no twin calibration in the report (there is no
+    twin)."""
     _, dataset = twin_data
     table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
 
@@ -315,3 +320,21 @@ def test_rig_data_imports_inspects_trains_and_solves(twin_data, tmp_path: Path) 
     assert rows[0].split(",")[:4] == ["sample", "t[ms]", "tau[N*m]", "theta[deg]"]
     first = rows[1].split(",")
     assert float(first[2]) == -ocp["robust"]["tau"][0] and float(first[3]) == 180.0
+    # ... and the runs it plays there, recorded and imported, against the plan (the twin stands
+    # for the rig; tests/test_verify.py)
+    runs = write_rig_csv(
+        play_runs(physics, tmp_path / "ocp.json", profile="robust", mode="open", runs=4, seed=2),
+        tmp_path / "runs.csv",
+    )
+    spec = ["--map", rig_runs.MAP, "--units", rig_runs.UNITS, "--flip", rig_runs.FLIP]
+    done = crank("import", str(runs), *spec, "--out", str(tmp_path / "runs.mcap"))
+    assert done.returncode == 0, done.stderr
+    checked = crank(
+        "verify", str(tmp_path / "ocp.json"), str(tmp_path / "runs.mcap"),
+        "--out", str(tmp_path / "verify.json"),
+    )  # fmt: skip
+    assert checked.returncode == 0, checked.stderr
+    stats = json.loads((tmp_path / "verify.json").read_text())
+    assert len(stats["runs"]) == 4 and stats["ocp"]["profile"] == "robust"
+    assert stats["model"]["sha256"] == ocp["model"]["sha256"]  # the plan's PPANN split it
+    assert "if the runs are one machine's:" in checked.stdout
