@@ -8,7 +8,7 @@ import functools
 import inspect
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -203,16 +203,24 @@ def _remove_empty(folders: list[Path]) -> None:
             return
 
 
-def check_distinct(outputs: dict[str, str | Path], inputs: dict[str, str | Path]) -> None:
+def check_distinct(
+    outputs: dict[str, str | Path], inputs: dict[str, str | Path | Sequence[str | Path]]
+) -> None:
     """Refuse an output that is one of the inputs (it would be destroyed before it is read), or a
-    folder that holds one, resolved through links and relative paths.
+    folder that holds one, resolved through links and relative paths; an input may name several
+    files.
 
     Raises:
       OutputError: naming both.
     """
+    named = [
+        (name, source)
+        for name, given in inputs.items()
+        for source in (given if isinstance(given, list | tuple) else [given])
+    ]  # an input may be several files (crank import's tables)
     for out_name, out in outputs.items():
         target = Path(out).resolve()
-        for in_name, source in inputs.items():
+        for in_name, source in named:
             source_path = Path(source).resolve()
             if source_path == target or target in source_path.parents:
                 raise OutputError(
@@ -232,7 +240,7 @@ def check_output(
     out: str | Path,
     *,
     suffix: str | None,
-    inputs: dict[str, str | Path | None],
+    inputs: dict[str, str | Path | Sequence[str | Path] | None],
 ) -> None:
     """What `writes` refuses before its step starts, in its order: an output `name` whose suffix
     is not `suffix` (if given), then one that is one of `inputs` (None: not given). The CLI calls

@@ -30,8 +30,11 @@ FlipOption = Annotated[
 @one_line_errors
 def import_command(
     data: Annotated[
-        Path,
-        typer.Argument(help="The rig's data: .csv (header row), .parquet or .mcap (JSON, ROS 2)."),
+        list[Path],
+        typer.Argument(
+            help="The rig's data: .csv (header row), .parquet or .mcap (JSON, ROS 2); several "
+            "files (a file per run) become one dataset, each file's episodes after the last's."
+        ),
     ],
     columns: Annotated[
         str,
@@ -76,7 +79,8 @@ def import_command(
         "gaps": len(run["gaps"]),
         "derived": ", ".join(run["derived"]) or "none",
     }
-    print_summary(f"wrote {out} from {data}", summary)
+    source = str(data[0]) if len(data) == 1 else f"{len(data)} files ({run['input']})"
+    print_summary(f"wrote {out} from {source}", summary)
 
 
 @app.command("export", short_help="A profile of an ocp.json as a CSV a machine's controller plays.")

@@ -531,6 +531,9 @@ CASES: list[tuple[str, str]] = [
         "too short for two samples at 20 Hz",
     ),
     ("import {dir}/absent.csv --map " + RIG + " --out o/r.mcap", "rig data not found"),
+    ("import {rig.csv} {dir}/absent.csv --map " + RIG + " --out o/r.mcap", "absent.csv"),
+    ("import {rig.csv} {rig.csv} --map " + RIG + " --out o/r.mcap", "rig.csv is named twice"),
+    ("import {rig.csv} {ds.mcap} --map " + RIG + " --out {ds.mcap}", "would overwrite the data"),
     (
         "import {text.txt} --map " + RIG + " --out o/r.mcap",
         "rig data must be .csv, .parquet or .mcap",

@@ -83,6 +83,47 @@ def test_a_1khz_table_in_its_own_units_imports_to_the_dataset_it_came_from(
     assert got.geometry == dataset.geometry and got.run["config"]["variability"] == RIG_SCENARIO
 
 
+def test_a_file_per_run_imports_as_the_table_of_all_runs(twin_data, tmp_path: Path) -> None:
+    """Three files, a run each and no run column, give the dataset of the one table whose run
+    column tells them apart, to the last bit; the record names each file."""
+    _, dataset = twin_data
+    table = rig_table(dataset)
+    whole = import_table(
+        write_csv(tmp_path / "all.csv", table),
+        tmp_path / "all.mcap",
+        spec=ImportSpec.parse(columns=MAP, units=UNITS, flip="tau"),
+    )
+    per_run = []
+    for run in (0, 1, 2):
+        rows = table["run"] == run
+        one = {k: v[rows] for k, v in table.items() if k != "run"}
+        per_run.append(write_csv(tmp_path / f"run{run}.csv", one))
+    first_three = {k: v[table["run"] <= 2] for k, v in table.items()}
+    import_table(
+        write_csv(tmp_path / "three.csv", first_three),
+        tmp_path / "three.mcap",
+        spec=ImportSpec.parse(columns=MAP, units=UNITS, flip="tau"),
+    )
+    unmapped = MAP.replace(",episode=run", "")
+    record = import_table(
+        per_run,
+        tmp_path / "runs.mcap",
+        spec=ImportSpec.parse(columns=unmapped, units=UNITS, flip="tau"),
+    )
+    got, want = read_dataset(tmp_path / "runs.mcap"), read_dataset(tmp_path / "three.mcap")
+    for name in ("t", "episode", "theta", "omega", "slider_position", "tau"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert record["input"] == "run0.csv, run1.csv, run2.csv" and "input_sha256" not in record
+    assert [i["name"] for i in record["inputs"]] == ["run0.csv", "run1.csv", "run2.csv"]
+    assert [i["episodes"] for i in record["inputs"]] == [1, 1, 1]
+    assert whole["inputs"] == [{"name": "all.csv", "sha256": whole["input_sha256"], "episodes": 6}]
+    with pytest.raises(RigDataError, match=r"run1\.csv is named twice"):
+        import_table(
+            [*per_run, per_run[1]], tmp_path / "x.mcap", spec=ImportSpec.parse(columns=unmapped)
+        )
+    assert not (tmp_path / "x.mcap").exists()
+
+
 def test_parquet_imports_as_the_csv_does(twin_data, tmp_path: Path) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq

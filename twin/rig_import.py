@@ -12,6 +12,7 @@ the torque as the mean of the source's zero-order hold over each new interval (t
 from one sample to the next, as the contract says), so picking every second sample of a 1 kHz
 table reproduces a 500 Hz one exactly. A gap (an interval above `max_gap` times the median) is an
 error unless `split_on_gaps`; so are a NaN, time that does not increase, and an unknown column.
+Several files (a file per run) make one dataset, each file's episodes numbered on from the last.
 
 The file has no truth channel and no model.xml: training skips the twin calibration, and a
 replay on the twin needs a scenario named by the user (the twin is not the rig): the file's
@@ -23,6 +24,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -326,36 +328,50 @@ def _episode(
 
 @writes("out", inputs=("data", "model_path"), suffix=".mcap")
 def import_table(
-    data: str | Path,
+    data: str | Path | Sequence[str | Path],
     out: str | Path,
     *,
     spec: ImportSpec,
     model_path: str | Path = MODEL_PATH,
 ) -> dict[str, Any]:
-    """Write the rig table `data` as a dataset MCAP at `out`; return its run record (with the
-    dataset's `summary`).
+    """Write the rig table `data`, or several (a file per run: each file's episodes follow the
+    previous file's), as a dataset MCAP at `out`; return its run record (with the dataset's
+    `summary`; `inputs` names each file with its sha256 and episodes).
 
     `model_path` is the MJCF of the machine (its geometry and torque limit go into the record;
     the rig's own MJCF if the user has one, else the project's).
     """
-    data, out = Path(data), Path(out)
+    files = [Path(data)] if isinstance(data, str | Path) else [Path(d) for d in data]
+    resolved = [f.resolve() for f in files]
+    for i, f in enumerate(files):  # before the first file is read
+        if resolved[i] in resolved[:i]:
+            raise RigDataError(f"{f} is named twice")
+        if not f.is_file():
+            raise RigDataError(f"rig data not found: {f}")
+    out = Path(out)
     check_writable(out)
     physics = SliderCrank(load_model(model_path)[0])
-    table = read_table(data, spec)
-    result = resample(table, spec, geometry=physics.geometry, source=str(data))
-    dataset = result.dataset
+    results = [
+        resample(read_table(f, spec), spec, geometry=physics.geometry, source=str(f)) for f in files
+    ]
+    dataset = _joined([r.dataset for r in results])
+    digests = [hashlib.sha256(f.read_bytes()).hexdigest() for f in files]
     lengths = np.bincount(dataset.episode).tolist()
     run = {
         "source": "import",
-        "input": data.name,
-        "input_sha256": hashlib.sha256(data.read_bytes()).hexdigest(),
+        "input": ", ".join(f.name for f in files),
+        **({"input_sha256": digests[0]} if len(files) == 1 else {}),
+        "inputs": [
+            {"name": f.name, "sha256": d, "episodes": int(r.dataset.episode[-1]) + 1}
+            for f, d, r in zip(files, digests, results, strict=True)
+        ],
         "import": spec.as_dict(),
         "rate_hz": spec.rate_hz,
         "n_samples": len(dataset),
-        "source_rate_hz": result.source_rate_hz,
-        "source_jitter": result.jitter,
-        "gaps": result.gaps,
-        "derived": result.derived,
+        "source_rate_hz": float(np.median([r.source_rate_hz for r in results])),
+        "source_jitter": max(r.jitter for r in results),
+        "gaps": [g | {"file": f.name} for f, r in zip(files, results, strict=True) for g in r.gaps],
+        "derived": results[0].derived,
         "torque_limit": physics.torque_limit,
         "geometry": physics.geometry.as_dict(),
         "config": {"variability": RIG_SCENARIO},
@@ -365,3 +381,15 @@ def import_table(
     run["summary"] = summarize(replace(dataset, run=run))
     write_dataset(out, dataset, None, run=run, model_xml=None)
     return run
+
+
+def _joined(datasets: list[Dataset]) -> Dataset:
+    """The files' datasets one after the other, each one's episodes numbered on from the last."""
+    first = 0
+    episodes = []
+    for d in datasets:
+        episodes.append(d.episode + first)
+        first += int(d.episode[-1]) + 1
+    columns = ("t", "theta", "omega", "tau", "slider_position")
+    joined = {c: np.concatenate([getattr(d, c) for d in datasets]) for c in columns}
+    return Dataset(**joined, episode=np.concatenate(episodes), run={})
