@@ -77,6 +77,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import ConfigError, CrankError
+from common.jsonio import recorded_path
 from control.config import TARGET_RATE
 from control.ocp_file import OCPFile, Profile
 from replay.rates import rate_upper, verdict
@@ -298,10 +299,12 @@ def verify_statistics(
     dataset: Dataset,
     align: str,
     played_tolerance: float,
+    out: Path,
     model_path: Path | None = None,
     split: dict[int, dict[str, float]] | None = None,
 ) -> dict[str, Any]:
-    """verify.json's content (keys in the module docstring); `split`: spread_split's, by the
+    """verify.json's content (keys in the module docstring) for the file at `out` (paths are
+    recorded relative to its folder where they lie in it); `split`: spread_split's, by the
     PPANN at `model_path`."""
     c, plan = ocp.config, ocp.profiles[profile]
     limit, n = c.torque_limit, runs.theta.shape[1]
@@ -317,7 +320,7 @@ def verify_statistics(
         "format": FORMAT,
         "version": VERSION,
         "ocp": {
-            "path": str(ocp_path),
+            "path": recorded_path(ocp_path, artifact=out),
             "sha256": hashlib.sha256(ocp_path.read_bytes()).hexdigest(),
             "profile": profile,
             "loop": plan.loop,
@@ -330,7 +333,7 @@ def verify_statistics(
             "torque_limit": limit,
         },
         "data": {
-            "path": str(data_path),
+            "path": recorded_path(data_path, artifact=out),
             "sha256": hashlib.sha256(data_path.read_bytes()).hexdigest(),
             "source": dataset.run.get("source"),
             "input": dataset.run.get("input"),
@@ -340,7 +343,7 @@ def verify_statistics(
         "model": None
         if model_path is None
         else {
-            "path": str(model_path),
+            "path": recorded_path(model_path, artifact=out),
             "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
         },
         "split_trajectories": None if split is None else CALIBRATION_TRAJECTORIES,

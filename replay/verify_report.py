@@ -314,6 +314,7 @@ def verify_file(
         dataset=dataset,
         align=align,
         played_tolerance=played_tolerance,
+        out=Path(out),
         model_path=None if model is None else plan_model_path(ocp_path, override=ppann, ocp=ocp),
         split=split,
     )
@@ -325,4 +326,6 @@ def verify_file(
         tmp.write_text(report_markdown(stats, paths), encoding="utf-8")
     if figures:
         save_figure(verify_figure(ocp, runs, stats), paths["figure"])
+    else:  # a figure of an earlier check would stand beside this one's numbers
+        output_paths(out)["figure"].unlink(missing_ok=True)
     return stats

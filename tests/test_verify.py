@@ -266,3 +266,20 @@ def test_runs_read_as_one_machines_beside_the_white_part(
     assert bare["model"] is None and bare["samples"]["50"]["machine_offset"] is None
     assert bare["samples"]["50"]["theta"]["white_ratio"] is None
     assert "give it with --ppann" in (tmp_path / "b" / "v.md").read_text()
+
+
+def test_a_folder_of_plan_runs_and_check_reads_the_same_anywhere(
+    split_ocp: Path, played: dict[str, Replay], tmp_path: Path
+) -> None:
+    """Paths inside the check's folder are recorded relative to it; a check again without its
+    figure leaves no figure of the earlier one beside its numbers."""
+    plan = tmp_path / "ocp.json"
+    plan.write_bytes(split_ocp.read_bytes())
+    runs = import_runs(played["open"], tmp_path / "runs.mcap")
+    out = tmp_path / "verify.json"
+    stats = verify_file(plan, runs, out)
+    assert (stats["ocp"]["path"], stats["data"]["path"]) == ("ocp.json", "runs.mcap")
+    assert out.with_suffix(".png").is_file()
+    verify_file(plan, runs, out, figures=False)
+    assert not out.with_suffix(".png").exists()
+    assert "no figure (--no-figures)" in out.with_suffix(".md").read_text()
