@@ -28,7 +28,7 @@ import numpy as np
 from common.atomic import atomic_path, writes
 from common.errors import ConfigError
 from control.ocp_file import OCPFile, read_ocp
-from twin.rig_import import UNITS, option_pairs
+from twin.rig_units import UNITS, check_units, option_pairs
 
 FIELDS = ("t", "theta", "omega", "tau", "slider_position")
 """The quantities a table carries in a unit of its own (twin/rig_import.py UNITS)."""
@@ -46,13 +46,7 @@ class ExportSpec:
     """Fields whose sign is the opposite of the contract's."""
 
     def __post_init__(self) -> None:
-        for name, unit in self.units.items():
-            if name not in FIELDS:
-                raise ConfigError(f"--units: unknown field {name!r} (fields: {', '.join(FIELDS)})")
-            if unit not in UNITS[name]:
-                raise ConfigError(
-                    f"--units: {name} in {unit!r}? use one of {', '.join(UNITS[name])}"
-                )
+        check_units(self.units, FIELDS)
         for name in self.flip:
             if name not in SIGNED:
                 raise ConfigError(

@@ -39,18 +39,10 @@ from twin.geometry import Geometry
 from twin.mcap_dataset import write_dataset
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
 from twin.rig_mcap import LOG_TIME, read_mcap_columns
+from twin.rig_units import UNITS, check_units, option_pairs
 
 REQUIRED = ("t", "theta", "tau")
 OPTIONAL = ("omega", "slider_position", "episode")
-UNITS: dict[str, dict[str, float]] = {
-    "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
-    "theta": {"rad": 1.0, "deg": np.pi / 180, "rev": 2 * np.pi},
-    "omega": {"rad/s": 1.0, "rpm": 2 * np.pi / 60, "deg/s": np.pi / 180, "rev/s": 2 * np.pi},
-    "tau": {"N*m": 1.0, "Nm": 1.0, "mN*m": 1e-3, "mNm": 1e-3},
-    "slider_position": {"m": 1.0, "mm": 1e-3, "cm": 1e-2},
-    "episode": {"1": 1.0},
-}
-"""Factor to the contract's unit (the first of each field) per unit name."""
 RIG_SCENARIO = {"name": "rig", "source": "crank import"}
 """What rig data records as its variability scenario (the dataset's, the checkpoint's and
 ocp.json's): a real machine, not a scenario of the twin to replay on."""
@@ -89,10 +81,7 @@ class ImportSpec:
         missing = [n for n in REQUIRED if n not in self.columns]
         if missing:
             raise ConfigError(f"--map must name a column for {', '.join(missing)}")
-        for name, unit in self.units.items():
-            if unit not in UNITS[name]:
-                choices = ", ".join(UNITS[name])
-                raise ConfigError(f"--units: {name} in {unit!r}? use one of {choices}")
+        check_units(self.units, known)
         if "episode" in self.flip:
             raise ConfigError("--flip: the episode column has no sign")
         if not (np.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1e5):
@@ -119,17 +108,6 @@ class ImportSpec:
             "max_gap": self.max_gap,
             "split_on_gaps": self.split_on_gaps,
         }
-
-
-def option_pairs(text: str, option: str) -> dict[str, str]:
-    """A command line's `name=value,...` as a dict (`--map`, `--units`; crank export's too)."""
-    out = {}
-    for item in (i.strip() for i in text.split(",") if i.strip()):
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip() or not value.strip():
-            raise ConfigError(f"{option}: {item!r} is not field=value")
-        out[name.strip()] = value.strip()
-    return out
 
 
 def read_table(path: Path, spec: ImportSpec) -> dict[str, np.ndarray]:
