@@ -179,7 +179,7 @@ def line_up(
         if len(at) < last:
             raise VerifyError(
                 f"{name} has {len(at)} samples; the constraint's last is sample {last} "
-                f"({last * ocp.dt:.3g} s): record each run for the whole profile"
+                f"({(last - 1) * ocp.dt:.3g} s in): record each run for the whole profile"
             )
         found, found_rms = nearest_offset(
             plan, limit=limit, theta=theta, omega=omega, tau=tau, window=last
@@ -190,10 +190,11 @@ def line_up(
         rms = float(_rms_from_law(plan, limit, *window))
         if rms > tolerance:
             where = (
-                f"no stretch of it is nearer than {found_rms:.3g} N·m: was it this profile?"
-                if align == "torque" or found_rms > tolerance
-                else f"it is nearest from its sample {found + 1} (t = {found * ocp.dt:.4g} s, "
+                f"it is nearest from its sample {found + 1} (t = {found * ocp.dt:.4g} s, "
                 f"{found_rms:.3g} N·m): --align torque, or trim the recording there"
+                if align == "start" and found_rms <= tolerance
+                else f"its nearest stretch, from its sample {found + 1}, is {found_rms:.3g} N·m "
+                f"from it up to sample {last}: was it this profile?"
             )
             raise VerifyError(
                 f"{name} did not play profile {profile}: its torque is {rms:.3g} N·m RMS from "

@@ -124,6 +124,8 @@ def test_runs_of_another_law_are_refused(
         runs = import_runs(played[mode], tmp_path / f"{mode}.mcap")
         with pytest.raises(VerifyError, match=f"did not play profile {profile}: its torque is"):
             verify_file(split_ocp, runs, tmp_path / "v.json", profile=profile)
+        with pytest.raises(VerifyError, match=r"its nearest stretch, from its sample \d+, is"):
+            verify_file(split_ocp, runs, tmp_path / "v.json", profile=profile, align="torque")
         # a tolerance wide enough takes them (the check is a tolerance, not a guess)
         verify_file(split_ocp, runs, tmp_path / "v.json", profile=profile, played_tolerance=1.0)
 
