@@ -32,6 +32,7 @@ def import_command(
     data: Annotated[
         list[Path],
         typer.Argument(
+            metavar="DATA...",
             help="The rig's data: .csv (header row), .parquet or .mcap (JSON, ROS 2); several "
             "files (a file per run) become one dataset, each file's episodes after the last's."
         ),
