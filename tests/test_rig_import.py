@@ -121,6 +121,8 @@ def test_a_file_per_run_imports_as_the_table_of_all_runs(twin_data, tmp_path: Pa
         import_table(
             [*per_run, per_run[1]], tmp_path / "x.mcap", spec=ImportSpec.parse(columns=unmapped)
         )
+    with pytest.raises(RigDataError, match="no rig data given"):
+        import_table([], tmp_path / "x.mcap", spec=ImportSpec.parse(columns=unmapped))
     assert not (tmp_path / "x.mcap").exists()
 
 

@@ -320,6 +320,8 @@ def import_table(
     the rig's own MJCF if the user has one, else the project's).
     """
     files = [Path(data)] if isinstance(data, str | Path) else [Path(d) for d in data]
+    if not files:
+        raise RigDataError("no rig data given")
     resolved = [f.resolve() for f in files]
     for i, f in enumerate(files):  # before the first file is read
         if resolved[i] in resolved[:i]:
