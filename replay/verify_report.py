@@ -200,7 +200,9 @@ def _one_machine(stats: dict[str, Any]) -> list[str]:
         "at the line's centre run after run, against the runs' spread in the motor angle θ "
         "(near top dead centre one machine's slider spread depends on where the machine "
         "sits; its θ spread does not); and its machines alone, the scale of the machine "
-        "offset (the runs' mean slider minus the predicted one, in the machines' σ).",
+        "offset (the runs' mean slider minus the predicted one, in the machines' σ: where the "
+        "runs sit; where the PPANN's machine part is small beside its white part, an offset of "
+        "several σ need not mean an unusual machine).",
         "",
         *_table(rows),
         "",
