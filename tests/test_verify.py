@@ -285,3 +285,23 @@ def test_a_folder_of_plan_runs_and_check_reads_the_same_anywhere(
     verify_file(plan, runs, out, figures=False)
     assert not out.with_suffix(".png").exists()
     assert "no figure (--no-figures)" in out.with_suffix(".md").read_text()
+
+
+def test_one_run_is_counted_and_has_no_spread(
+    split_ocp: Path, played: dict[str, Replay], tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    replay = played["open"]
+    first = replace(
+        replay, **{k: getattr(replay, k)[:1] for k in ("theta", "omega", "slider_position", "tau")}
+    )
+    stats = verify_file(split_ocp, import_runs(first, tmp_path / "one.mcap"), tmp_path / "v.json")
+    assert len(stats["runs"]) == 1 and stats["rate_upper_95"] == pytest.approx(0.95)
+    for k in SAMPLES:
+        s = stats["samples"][str(k)]
+        assert s["observed_sigma"] is None and s["ratio"] is None
+        assert s["lowest"] == s["observed_mean"] == replay.slider_position[0, k - 1]
+    assert stats["violating_runs"] == int(
+        np.any(replay.slider_position[0, [k - 1 for k in SAMPLES]] < HEIGHT)
+    )
