@@ -34,7 +34,7 @@ def import_command(
         typer.Argument(
             metavar="DATA...",
             help="The rig's data: .csv (header row), .parquet or .mcap (JSON, ROS 2); several "
-            "files (a file per run) become one dataset, each file's episodes after the last's."
+            "files (a file per run) become one dataset, each file's episodes after the last's.",
         ),
     ],
     columns: Annotated[
@@ -144,6 +144,13 @@ def verify_command(
             "the profile's law played something else, and is refused."
         ),
     ] = PLAYED_TOLERANCE,
+    control_rate: Annotated[
+        float | None,
+        typer.Option(
+            help="Hz: the rate the machine's controller evaluated the closed-loop law at, a "
+            "whole multiple of the plan's (default the plan's: once a sample, as exported)."
+        ),
+    ] = None,
     ppann: Annotated[
         Path | None,
         typer.Option(
@@ -177,6 +184,7 @@ def verify_command(
         profile=profile,
         align=align,
         played_tolerance=played_tolerance,
+        control_rate=control_rate,
         ppann=ppann,
         figures=figures,
     )

@@ -14,7 +14,9 @@ to the last constraint sample (`align="torque"`, a recording with a lead-in).
 
 Played check: the law is the one `crank export` writes (open loop u_k = tau_k; closed loop
 u_k = clip(tau_k + gain_theta_k (theta_k - θ_k) + gain_omega_k (omega_k - ω_k), ±limit) on the
-run's own θ_k, ω_k; replay/campaign.py tracking_law). A run whose torque is more than
+run's own θ_k, ω_k; replay/campaign.py tracking_law), evaluated once a sample or, for a
+controller faster than the plan, as often as it does (replay/played_law.py). A run whose torque
+is more than
 `played_tolerance` of the torque limit from it (RMS over the samples compared) is refused, with
 where its torque is nearest the law: counting a run of another torque, or one started elsewhere,
 would say nothing about this profile. The samples compared are the plan's N, or the run's own if
@@ -43,6 +45,7 @@ machines' part is the scale on which the runs' mean slider says where their mach
                      null
   split_trajectories trajectories of each part's σ
   align, played_tolerance, bootstrap_seed, target_rate
+  control_rate_hz    the rate the law was evaluated at (the plan's, or --control-rate)
   runs               per run {episode, offset (its sample lined up with sample 1), start_s,
                      samples (compared), played_rms (N·m), theta_rms (rad, from the plan's θ),
                      slider {k: m}, below (under the height at any constraint sample)}
@@ -80,6 +83,7 @@ from common.errors import ConfigError, CrankError
 from common.jsonio import recorded_path
 from control.config import TARGET_RATE
 from control.ocp_file import OCPFile, Profile
+from replay.played_law import PlayedLaw
 from replay.rates import rate_upper, verdict
 from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
 from twin.dataset import Dataset
@@ -92,8 +96,6 @@ torque limit (0.5 N·m of the paper's 10): a run beyond it played something else
 ALIGNS = ("start", "torque")
 BOOTSTRAP_SEED = 0
 """The stream of the observed σ's bootstrap interval: the same runs give the same interval."""
-_BLOCK = 4096
-"""Candidate offsets scored at a time by the torque alignment."""
 
 
 class VerifyError(CrankError, ValueError):
@@ -113,63 +115,29 @@ class RigRuns:
     slider: np.ndarray
 
 
-def law_torque(
-    profile: Profile, *, limit: float, theta: np.ndarray, omega: np.ndarray
-) -> np.ndarray:
-    """The torque the profile's law applies on readings `theta`, `omega` (..., n), n ≤ N: the
-    plan's torque open loop; closed loop its tracking law, clipped at ±`limit` (module
-    docstring; the last gain held for sample N, as the twin holds it)."""
-    n = theta.shape[-1]
-    tau = profile.tau[:n]
-    if profile.loop == "open":
-        return np.broadcast_to(tau, theta.shape)
-    gain_theta = np.append(profile.gain_theta, profile.gain_theta[-1])[:n]
-    gain_omega = np.append(profile.gain_omega, profile.gain_omega[-1])[:n]
-    feedback = gain_theta * (profile.theta[:n] - theta) + gain_omega * (profile.omega[:n] - omega)
-    return np.clip(tau + feedback, -limit, limit)
-
-
-def _rms_from_law(
-    profile: Profile, limit: float, theta: np.ndarray, omega: np.ndarray, tau: np.ndarray
-) -> np.ndarray:
-    """RMS over the last axis of `tau` minus the law's torque on `theta`, `omega`."""
-    law = law_torque(profile, limit=limit, theta=theta, omega=omega)
-    return np.sqrt(np.mean((tau - law) ** 2, axis=-1))
-
-
-def nearest_offset(
-    profile: Profile, *, limit: float, theta: np.ndarray, omega: np.ndarray, tau: np.ndarray,
-    window: int,
-) -> tuple[int, float]:  # fmt: skip
-    """The sample of one run from which its torque is nearest the law's over `window` samples,
-    and that RMS (N·m)."""
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    views = [sliding_window_view(x, window) for x in (theta, omega, tau)]
-    best, best_rms = 0, np.inf
-    for start in range(0, len(views[0]), _BLOCK):
-        block = [v[start : start + _BLOCK] for v in views]
-        rms = _rms_from_law(profile, limit, *block)
-        k = int(np.argmin(rms))
-        if rms[k] < best_rms:
-            best, best_rms = start + k, float(rms[k])
-    return best, best_rms
-
-
 def line_up(
-    dataset: Dataset, ocp: OCPFile, *, profile: str, align: str, played_tolerance: float
+    dataset: Dataset,
+    ocp: OCPFile,
+    *,
+    profile: str,
+    align: str,
+    played_tolerance: float,
+    per_sample: int = 1,
 ) -> RigRuns:
     """Each episode of `dataset` lined up with the plan of `profile` and checked to have played
-    its law (module docstring).
+    its law, evaluated `per_sample` times a sample (module docstring; replay/played_law.py).
 
     Raises:
       VerifyError: a run too short for the last constraint sample, or one that did not play the
-        law (naming it and where its torque is nearest the law).
+        law (naming it, where its torque is nearest the law, and a faster controller's rate
+        that matches it if one does).
     """
     plan, limit = ocp.profiles[profile], ocp.config.torque_limit
+    law = PlayedLaw(plan, limit=limit, per_sample=per_sample)
     last, horizon = max(ocp.config.constraint_samples), ocp.horizon
     tolerance = played_tolerance * limit
-    loop = f"the {plan.loop} loop's law"
+    hz = per_sample / ocp.dt
+    loop = f"the {plan.loop} loop's law" + (f" at {hz:g} Hz" if plan.loop == "closed" else "")
     rows: dict[str, list[Any]] = {k: [] for k in ("episodes", "offsets", "start_s")}
     series: dict[str, list[np.ndarray]] = {k: [] for k in ("theta", "omega", "tau", "slider")}
     for number, episode in enumerate(np.unique(dataset.episode), start=1):
@@ -181,13 +149,11 @@ def line_up(
                 f"{name} has {len(at)} samples; the constraint's last is sample {last} "
                 f"({(last - 1) * ocp.dt:.3g} s in): record each run for the whole profile"
             )
-        found, found_rms = nearest_offset(
-            plan, limit=limit, theta=theta, omega=omega, tau=tau, window=last
-        )
+        found, found_rms = law.nearest(theta, omega, tau, window=last)
         offset = found if align == "torque" else 0
         n = min(horizon, len(at) - offset)
-        window = (x[offset : offset + n] for x in (theta, omega, tau))
-        rms = float(_rms_from_law(plan, limit, *window))
+        window = [x[offset : offset + n] for x in (theta, omega, tau)]
+        rms = float(law.rms(*window))
         if rms > tolerance:
             where = (
                 f"it is nearest from its sample {found + 1} (t = {found * ocp.dt:.4g} s, "
@@ -196,6 +162,11 @@ def line_up(
                 else f"its nearest stretch, from its sample {found + 1}, is {found_rms:.3g} N·m "
                 f"from it up to sample {last}: was it this profile?"
             )
+            if law.faster_match(*window, tolerance=tolerance):
+                where = (
+                    f"it is within the tolerance of the law evaluated faster than {hz:g} Hz: "
+                    "give the controller's rate with --control-rate"
+                )
             raise VerifyError(
                 f"{name} did not play profile {profile}: its torque is {rms:.3g} N·m RMS from "
                 f"{loop} over {n} samples, above --played-tolerance {played_tolerance:g} of the "
@@ -300,6 +271,7 @@ def verify_statistics(
     dataset: Dataset,
     align: str,
     played_tolerance: float,
+    per_sample: int = 1,
     out: Path,
     model_path: Path | None = None,
     split: dict[int, dict[str, float]] | None = None,
@@ -309,7 +281,9 @@ def verify_statistics(
     PPANN at `model_path`."""
     c, plan = ocp.config, ocp.profiles[profile]
     limit, n = c.torque_limit, runs.theta.shape[1]
-    played = _rms_from_law(plan, limit, runs.theta, runs.omega, runs.tau)
+    played = PlayedLaw(plan, limit=limit, per_sample=per_sample).rms(
+        runs.theta, runs.omega, runs.tau
+    )
     theta_rms = np.sqrt(np.mean((runs.theta - plan.theta[:n]) ** 2, axis=1))
     at = {k: runs.slider[:, k - 1] for k in c.constraint_samples}
     below = np.zeros(len(runs.episodes), dtype=bool)
@@ -350,6 +324,7 @@ def verify_statistics(
         "split_trajectories": None if split is None else CALIBRATION_TRAJECTORIES,
         "align": align,
         "played_tolerance": played_tolerance,
+        "control_rate_hz": per_sample / ocp.dt,
         "bootstrap_seed": BOOTSTRAP_SEED,
         "target_rate": TARGET_RATE,
         "runs": [

@@ -29,6 +29,10 @@ from replay.verify import (
 from replay.verify_split import spread_split
 from twin.mcap_dataset import read_dataset
 
+MAX_PER_SAMPLE = 64
+"""The fastest controller `--control-rate` takes, in evaluations of the law a sample (32 kHz
+at the plan's 500 Hz)."""
+
 
 def output_paths(out: str | Path) -> dict[str, Path]:
     """Every file `crank verify` writes, by kind: the JSON at `out`, the report and figure beside
@@ -155,7 +159,9 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
         + (f", from `{d['input']}`" if d["input"] else "")
         + f"), {total} episodes; slider {slider}.",
         f"- Each run lined up by its {stats['align']} and checked to have played the "
-        f"{o['loop']} loop's law within {stats['played_tolerance']:g} of the "
+        f"{o['loop']} loop's law"
+        + (f" at {stats['control_rate_hz']:g} Hz" if o["loop"] == "closed" else "")
+        + f" within {stats['played_tolerance']:g} of the "
         f"{o['torque_limit']:g} N·m limit (RMS).",
         f"- {total} runs cannot confirm a rate of {100 * stats['target_rate']:g} % "
         f"({machines_to_confirm()} with none below would); they measure the spread, within the "
@@ -267,6 +273,24 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
     return fig
 
 
+def evaluations_per_sample(control_rate: float | None, dt: float) -> int:
+    """How many times a sample a controller at `control_rate` Hz evaluates the law (1: None).
+
+    Raises:
+      ConfigError: not a whole multiple of the plan's rate, or above MAX_PER_SAMPLE of it.
+    """
+    if control_rate is None:
+        return 1
+    plan = 1.0 / dt
+    m = round(control_rate / plan) if np.isfinite(control_rate) else 0
+    if not (1 <= m <= MAX_PER_SAMPLE and abs(control_rate - m * plan) <= 1e-9 * control_rate):
+        raise ConfigError(
+            f"--control-rate must be a whole multiple of the plan's {plan:g} Hz up to "
+            f"{MAX_PER_SAMPLE * plan:g} Hz ({plan:g}, {2 * plan:g}, ...), got {control_rate}"
+        )
+    return m
+
+
 @writes("out", inputs=("ocp_path", "data_path", "ppann"), suffix=".json")
 def verify_file(
     ocp_path: str | Path,
@@ -276,12 +300,15 @@ def verify_file(
     profile: str | None = None,
     align: str = "start",
     played_tolerance: float = PLAYED_TOLERANCE,
+    control_rate: float | None = None,
     ppann: str | Path | None = None,
     figures: bool = True,
 ) -> dict[str, Any]:
     """Check the runs recorded in `data_path` (a dataset MCAP, one episode per run) against
     profile `profile` of `ocp_path` (default: its first robust one); write verify.json at `out`
-    and verify.md, verify.png beside it; return the statistics. The spread is split into its
+    and verify.md, verify.png beside it; return the statistics. `control_rate` (Hz, a whole
+    multiple of the plan's; default the plan's): the rate the runs' controller evaluated the
+    closed-loop law at (replay/played_law.py). The spread is split into its
     white and machine parts with the plan's PPANN: `ppann`, which must be the checkpoint the
     plan names (sha256), or that checkpoint if it is there (else no split).
 
@@ -301,10 +328,18 @@ def verify_file(
         )
     ocp_path, data_path = Path(ocp_path), Path(data_path)
     ocp = read_ocp(ocp_path)
+    per_sample = evaluations_per_sample(control_rate, ocp.dt)
     name = chosen_profile(ocp, ocp_path, profile)
     dataset = read_dataset(data_path)
     check_data(dataset, ocp, source=str(data_path))
-    runs = line_up(dataset, ocp, profile=name, align=align, played_tolerance=played_tolerance)
+    runs = line_up(
+        dataset,
+        ocp,
+        profile=name,
+        align=align,
+        played_tolerance=played_tolerance,
+        per_sample=per_sample,
+    )
     model = prediction_model(ocp_path, override=ppann, ocp=ocp)
     split = None if model is None else spread_split(ocp, name, model)
     stats = verify_statistics(
@@ -316,6 +351,7 @@ def verify_file(
         dataset=dataset,
         align=align,
         played_tolerance=played_tolerance,
+        per_sample=per_sample,
         out=Path(out),
         model_path=None if model is None else plan_model_path(ocp_path, override=ppann, ocp=ocp),
         split=split,

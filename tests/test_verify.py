@@ -305,3 +305,44 @@ def test_one_run_is_counted_and_has_no_spread(
     assert stats["violating_runs"] == int(
         np.any(replay.slider_position[0, [k - 1 for k in SAMPLES]] < HEIGHT)
     )
+
+
+@pytest.fixture(scope="module")
+def loop_ocp(ocp_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The synthetic plan with robust-fb: robust's torque and gains, for the closed loop."""
+    payload = json.loads(ocp_path.read_text())
+    payload["robust-fb"] = dict(payload["robust"], loop="closed")
+    payload["config"]["profiles"] = ["robust", "robust-fb"]
+    payload["profiles"] = ["nominal", "robust", "robust-fb"]
+    path = tmp_path_factory.mktemp("loop") / "ocp.json"
+    path.write_text(json.dumps(payload))
+    return path
+
+
+def test_a_controller_faster_than_the_plan_is_checked_at_its_rate(
+    physics: SliderCrank, loop_ocp: Path, tmp_path: Path
+) -> None:
+    """A twin machine whose controller evaluates the law 4 times a sample (2 kHz), each row's
+    reference held: refused against the once-a-sample law, saying a faster law matches it;
+    checked at its rate it is within 0.2 N·m (the states between samples taken on a straight
+    line). At the plan's rate the same simulation is the law to 1e-9 N·m."""
+    from tests.rig_runs import fast_controller_runs
+
+    plan_rate = fast_controller_runs(
+        physics, loop_ocp, tmp_path / "f1.mcap", profile="robust-fb", per_sample=1, runs=4
+    )
+    stats = verify_file(loop_ocp, plan_rate, tmp_path / "a.json", profile="robust-fb")
+    assert max(r["played_rms"] for r in stats["runs"]) < 1e-9
+    runs = fast_controller_runs(
+        physics, loop_ocp, tmp_path / "f4.mcap", profile="robust-fb", per_sample=4, runs=4
+    )
+    faster = "within the tolerance of the law evaluated faster than 500 Hz: give the controller"
+    with pytest.raises(VerifyError, match=faster):
+        verify_file(loop_ocp, runs, tmp_path / "b.json", profile="robust-fb")
+    held = verify_file(
+        loop_ocp, runs, tmp_path / "b.json", profile="robust-fb", played_tolerance=1.0
+    )
+    fast = verify_file(loop_ocp, runs, tmp_path / "c.json", profile="robust-fb", control_rate=2000)
+    assert fast["control_rate_hz"] == 2000 and held["control_rate_hz"] == 500
+    for slow, quick in zip(held["runs"], fast["runs"], strict=True):
+        assert quick["played_rms"] < 0.2 < 0.5 < slow["played_rms"]
