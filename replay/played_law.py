@@ -10,10 +10,10 @@ reference held, and `crank import` resamples its torque to the plan's rate as th
 zero-order hold over each sample: the mean of those m torques. Between samples θ and ω are
 taken on the straight line to the next sample's (the last sample's held). At the plan's rate
 this is the twin's closed loop bit for bit (tests/test_verify.py). Simulated on the twin, a 1 kHz
-controller of a default run's `robust-fb` departs from the once-a-sample law by 0.50–0.53 N·m
-RMS (above the 5 % tolerance of a 10 N·m limit), and from this model of its own law by
-0.10–0.14 (the states between samples are not on a straight line); under gains stiff enough
-that the clip acts, a faster loop is another loop, and neither law matches it.
+controller of a default run's `robust-fb` departs from the once-a-sample law by 0.500–0.530
+N·m RMS (at the 5 % tolerance of a 10 N·m limit; 9 machines of 10 over it), from this model of
+its own law by 0.10–0.14 (the states between samples are not on a straight line); under gains
+stiff enough that the clip acts, a faster loop is another loop, and neither law matches it.
 
 Open loop the torque is the plan's at any rate.
 """
