@@ -123,7 +123,13 @@ def _preamble(ocp: OCPFile, path: Path, name: str, spec: ExportSpec) -> list[str
         )
     return [
         f"crank export: profile {name} of {path} (sha256 {digest})",
-        f"{play}, held from t_k to t_(k+1)",
+        f"{play}, held from t_k to t_(k+1)"
+        + (
+            f" (evaluated once a sample, {1 / ocp.dt:g} Hz; runs of a faster controller: crank "
+            "verify --control-rate)"
+            if profile.loop == "closed"
+            else ""
+        ),
         f"dt {ocp.dt * spec.scale('t')!r} {spec.unit('t')}, {ocp.horizon} samples, torque limit "
         f"{limit!r} {spec.unit('tau')}; the constraint: the slider at or {side} {height!r} "
         f"{spec.unit('slider_position')} at samples "

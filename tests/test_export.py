@@ -73,11 +73,17 @@ def test_the_tables_law_is_what_the_twin_played_closed_loop(
     pushed = json.loads(ocp_path.read_text())  # stiff gains: the clip acts too
     for key in ("gain_theta", "gain_omega"):
         pushed["robust"][key] = [3.0 * g for g in pushed["robust"][key]]
+    pushed["robust"]["loop"] = "closed"  # the law to play is the closed loop's
     ocp_path = tmp_path / "ocp.json"
     ocp_path.write_text(json.dumps(pushed))
     out = tmp_path / "robust.csv"
     export_file(ocp_path, out, spec=spec)
-    _, table = _read(out)
+    notes, table = _read(out)
+    assert notes[1].startswith("tightened for the closed loop: play u_k = clip(tau_k + ")
+    assert notes[1].endswith(
+        "(evaluated once a sample, 500 Hz; runs of a faster controller: crank verify "
+        "--control-rate)"
+    )
     config = ReplayConfig(runs=8, seed=3)
     closed = play(
         physics,
