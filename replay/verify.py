@@ -16,12 +16,11 @@ Played check: the law is the one `crank export` writes (open loop u_k = tau_k; c
 u_k = clip(tau_k + gain_theta_k (theta_k - θ_k) + gain_omega_k (omega_k - ω_k), ±limit) on the
 run's own θ_k, ω_k; replay/campaign.py tracking_law), evaluated once a sample or, for a
 controller faster than the plan, as often as it does (replay/played_law.py). A run whose torque
-is more than
-`played_tolerance` of the torque limit from it (RMS over the samples compared) is refused, with
-where its torque is nearest the law: counting a run of another torque, or one started elsewhere,
-would say nothing about this profile. The samples compared are the plan's N, or the run's own if
-it stops sooner (an import ends each episode a sample before its last row); it must reach the
-last constraint sample.
+is more than `played_tolerance` of the torque limit from it (RMS over the samples compared) is
+refused, with where its torque is nearest the law: counting a run of another torque, or one
+started elsewhere, would say nothing about this profile. The samples compared are the plan's
+N, or the run's own if it stops sooner (an import ends each episode a sample before its last
+row); it must reach the last constraint sample.
 
 Runs on one machine are not the line's machines: their spread is that machine's run to run
 (the disturbance, the warm-up), not the product line's, which the PPANN's σ in ocp.json stands
@@ -129,8 +128,8 @@ def line_up(
 
     Raises:
       VerifyError: a run too short for the last constraint sample, or one that did not play the
-        law (naming it, where its torque is nearest the law, and a faster controller's rate
-        that matches it if one does).
+        law (naming it, where its torque is nearest the law, and whether the law evaluated
+        faster matches it).
     """
     plan, limit = ocp.profiles[profile], ocp.config.torque_limit
     law = PlayedLaw(plan, limit=limit, per_sample=per_sample)
