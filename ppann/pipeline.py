@@ -18,7 +18,6 @@ import numpy as np
 import torch
 
 from common.atomic import check_writable, writes
-from common.errors import ConfigError
 from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint
@@ -39,7 +38,7 @@ from ppann.report import (
 )
 from ppann.train import make_splits
 from ppann.train_config import CALIBRATION_RUNS, TrainConfig
-from twin.dataset import Dataset
+from twin.dataset import Dataset, check_step
 from twin.mcap_dataset import has_model_xml, read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
 from twin.rig_import import RIG_SCENARIO
@@ -57,14 +56,9 @@ def check_rate(dataset: Dataset, *, source: str) -> None:
     """Refuse data at another rate than the PPANN's step dt (eq. 4 steps once per sample).
 
     Raises:
-      ConfigError: the rates in the message.
+      ConfigError: the rates in the message (twin/dataset.py check_step).
     """
-    dt, step = float(dataset.t[1] - dataset.t[0]), PPANNConfig.dt
-    if abs(dt - step) > 1e-6 * step:
-        raise ConfigError(
-            f"{source}: sampled every {1e3 * dt:.4g} ms ({1 / dt:.5g} Hz), the PPANN steps at "
-            f"{1 / step:g} Hz; import the data again with --rate {1 / step:g}"
-        )
+    check_step(dataset, step=PPANNConfig.dt, stepper="the PPANN steps", source=source)
 
 
 @writes("out", inputs=("data_path",), suffix=".pt")

@@ -78,14 +78,14 @@ from typing import Any
 
 import numpy as np
 
-from common.errors import ConfigError, CrankError
+from common.errors import CrankError
 from common.jsonio import recorded_path
 from control.config import TARGET_RATE
 from control.ocp_file import OCPFile, Profile
 from replay.played_law import PlayedLaw
 from replay.rates import rate_upper, verdict
 from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
-from twin.dataset import Dataset
+from twin.dataset import Dataset, check_step
 
 FORMAT = "crank-verify"
 VERSION = 1
@@ -193,12 +193,7 @@ def check_data(dataset: Dataset, ocp: OCPFile, *, source: str) -> None:
     ocp.geometry.check_same(dataset.geometry, this="the plan", that=source)
     if len(dataset) < 2:
         raise VerifyError(f"{source}: {len(dataset)} sample(s); nothing to check")
-    dt = float(np.median(np.diff(dataset.t)))
-    if abs(dt - ocp.dt) > 1e-6 * ocp.dt:
-        raise ConfigError(
-            f"{source}: sampled every {1e3 * dt:.4g} ms, the plan every {1e3 * ocp.dt:.4g} ms; "
-            f"import the recording again with --rate {1 / ocp.dt:g}"
-        )
+    check_step(dataset, step=ocp.dt, stepper="the plan steps", source=source)
 
 
 def _sample(

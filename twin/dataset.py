@@ -252,6 +252,21 @@ def truth_arrays(truth: GroundTruth) -> dict[str, np.ndarray]:
     return {f.name: getattr(truth, f.name) for f in fields(GroundTruth)}
 
 
+def check_step(dataset: Dataset, *, step: float, stepper: str, source: str) -> None:
+    """Refuse data sampled at another interval than `step` (s), what `stepper` (the PPANN, a
+    plan) steps by: it would be read one sample for another.
+
+    Raises:
+      ConfigError: both rates, and the import that would give the data at the right one.
+    """
+    dt = float(dataset.t[1] - dataset.t[0])
+    if abs(dt - step) > 1e-6 * step:
+        raise ConfigError(
+            f"{source}: sampled every {1e3 * dt:.4g} ms ({1 / dt:.5g} Hz), {stepper} at "
+            f"{1 / step:g} Hz; import the data again with --rate {1 / step:g}"
+        )
+
+
 def summarize(dataset: Dataset, truth: GroundTruth | None = None) -> dict[str, float | int]:
     """Figures that say whether a dataset is fit for training (and the twin within its bounds)."""
     bins = np.histogram(np.mod(dataset.theta, 2 * np.pi), bins=12, range=(0, 2 * np.pi))[0]
