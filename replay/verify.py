@@ -148,12 +148,14 @@ def line_up(
                 f"{name} has {len(at)} samples; the constraint's last is sample {last} "
                 f"({(last - 1) * ocp.dt:.3g} s in): record each run for the whole profile"
             )
-        found, found_rms = law.nearest(theta, omega, tau, window=last)
-        offset = found if align == "torque" else 0
+        # where the run is nearest the law: searched only to line it up, or to say in a refusal
+        nearest = law.nearest(theta, omega, tau, window=last) if align == "torque" else None
+        offset = 0 if nearest is None else nearest[0]
         n = min(horizon, len(at) - offset)
         window = [x[offset : offset + n] for x in (theta, omega, tau)]
         rms = float(law.rms(*window))
         if rms > tolerance:
+            found, found_rms = nearest or law.nearest(theta, omega, tau, window=last)
             where = (
                 f"it is nearest from its sample {found + 1} (t = {found * ocp.dt:.4g} s, "
                 f"{found_rms:.3g} N·m): --align torque, or trim the recording there"
