@@ -40,8 +40,11 @@ def verdict(violations: int, runs: int, *, target: float = TARGET_RATE) -> str:
     return "holds" if rate_upper(violations, runs) <= target else "unconfirmed"
 
 
-def verdict_text(violations: int, runs: int, *, target: float = TARGET_RATE) -> str:
-    """The verdict in words, with the numbers that decide it."""
+def verdict_text(
+    violations: int, runs: int, *, target: float = TARGET_RATE, of: str = "machines"
+) -> str:
+    """The verdict in words, with the numbers that decide it; `of`: what was counted (machines,
+    or the runs a machine recorded: crank verify)."""
     upper, pct = rate_upper(violations, runs), f"{100 * target:.1f} %"
     said = verdict(violations, runs, target=target)
     if said == "fails":
@@ -49,7 +52,7 @@ def verdict_text(violations: int, runs: int, *, target: float = TARGET_RATE) -> 
     if said == "holds":
         return f"holds at <= {pct} (95 % bound {100 * upper:.2f} %)"
     return (
-        f"is within {pct} on these {runs} machines but not confirmed: the 95 % bound is "
-        f"{100 * upper:.2f} % (none below on {machines_to_confirm(target)} machines would "
+        f"is within {pct} on these {runs} {of} but not confirmed: the 95 % bound is "
+        f"{100 * upper:.2f} % (none below on {machines_to_confirm(target)} {of} would "
         f"confirm it)"
     )

@@ -17,7 +17,7 @@ from common.figures import save_figure
 from common.jsonio import write_json
 from control.figures import COLORS, constraint_boxes, predicted_band
 from control.ocp_file import OCPFile, read_ocp
-from replay.rates import machines_to_confirm
+from replay.rates import verdict_text
 from replay.verify import (
     ALIGNS,
     PLAYED_TOLERANCE,
@@ -42,24 +42,15 @@ def output_paths(out: str | Path) -> dict[str, Path]:
 
 
 def claim_text(stats: dict[str, Any]) -> str:
-    """The verdict in one sentence (replay/rates.py's, said of runs rather than machines)."""
+    """The verdict in one sentence (replay/rates.py's, said of runs)."""
     o = stats["ocp"]
     count, total = stats["violating_runs"], len(stats["runs"])
     at = ", ".join(map(str, o["constraint_samples"]))
     below = f"{count} of {total} runs below {o['height']:g} m at samples {at}"
-    target, upper = f"{100 * stats['target_rate']:g} %", f"{100 * stats['rate_upper_95']:.2f} %"
-    said = stats["verdict"]
-    if said is None:
+    if stats["verdict"] is None:
         return f"{below}; the nominal profile claims nothing"
-    rate = f"{100 * stats['rate']:.1f} %"
-    if said == "fails":
-        return f"{below}: profile {o['profile']} does NOT hold ({rate} > {target})"
-    if said == "holds":
-        return f"{below}: profile {o['profile']} holds at <= {target} (95 % bound {upper})"
-    return (
-        f"{below}: profile {o['profile']} is within {target} on these runs but not confirmed "
-        f"(95 % bound {upper})"
-    )
+    said = verdict_text(count, total, target=stats["target_rate"], of="runs")
+    return f"{below}: profile {o['profile']} {said}"
 
 
 def _mm(value: float | None, fmt: str = ".2f") -> str:
@@ -163,9 +154,8 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
         + (f" at {stats['control_rate_hz']:g} Hz" if o["loop"] == "closed" else "")
         + f" within {stats['played_tolerance']:g} of the "
         f"{o['torque_limit']:g} N·m limit (RMS).",
-        f"- {total} runs cannot confirm a rate of {100 * stats['target_rate']:g} % "
-        f"({machines_to_confirm()} with none below would); they measure the spread, within the "
-        "intervals below. The PPANN's σ is the product line's (machine to machine and run to "
+        "- The runs measure the spread, within the intervals below. The PPANN's σ is the "
+        "product line's (machine to machine and run to "
         "run): runs on one machine show its run-to-run spread alone, a smaller one (a ratio "
         "above 1), and its mean offset says where that machine sits in the line.",
         "",
