@@ -231,7 +231,8 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
     constraint_boxes(slider_ax, ocp)
     slider_ax.set_ylim(-0.005, ocp.geometry.stroke_top + 0.005)
     slider_ax.set_ylabel("slider position [m]")
-    fig.suptitle("\n".join(textwrap.wrap(claim_text(stats), 120)), fontsize=10)
+    title = claim_text(stats).replace(" %", "\u00a0%")  # "95 %" kept on one line
+    fig.suptitle("\n".join(textwrap.wrap(title, 120)), fontsize=10)
     slider_ax.legend(loc="lower right", fontsize=7)
     torque_ax.plot(t, runs.tau.T, color="k", lw=0.5, alpha=0.5)
     torque_ax.plot(plan.time, plan.tau, color=color, lw=1.2, label=f"{name}: planned")
