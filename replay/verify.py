@@ -230,30 +230,37 @@ def _sample(
     }
     if split is not None and split["machine"] > 0:
         out["machine_offset"] = (float(at.mean()) - predicted_mean) / split["machine"]
-    if len(at) > 1:
-        observed = float(at.std(ddof=1))
-        interval = sigma_interval(at, rng=np.random.default_rng(BOOTSTRAP_SEED))
-        out["observed_sigma"], out["observed_sigma_ci95"] = observed, list(interval)
-        if observed > 0:
-            out["ratio"] = predicted / observed
-            out["ratio_ci95"] = ratio_interval(predicted, observed, interval)
+    out |= _observed(at, predicted)
     return out
 
 
 def _theta(theta: np.ndarray, split: dict[str, float] | None) -> dict[str, Any]:
     """The runs' θ spread at one sample beside the PPANN's white part's (None without it)."""
+    white = None if split is None else split["theta_white"]
+    spread = _observed(theta, white)
+    return {
+        "observed_sigma": spread["observed_sigma"],
+        "observed_sigma_ci95": spread["observed_sigma_ci95"],
+        "white_sigma": white,
+        "white_ratio": spread["ratio"],
+        "white_ratio_ci95": spread["ratio_ci95"],
+    }
+
+
+def _observed(values: np.ndarray, predicted: float | None) -> dict[str, Any]:
+    """The runs' σ of `values` (ddof 1) with its bootstrap interval, and `predicted` over it
+    with the ratio's interval; None where one run, or no prediction, leaves one undefined."""
     out: dict[str, Any] = dict.fromkeys(
-        ("observed_sigma", "observed_sigma_ci95", "white_sigma", "white_ratio", "white_ratio_ci95")
+        ("observed_sigma", "observed_sigma_ci95", "ratio", "ratio_ci95")
     )
-    out["white_sigma"] = None if split is None else split["theta_white"]
-    if len(theta) < 2:
+    if len(values) < 2:
         return out
-    observed = float(theta.std(ddof=1))
-    interval = sigma_interval(theta, rng=np.random.default_rng(BOOTSTRAP_SEED))
+    observed = float(values.std(ddof=1))
+    interval = sigma_interval(values, rng=np.random.default_rng(BOOTSTRAP_SEED))
     out["observed_sigma"], out["observed_sigma_ci95"] = observed, list(interval)
-    if split is not None and observed > 0:
-        out["white_ratio"] = split["theta_white"] / observed
-        out["white_ratio_ci95"] = ratio_interval(split["theta_white"], observed, interval)
+    if predicted is not None and observed > 0:
+        out["ratio"] = predicted / observed
+        out["ratio_ci95"] = ratio_interval(predicted, observed, interval)
     return out
 
 

@@ -57,16 +57,18 @@ def _mm(value: float | None, fmt: str = ".2f") -> str:
     return "—" if value is None else f"{1e3 * value:{fmt}}"
 
 
+def _ratio(ratio: float | None, ci: list[float] | None) -> str:
+    """A ratio with its 95 % interval, as the tables show it."""
+    shown = "—" if ratio is None else f"{ratio:.2f}"
+    return shown if ci is None else f"{shown} ({ci[0]:.2f}–{ci[1]:.2f})"
+
+
 def sample_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
     """One row per constraint sample, for the terminal and verify.md."""
     k = stats["ocp"]["k_sigma"]
     rows = []
     for sample, s in stats["samples"].items():
         observed = None if s["observed_sigma"] is None else k * s["observed_sigma"]
-        ci = s["ratio_ci95"]
-        ratio = "—" if s["ratio"] is None else f"{s['ratio']:.2f}"
-        if ci is not None:
-            ratio += f" ({ci[0]:.2f}–{ci[1]:.2f})"
         offset = s["mean_offset_sigma"]
         rows.append(
             {
@@ -75,7 +77,7 @@ def sample_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
                 "lowest mm": _mm(s["lowest"]),
                 "mean obs/pred mm": f"{_mm(s['observed_mean'])}/{_mm(s['predicted_mean'])}",
                 f"{k:g}σ obs/pred mm": f"{_mm(observed)}/{_mm(k * s['predicted_sigma'])}",
-                "σ pred/obs (95 %)": ratio,
+                "σ pred/obs (95 %)": _ratio(s["ratio"], s["ratio_ci95"]),
                 "mean offset σ": "—" if offset is None else f"{offset:+.2f}",
             }
         )
@@ -90,17 +92,13 @@ def machine_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
     rows = []
     for sample, s in stats["samples"].items():
         theta = s["theta"]
-        ratio, ci = theta["white_ratio"], theta["white_ratio_ci95"]
-        shown = "—" if ratio is None else f"{ratio:.2f}"
-        if ci is not None:
-            shown += f" ({ci[0]:.2f}–{ci[1]:.2f})"
         offset = s["machine_offset"]
         observed = theta["observed_sigma"]
         rows.append(
             {
                 "sample": sample,
                 "θ σ obs/white mrad": f"{_mm(observed, '.1f')}/{_mm(theta['white_sigma'], '.1f')}",
-                "θ σ white/obs (95 %)": shown,
+                "θ σ white/obs (95 %)": _ratio(theta["white_ratio"], theta["white_ratio_ci95"]),
                 "slider σ machines mm": _mm(s["machine_sigma"]),
                 "machine offset": "—" if offset is None else f"{offset:+.2f}",
             }
