@@ -30,19 +30,24 @@ RUNS = 12
 def split_ocp(ocp_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The synthetic plan with HEIGHT at SAMPLES; robust-fb: robust's torque tightened for the
     closed loop, its gains tripled so that the clip acts on some samples."""
-    payload = json.loads(ocp_path.read_text())
+    payload = _with_closed_loop(json.loads(ocp_path.read_text()), gains=3.0)
     payload["config"] |= {"height": HEIGHT, "constraint_samples": SAMPLES}
-    closed = dict(payload["robust"], loop="closed")
-    for key in ("gain_theta", "gain_omega"):
-        closed[key] = [3.0 * g for g in closed[key]]
-    payload["robust-fb"] = closed
-    payload["config"]["profiles"] = ["robust", "robust-fb"]
-    payload["profiles"] = ["nominal", "robust", "robust-fb"]
     for name in ("nominal", "robust", "robust-fb"):
         payload[name]["heights"] = [HEIGHT] * len(SAMPLES)
     path = tmp_path_factory.mktemp("verify") / "ocp.json"
     path.write_text(json.dumps(payload))
     return path
+
+
+def _with_closed_loop(payload: dict, *, gains: float) -> dict:
+    """The plan with robust-fb: robust's torque for the closed loop, its gains times `gains`."""
+    closed = dict(payload["robust"], loop="closed")
+    for key in ("gain_theta", "gain_omega"):
+        closed[key] = [gains * g for g in closed[key]]
+    payload["robust-fb"] = closed
+    payload["config"]["profiles"] = ["robust", "robust-fb"]
+    payload["profiles"] = ["nominal", "robust", "robust-fb"]
+    return payload
 
 
 @pytest.fixture(scope="module")
@@ -310,10 +315,7 @@ def test_one_run_is_counted_and_has_no_spread(
 @pytest.fixture(scope="module")
 def loop_ocp(ocp_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The synthetic plan with robust-fb: robust's torque and gains, for the closed loop."""
-    payload = json.loads(ocp_path.read_text())
-    payload["robust-fb"] = dict(payload["robust"], loop="closed")
-    payload["config"]["profiles"] = ["robust", "robust-fb"]
-    payload["profiles"] = ["nominal", "robust", "robust-fb"]
+    payload = _with_closed_loop(json.loads(ocp_path.read_text()), gains=1.0)
     path = tmp_path_factory.mktemp("loop") / "ocp.json"
     path.write_text(json.dumps(payload))
     return path
