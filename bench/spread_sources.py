@@ -164,7 +164,7 @@ def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
     for label, amplitude in (("white force alone", white), ("no randomness", 0.0)):
         variability = replace(Variability.none(), disturbance_amplitude=amplitude)
         data, _, _ = generate(replace(config, variability=variability), nthread=1)
-        theta, omega, tau, alpha, episode = sigma_data(data, len(data))
+        theta, omega, tau, alpha, episode, _ = sigma_data(data, len(data))
         model_force, model_lever = _force_channel(model, theta)
         with torch.no_grad():
             residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
@@ -189,7 +189,7 @@ def binned(model: PPANN, config: GenerationConfig, block: int) -> None:
 
 def machine_part(model: PPANN, dataset: Dataset, episodes: list[dict], train: TrainConfig) -> None:
     split = make_splits(dataset, train).split
-    theta, omega, tau, alpha, episode = sigma_data(dataset, split)
+    theta, omega, tau, alpha, episode, _ = sigma_data(dataset, split)
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = machine_design(model, theta, omega, derivative)

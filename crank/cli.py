@@ -23,6 +23,7 @@ from crank.console import (
     Confidence,
     Drift,
     EpisodeSeconds,
+    EpisodesPerMachine,
     EpochBars,
     FallbackOption,
     ModelPath,
@@ -77,6 +78,7 @@ def _config(
     amplitude_spread: float = 0.0,
     variability: str,
     max_start_time: float = OPERATING_SECONDS,
+    episodes_per_machine: int = 1,
 ) -> GenerationConfig:
     from twin.dataset import GenerationConfig
 
@@ -87,6 +89,7 @@ def _config(
         variability=Variability.resolve(variability, drift=drift),
         excitation=Excitation(amplitude=amplitude, amplitude_spread=amplitude_spread),
         max_start_time=max_start_time,
+        episodes_per_machine=episodes_per_machine,
     )
 
 
@@ -116,6 +119,7 @@ def generate_command(
             "replays' default, so that training and checked machines are one population."
         ),
     ] = OPERATING_SECONDS,
+    episodes_per_machine: EpisodesPerMachine = 1,
 ) -> None:
     """Simulate the twin under semi-random torque and write a 500 Hz dataset MCAP."""
     check_output("out", out, suffix=".mcap", inputs={"model_path": model})
@@ -128,6 +132,7 @@ def generate_command(
         amplitude_spread=amplitude_spread,
         variability=variability,
         max_start_time=max_start_time,
+        episodes_per_machine=episodes_per_machine,
     )
     summary = generate_dataset(config=config, out=out, model_path=model, figures=figures)
     print_summary(f"wrote {out}", summary)

@@ -202,6 +202,9 @@ Seconds = Annotated[float, typer.Option(help="Duration of the dataset in s (500 
 Seed = Annotated[int, typer.Option(help="Seed of every random draw.")]
 EpisodeSeconds = Annotated[float, typer.Option(help="Length of one episode (machine draw) in s.")]
 Drift = Annotated[bool, typer.Option(help="Friction drifts as each machine warms up.")]
+EpisodesPerMachine = Annotated[
+    int, typer.Option(help="Episodes each machine plays (a lab's few machines, several runs).")
+]
 Amplitude = Annotated[float, typer.Option(help="Peak excitation torque level in N·m.")]
 ProfilesOption = Annotated[
     str,

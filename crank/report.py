@@ -43,6 +43,9 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
         rows[f"σ predicted/observed ({mode})"] = (
             f"θ {ratio_text(theta)}, slider {ratio_text(slider)}"
         )
+    seen = report["models"]["ppann"].get("spread_data")
+    if seen:  # what the machine spread was learnt from (ppann/machine.py)
+        rows["spread learnt from"] = f"{seen['machines']} machines, {seen['episodes']} episodes"
     force = report["models"]["ppann"].get("lever_sigma")
     if force is not None:  # the slider force's channel (ppann/lever.py)
         rows["slider force σ (fitted)"] = f"{force:.1f} N"

@@ -1,8 +1,10 @@
 """The machine-level uncertainty model (beyond the paper): what is constant within an episode,
 separated from what is white.
 
-Every dataset episode is one machine. Machine e multiplies the inertia, damping and stiffness
-terms of eq. 14 by exp(eta_e), eta_e ~ N(0, diag(machine_sigma^2)), constant over the episode;
+Every dataset episode is one machine, unless the run record says several episodes are runs of
+one machine (twin.dataset.episode_machines): their blocks then share one eta_e, and e below
+counts machines. Machine e multiplies the inertia, damping and stiffness terms of eq. 14 by
+exp(eta_e), eta_e ~ N(0, diag(machine_sigma^2)), constant over its episodes;
 on top of that every sample has the white residual of eq. 9, variance
 s_k^2 = sum_i (dr/dz_i sigma_i(x_k))^2. To first order in eta the torque residual at the mean
 model is
@@ -114,7 +116,8 @@ class EpisodeTerms:
     block: torch.Tensor
     """(n,) the block of each sample, in 0..B-1."""
     episode: torch.Tensor
-    """(B,) integer episode index of each block, in 0..n_episodes-1."""
+    """(B,) the machine of each block, in 0..n_episodes-1: its episode's index, or the machine
+    several episodes share (`build`'s `machine`), which then share one eta."""
     n_episodes: int
     lever: torch.Tensor | None = None
     """x'(theta_k)^2 per sample, (n,), for the slider force's channel (ppann/lever.py)."""
@@ -127,12 +130,15 @@ class EpisodeTerms:
         design: torch.Tensor,
         episode: torch.Tensor,
         *,
+        machine: torch.Tensor | None = None,
         block_length: int = 1,
         lever: torch.Tensor | None = None,
     ) -> EpisodeTerms:
         """Blocks of `block_length` consecutive samples (the last of an episode may be shorter)
         from per-sample residual (n,), derivative and design (n, 3), episode (n,) in time order;
-        `lever`: x'(theta)^2 per sample (n,) for a model with the slider force's channel."""
+        `machine` (n,) in 0..M-1: the machine of each sample, whose episodes share one offset
+        eta (None: every episode its own machine); `lever`: x'(theta)^2 per sample (n,) for a
+        model with the slider force's channel."""
         n = residual.shape[0]
         start = torch.ones(n, dtype=torch.bool)
         start[1:] = episode[1:] != episode[:-1]
@@ -141,6 +147,7 @@ class EpisodeTerms:
         new_block = start | (position % block_length == 0)
         block = torch.cumsum(new_block.to(torch.int64), dim=0) - 1
         count = int(block[-1]) + 1 if n else 0
+        group = episode if machine is None else machine
 
         def summed(values: torch.Tensor) -> torch.Tensor:
             return torch.zeros((count, *values.shape[1:]), dtype=values.dtype).index_add(
@@ -152,8 +159,8 @@ class EpisodeTerms:
             design=summed(design),
             derivative=derivative,
             block=block,
-            episode=episode[new_block],
-            n_episodes=int(episode.max()) + 1 if n else 0,
+            episode=group[new_block],
+            n_episodes=int(group.max()) + 1 if n else 0,
             lever=lever,
         )
 

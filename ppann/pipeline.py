@@ -158,6 +158,7 @@ def train_and_report(
         if kind == "ppann":
             entry["machine_sigma"] = dict(zip(Z_NAMES, f.model.machine_sigma.tolist(), strict=True))
             entry["machine_offsets"] = f.history.machine_offsets
+            entry["spread_data"] = f.history.spread_data  # machines and episodes of phase 2
             if f.history.lever_sigma is not None:  # the slider force (ppann/lever.py), N
                 entry["lever_sigma"] = f.history.lever_sigma
             if f.history.residual_mean_share is not None:  # ppann/residual_mean.py

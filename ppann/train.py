@@ -43,7 +43,7 @@ from ppann.machine import (
 from ppann.model import PPANN, n_step_prediction
 from ppann.residual_mean import fit_residual_mean
 from ppann.train_config import TrainConfig
-from twin.dataset import Dataset
+from twin.dataset import Dataset, episode_machines
 
 MACHINE_SIGMA_START = 0.05
 """Initial machine-level spread of the log-factors in phase 2."""
@@ -58,13 +58,15 @@ class History:
     sigma: list[float] = field(default_factory=list)
     best_epoch: int = -1
     machine_offsets: list[list[float]] = field(default_factory=list)
-    """Posterior mean log-factors (J, B, K) of each training episode's machine, around the
-    common offset."""
+    """Posterior mean log-factors (J, B, K) of each training machine (an episode, or the
+    episodes of one machine: twin.dataset.episode_machines), around the common offset."""
     machine_common: list[float] = field(default_factory=list)
     """Log-factor offset shared by every episode: the one-step bias of the N-step-trained mean
     model, estimated so that it is not read as machine spread (never propagated)."""
     lever_sigma: float | None = None
     """The slider force's standard deviation, N (ppann/lever.py); None: no such channel."""
+    spread_data: dict[str, int] = field(default_factory=dict)
+    """Phase 2's data: its `machines` and `episodes` (a machine may have played several)."""
     residual_mean_share: float | None = None
     """The share of phase 2's block residual power (the machines' offsets out) that the
     residual's mean took (ppann/residual_mean.py); None: not fitted (option off)."""
@@ -151,18 +153,22 @@ def train_mean(
 
 
 def sigma_data(dataset: Dataset, stop: int) -> tuple[torch.Tensor, ...]:
-    """(theta, omega, tau, alpha, episode) of the samples before `stop` with a valid
-    acceleration; episode is renumbered 0..E-1 over the episodes present."""
+    """(theta, omega, tau, alpha, episode, machine) of the samples before `stop` with a valid
+    acceleration; episode and machine (twin.dataset.episode_machines: the episodes of one
+    machine share it) are renumbered 0..E-1 and 0..M-1 over those present."""
     alpha, valid = acceleration(dataset)
     valid[stop:] = False
     idx = np.flatnonzero(valid)
-    episode = np.unique(dataset.episode[idx], return_inverse=True)[1]
+    renumbered = (
+        np.unique(values[idx], return_inverse=True)[1].reshape(-1)
+        for values in (dataset.episode, episode_machines(dataset))
+    )
     return (
         *(
             torch.from_numpy(np.ascontiguousarray(v[idx]))
             for v in (dataset.theta, dataset.omega, dataset.tau, alpha)
         ),
-        torch.from_numpy(episode.astype(np.int64)),
+        *(torch.from_numpy(v.astype(np.int64)) for v in renumbered),
     )
 
 
@@ -178,14 +184,18 @@ def train_sigma(
     """Phase 2, in place; everything but the sigma networks (and machine_sigma) is frozen.
 
     With `config.machine_model` the sigma networks and the machine-level spread are fitted jointly
-    by the marginal likelihood of ppann/machine.py (every episode one machine); without it, by
-    eq. 9 alone and machine_sigma stays zero. A model with the slider force's channel
+    by the marginal likelihood of ppann/machine.py (a machine's episodes share its offset); without
+    it, by eq. 9 alone and machine_sigma stays zero. A model with the slider force's channel
     (`PPANNConfig.sigma_lever`) fits its lever_sigma with them, at the machine spread's rate.
     With `config.residual_mean` a second pass follows from the same initial weights, with the
     residual's mean given the sample's state and torque (fitted with the first pass's machine
     offsets out) taken out of the residual (ppann/residual_mean.py).
     """
-    theta, omega, tau, alpha, episode = sigma_data(dataset, splits.split)
+    theta, omega, tau, alpha, episode, machine = sigma_data(dataset, splits.split)
+    history.spread_data = {
+        "machines": int(machine.max()) + 1,
+        "episodes": int(episode.max()) + 1,
+    }
     with torch.no_grad():
         residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
         design = machine_design(model, theta, omega, derivative)
@@ -193,7 +203,13 @@ def train_sigma(
 
     def blocks(values: torch.Tensor) -> EpisodeTerms:
         return EpisodeTerms.build(
-            values, derivative, design, episode, block_length=config.sigma_block, lever=lever
+            values,
+            derivative,
+            design,
+            episode,
+            machine=machine,
+            block_length=config.sigma_block,
+            lever=lever,
         )
 
     terms = blocks(residual)
@@ -207,7 +223,7 @@ def train_sigma(
     if history.machine_offsets:
         shift = (
             torch.tensor(history.machine_common, dtype=design.dtype)
-            + torch.tensor(history.machine_offsets, dtype=design.dtype)[episode]
+            + torch.tensor(history.machine_offsets, dtype=design.dtype)[machine]
         )
     own = residual + (design * shift).sum(-1)
     fitted = fit_residual_mean(own, theta=theta, omega=omega, tau=tau, block=terms.block)

@@ -172,6 +172,8 @@ CASES: list[tuple[str, str]] = [
     ("generate --seconds inf --out o/d.mcap", "seconds must be a finite number"),
     ("generate --seconds 1e9 --out o/d.mcap", "needs about 5e+05 GB of memory"),
     ("generate --seconds 1 --episode-seconds nan --out o/d.mcap", "episode_seconds must be a"),
+    ("generate --episodes-per-machine 0 --out o/d.mcap", "episodes_per_machine must be an integer"),
+    ("generate --episodes-per-machine 1.5", "Invalid value for '--episodes-per-machine'"),
     ("generate --seconds 1 --episode-seconds 0 --out o/d.mcap", "episode_seconds must be > 0"),
     ("generate --seconds 1 --episode-seconds -1 --out o/d.mcap", "episode_seconds must be > 0"),
     ("generate --seconds 1 --amplitude -1 --out o/d.mcap", "excitation.amplitude must be >= 0"),

@@ -108,15 +108,29 @@ def test_marginal_likelihood_equals_the_dense_gaussian() -> None:
     episode = torch.from_numpy(np.repeat(np.arange(episodes), [10, 20, 10]))
     terms = EpisodeTerms.build(residual, derivative, design, episode)
     value = marginal_nll(terms, sigma, machine)
+    total = dense_nll(residual, derivative, design, sigma, machine, episode)
+    assert float(value) == pytest.approx(total / n, rel=1e-10)
+
+
+def dense_nll(
+    residual: torch.Tensor,
+    derivative: torch.Tensor,
+    design: torch.Tensor,
+    sigma: torch.Tensor,
+    spread: torch.Tensor,
+    machine: torch.Tensor,
+) -> float:
+    """-log N(r; 0, diag(s²) + D Σ Dᵀ) summed over machines, each machine's samples (those of
+    one value of `machine`) one dense Gaussian: the reference of the marginal likelihood."""
     total = 0.0
-    for e in range(episodes):
-        idx = episode == e
+    for m in torch.unique(machine).tolist():
+        idx = machine == m
         d = design[idx]
         cov = torch.diag(((derivative[idx] * sigma[idx]) ** 2).sum(-1) + 1e-12)
-        cov = cov + d @ torch.diag(machine**2) @ d.T
+        cov = cov + d @ torch.diag(spread**2) @ d.T
         r = residual[idx]
-        total += 0.5 * (r @ torch.linalg.solve(cov, r) + torch.logdet(cov))
-    assert float(value) == pytest.approx(float(total) / n, rel=1e-10)
+        total += 0.5 * float(r @ torch.linalg.solve(cov, r) + torch.logdet(cov))
+    return total
 
 
 def test_blocks_of_one_sample_are_eq_9_and_blocks_stay_inside_episodes() -> None:
@@ -174,24 +188,27 @@ def _machines_dataset(
     column: int = 0,
     model: PPANN | None = None,
     extra: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    runs: int = 1,
 ):
     """Episodes of a known PPANN (constant networks, `model`) whose machine factor of term
-    `column` (0: inertia) is exp(eta) per episode, eta ~ N(0, spread²), and a small white torque
+    `column` (0: inertia) is exp(eta) per machine, eta ~ N(0, spread²), and a small white torque
     noise (σ 0.02 N·m); `extra(theta, omega)`: a torque the machines get and the model has not
-    (its own error, the same on every machine)."""
+    (its own error, the same on every machine). `runs` > 1: each machine plays that many
+    consecutive episodes, which the run record gives one `machine_id`; eta is per machine."""
     if model is None:
         model = constant_ppann(z_mean=(0.0, 0.0, -0.9), z_sigma=(0.01, 0.01, 0.01))
     heads = FusedHeads(model)
     rng = np.random.default_rng(seed)
     n = int(seconds / DT)
-    eta = rng.normal(0.0, spread, episodes)
+    eta = rng.normal(0.0, spread, episodes // runs)
+    per_episode = np.repeat(eta, runs)
     levels = np.repeat(rng.uniform(-6, 6, (episodes, n // 50 + 1)), 50, axis=1)[:, :n]
     tau = np.stack([np.convolve(row, np.ones(10) / 10, mode="same") for row in levels])
     noise = rng.normal(0.0, 0.02, (episodes, n))
     theta, omega = np.empty((episodes, n)), np.zeros((episodes, n))
     theta[:, 0] = rng.uniform(0, 2 * np.pi, episodes)
     factors = np.ones((episodes, 3))
-    factors[:, column] = np.exp(eta)
+    factors[:, column] = np.exp(per_episode)
     for k in range(n - 1):  # all episodes at once
         mean, _ = heads(theta[:, k], omega[:, k])
         error = 0.0 if extra is None else extra(theta[:, k], omega[:, k])
@@ -209,6 +226,9 @@ def _machines_dataset(
         omega=omega,
         tau=tau,
         slider_position=np.zeros(len(theta)),
+        run={}
+        if runs == 1
+        else {"episodes": [{"index": e, "machine_id": e // runs} for e in range(episodes)]},
     )
     return dataset, model, eta
 

@@ -67,7 +67,7 @@ def _friction(theta: np.ndarray, omega: np.ndarray) -> np.ndarray:
 
 
 def _white_variance(model, dataset, split: int) -> float:
-    theta, omega, tau, alpha, _ = sigma_data(dataset, split)
+    theta, omega, tau, alpha, _, _ = sigma_data(dataset, split)
     with torch.no_grad():
         _, derivative = propagated_terms(model, theta, omega, tau, alpha)
         return float(((derivative * model.z_sigma(theta, omega)) ** 2).sum(-1).mean())

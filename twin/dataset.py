@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from common.checks import check_finite, check_seed
+from common.checks import check_count, check_finite, check_seed
 from common.errors import ConfigError
 from common.streams import stream
 from twin import DATASET_SECONDS, EPISODE_SECONDS, OPERATING_SECONDS
@@ -67,9 +67,15 @@ class GenerationConfig:
     max_start_time: float = OPERATING_SECONDS
     """Each episode's machine has run U[0, max_start_time] s before its first sample (warm-up
     drift), s; 0: every machine starts cold."""
+    episodes_per_machine: int = 1
+    """Episodes each machine plays, as a lab runs its few machines several times: machine m plays
+    episodes m k .. m k + k - 1, each from its own state, torque, noise and warm-up time, and the
+    run record gives them one `machine_id` (`episode_machines`); 1: every episode a fresh machine.
+    """
 
     def __post_init__(self) -> None:
         check_finite("seconds", self.seconds, positive=True)
+        check_count("episodes_per_machine", self.episodes_per_machine)
         check_finite("episode_seconds", self.episode_seconds, positive=True)
         check_finite("max_start_time", self.max_start_time, nonneg=True)
         check_seed("seed", self.seed)
@@ -147,6 +153,9 @@ class Episode:
     omega0: float
     start_time: float = 0.0
     """How long the machine had run before the episode's first sample, s."""
+    machine_id: int | None = None
+    """The machine's number where several episodes play one (GenerationConfig.
+    episodes_per_machine > 1); None: a machine of the episode's own."""
 
 
 def generate(
@@ -182,13 +191,16 @@ def generate(
     tau = np.zeros((len(lengths), longest))
     disturbance = np.zeros((len(lengths), longest))
     for i, n in enumerate(lengths):
+        per = config.episodes_per_machine  # machine m draws from episode m's machine stream
         machine_rng, state_rng, torque_rng, noise_rng, start_rng = (
-            np.random.default_rng(children[i]) for children in per_episode.values()
+            np.random.default_rng(children[i // per if name == "dataset_machines" else i])
+            for name, children in per_episode.items()
         )
         machine = config.variability.sample(machine_rng)
         theta0 = float(state_rng.uniform(0.0, 2.0 * np.pi))
         start = float(start_rng.uniform(0.0, config.max_start_time))
-        episodes.append(Episode(i, n, machine, theta0, 0.0, start))
+        machine_id = i // per if per > 1 else None
+        episodes.append(Episode(i, n, machine, theta0, 0.0, start, machine_id))
         states.append(physics.initial_state(theta0, 0.0))
         tau[i] = config.excitation.torque(
             torque_rng, longest, rate=SAMPLE_RATE, limit=physics.torque_limit
@@ -229,6 +241,22 @@ def generate(
         **{name: flat(values) for name, values in runs.friction.items()},
     )
     return dataset, truth, episodes
+
+
+def episode_machines(dataset: Dataset) -> np.ndarray:
+    """(n_samples,) the machine each sample was recorded on, numbered 0, 1, ... in order of first
+    appearance. Episodes the run record gives one `machine_id` share a machine (a lab's runs of
+    one machine: GenerationConfig.episodes_per_machine, `crank import`'s machine column); every
+    other episode, as every episode of a dataset without ids, is a machine of its own."""
+    ids = {int(e["index"]): e.get("machine_id") for e in dataset.run.get("episodes", [])}
+    episodes, first, inverse = np.unique(dataset.episode, return_index=True, return_inverse=True)
+    numbers: dict[tuple[str, str], int] = {}
+    of_episode = np.empty(len(episodes), dtype=np.int64)
+    for j in np.argsort(first, kind="stable"):  # the episodes in the order they start
+        label = ids.get(int(episodes[j]))
+        key = ("episode", str(episodes[j])) if label is None else ("machine", str(label))
+        of_episode[j] = numbers.setdefault(key, len(numbers))
+    return of_episode[inverse.reshape(-1)]
 
 
 def measured_channels(
@@ -274,6 +302,7 @@ def summarize(dataset: Dataset, truth: GroundTruth | None = None) -> dict[str, f
         "n_samples": len(dataset),
         "seconds": float(len(dataset) / dataset.run.get("rate_hz", SAMPLE_RATE)),
         "episodes": len(np.unique(dataset.episode)),
+        "machines": int(episode_machines(dataset).max()) + 1,
         "theta_bins_covered_of_12": int(np.count_nonzero(bins)),
         "omega_min": float(dataset.omega.min()),
         "omega_max": float(dataset.omega.max()),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import platform
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,9 @@ def run_metadata(
 
 
 def episode_record(episode: Episode) -> dict[str, Any]:
-    """One episode as the run record lists it."""
+    """One episode as the run record lists it (`machine_id` where several episodes play one
+    machine: twin.dataset.episode_machines)."""
+    same = {} if episode.machine_id is None else {"machine_id": episode.machine_id}
     return {
         "index": episode.index,
         "n_samples": episode.n_samples,
@@ -53,6 +56,7 @@ def episode_record(episode: Episode) -> dict[str, Any]:
         "omega0": episode.omega0,
         "start_time": episode.start_time,
         "machine": episode.machine.as_dict(),
+        **same,
     }
 
 
@@ -105,7 +109,9 @@ def generate_file(
     dataset, truth, episodes = generate(config, physics=physics, on_progress=on_simulated)
     run = run_metadata(config=config, physics=physics, episodes=episodes, model_path=model_path)
     write_dataset(out, dataset, truth, run=run, model_xml=model_xml, on_progress=on_written)
-    summary = summarize(dataset, truth) | {"wall_seconds": time.perf_counter() - started}
+    summary = summarize(replace(dataset, run=run), truth) | {
+        "wall_seconds": time.perf_counter() - started
+    }
     if figures:
         stem = out.with_suffix("")
         coverage_map(dataset, f"{stem}.coverage.png")
