@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -41,11 +40,8 @@ def ungrouped(path: Path, out: Path) -> None:
     write_dataset(out, data, truth, run=run, model_xml=read_model_xml(path))
 
 
-def crank(*args: str, threads: int | None = None) -> subprocess.Popen:
-    env = dict(os.environ)
-    if threads is not None:
-        env |= {"OMP_NUM_THREADS": str(threads), "CRANK_TORCH_THREADS": str(threads)}
-    return subprocess.Popen([sys.executable, "-m", "crank", *args], env=env)
+def crank(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "crank", *args])
 
 
 def wait(*procs: subprocess.Popen) -> None:
@@ -56,11 +52,12 @@ def wait(*procs: subprocess.Popen) -> None:
 
 def train(data: Path, out: Path, seed: int, threads: int) -> subprocess.Popen:
     code = (
-        "import torch, sys; torch.set_num_threads(%d)\n"
+        f"import torch; torch.set_num_threads({threads})\n"
         "from ppann.pipeline import train_and_report\n"
         "from ppann.train_config import TrainConfig\n"
-        "train_and_report(%r, %r, config=TrainConfig(seed=%d), baselines=False, figures=False)\n"
-    ) % (threads, str(data), str(out), seed)
+        f"train_and_report({str(data)!r}, {str(out)!r}, config=TrainConfig(seed={seed}), "
+        "baselines=False, figures=False)\n"
+    )
     return subprocess.Popen([sys.executable, "-c", code])
 
 
