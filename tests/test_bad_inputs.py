@@ -524,6 +524,22 @@ CASES: list[tuple[str, str]] = [
         "the episode column has no sign",
     ),
     (
+        "import {rig.csv} --map " + RIG + " --flip machine --out o/r.mcap",
+        "the machine column has no sign",
+    ),
+    (
+        "import {rig.csv} --map " + RIG + ",machine=cmd --out o/r.mcap",
+        "the machine column holds non-integers",
+    ),
+    (
+        "import {rig.csv} {few.csv} --map " + RIG + " --machines A --out o/r.mcap",
+        "--machines: 1 label(s) for 2 file(s)",
+    ),
+    (
+        "import {rig.csv} --map " + RIG + ",machine=cmd --machines A --out o/r.mcap",
+        "--machines names each file's machine: not with a machine column",
+    ),
+    (
         "import {rig.csv} --map " + RIG + " --rate 0 --out o/r.mcap",
         "--rate must be within 1-100000 Hz",
     ),

@@ -166,3 +166,63 @@ def test_a_plan_round_adds_fresh_machines_before_the_datasets_own(tmp_path) -> N
     merged = read_dataset(tmp_path / "plan.mcap")
     expected = np.concatenate([np.repeat([0, 1, 2], 30), np.repeat([3, 4], 200)])
     assert np.array_equal(episode_machines(merged), expected)
+
+
+@pytest.fixture(scope="module")
+def rig_csv(tmp_path_factory: pytest.TempPathFactory):
+    """Six 1 s runs of the twin as a 1 kHz rig table (tests/test_rig_import.py), with a machine
+    column: runs 0-2 on machine 7, runs 3-5 on machine 9."""
+    from tests.test_rig_import import rig_table, write_csv
+
+    folder = tmp_path_factory.mktemp("machines")
+    generate_file(
+        GenerationConfig(seconds=6.0, episode_seconds=1.0), out=folder / "t.mcap", figures=False
+    )
+    table = rig_table(read_dataset(folder / "t.mcap"))
+    table["unit"] = np.where(table["run"] <= 2, 7, 9)
+    return folder, table, write_csv
+
+
+RIG_MAP = "t=time_ms,theta=enc_deg,omega=speed_rpm,tau=cmd,slider_position=x_mm"
+RIG_UNITS = "t=ms,theta=deg,omega=rpm,slider_position=mm"
+
+
+def test_a_rig_tables_machine_column_groups_its_runs(rig_csv) -> None:
+    """With the run and machine columns: six episodes, ids 7, 7, 7, 9, 9, 9, two machines. With
+    the machine column alone the three runs of a machine join (no gap between them) but the
+    change of machine starts an episode: two episodes, two machines."""
+    from twin.rig_import import ImportSpec, import_table
+
+    folder, table, write_csv = rig_csv
+    path = write_csv(folder / "rig.csv", table)
+    for columns, episodes in ((",episode=run,machine=unit", 6), (",machine=unit", 2)):
+        spec = ImportSpec.parse(columns=RIG_MAP + columns, units=RIG_UNITS, flip="tau")
+        run = import_table(path, folder / "rig.mcap", spec=spec)
+        ids = [e.get("machine_id") for e in run["episodes"]]
+        assert ids == [7] * (episodes // 2) + [9] * (episodes // 2)
+        assert (run["summary"]["episodes"], run["summary"]["machines"]) == (episodes, 2)
+        data = read_dataset(folder / "rig.mcap")
+        assert np.array_equal(episode_machines(data), data.episode >= episodes // 2)
+    bad = write_csv(folder / "bad.csv", table | {"unit": table["unit"] + 0.5})
+    spec = ImportSpec.parse(columns=RIG_MAP + ",machine=unit", units=RIG_UNITS, flip="tau")
+    with pytest.raises(ValueError, match="the machine column holds non-integers"):
+        import_table(bad, folder / "bad.mcap", spec=spec)
+    with pytest.raises(ValueError, match="the machine column has no sign"):
+        ImportSpec.parse(columns=RIG_MAP + ",machine=unit", flip="tau,machine")
+    assert not (folder / "bad.mcap").exists()
+
+
+def test_files_named_for_their_machines(rig_csv) -> None:
+    """A file per run and machines A, A, B: the first two files' episodes are one machine's."""
+    from twin.rig_import import ImportSpec, import_table
+
+    folder, table, write_csv = rig_csv
+    files = []
+    for run in (0, 1, 2):
+        rows = table["run"] == run
+        files.append(write_csv(folder / f"r{run}.csv", {k: v[rows] for k, v in table.items()}))
+    spec = ImportSpec.parse(columns=RIG_MAP, units=RIG_UNITS, flip="tau")
+    run = import_table(files, folder / "files.mcap", spec=spec, machines=["A", "A", "B"])
+    assert [e["machine_id"] for e in run["episodes"]] == ["A", "A", "B"]
+    data = read_dataset(folder / "files.mcap")
+    assert np.array_equal(episode_machines(data), data.episode == 2)

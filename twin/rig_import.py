@@ -5,14 +5,17 @@ with its own column names, units, signs and rate, becomes a dataset MCAP a learn
     import_table("rig.csv", "rig.mcap", spec=spec)
 
 Fields: `t`, `theta` and `tau` are required; `omega` (else the central difference of theta),
-`slider_position` (else x(theta) of the model's geometry: a rigid, backlash-free reading) and
-`episode` (else one episode, or one per gap with `split_on_gaps`) are optional. Each episode is
+`slider_position` (else x(theta) of the model's geometry: a rigid, backlash-free reading),
+`episode` (else one episode, or one per gap with `split_on_gaps`) and `machine` (an integer id:
+the episodes of one id are runs of one machine, which training gives one offset; else every
+episode a machine of its own; a change of id starts a new episode) are optional. Each episode is
 resampled onto a grid at `rate_hz` from its first sample: theta, omega and the slider linearly,
 the torque as the mean of the source's zero-order hold over each new interval (the torque applied
 from one sample to the next, as the contract says), so picking every second sample of a 1 kHz
 table reproduces a 500 Hz one exactly. A gap (an interval above `max_gap` times the median) is an
 error unless `split_on_gaps`; so are a NaN, time that does not increase, and an unknown column.
-Several files (a file per run) make one dataset, each file's episodes numbered on from the last.
+Several files (a file per run) make one dataset, each file's episodes numbered on from the last;
+`machines` names each file's machine where the files have no machine column.
 
 The file has no truth channel and no model.xml: training skips the twin calibration, and a
 replay on the twin needs a scenario named by the user (the twin is not the rig): the file's
@@ -21,9 +24,7 @@ variability is RIG_SCENARIO, which the checkpoint and ocp.json carry on.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -32,26 +33,24 @@ from typing import Any
 import numpy as np
 
 from common.atomic import check_writable, writes
-from common.errors import ConfigError, CrankError
+from common.errors import ConfigError
 from twin.dataset import Dataset, summarize
 from twin.generation import provenance
 from twin.geometry import Geometry
 from twin.mcap_dataset import write_dataset
 from twin.physics import MODEL_PATH, SAMPLE_RATE, SliderCrank, load_model
-from twin.rig_mcap import LOG_TIME, read_mcap_columns
+from twin.rig_table import RigDataError, read_table
 from twin.rig_units import UNITS, check_units, option_pairs
 
 REQUIRED = ("t", "theta", "tau")
-OPTIONAL = ("omega", "slider_position", "episode")
+OPTIONAL = ("omega", "slider_position", "episode", "machine")
+LABELS = ("episode", "machine")
+"""Fields that number rows rather than measure them: integers, no unit, no sign."""
 RIG_SCENARIO = {"name": "rig", "source": "crank import"}
 """What rig data records as its variability scenario (the dataset's, the checkpoint's and
 ocp.json's): a real machine, not a scenario of the twin to replay on."""
 MAX_JITTER = 0.2
 """The largest standard deviation of the source's sample interval, as a share of its median."""
-
-
-class RigDataError(CrankError, ValueError):
-    """Rig data that cannot become a dataset; the message names the row, column or option."""
 
 
 @dataclass(frozen=True)
@@ -82,8 +81,9 @@ class ImportSpec:
         if missing:
             raise ConfigError(f"--map must name a column for {', '.join(missing)}")
         check_units(self.units, known)
-        if "episode" in self.flip:
-            raise ConfigError("--flip: the episode column has no sign")
+        for name in LABELS:
+            if name in self.flip:
+                raise ConfigError(f"--flip: the {name} column has no sign")
         if not (np.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1e5):
             raise ConfigError(f"--rate must be within 1-100000 Hz, got {self.rate_hz}")
         if not (np.isfinite(self.max_gap) and self.max_gap > 1.0):
@@ -110,90 +110,6 @@ class ImportSpec:
         }
 
 
-def read_table(path: Path, spec: ImportSpec) -> dict[str, np.ndarray]:
-    """The columns `spec` maps, from a CSV (header row, comma-separated), a Parquet file or a
-    foreign MCAP (twin/rig_mcap.py: columns TOPIC.FIELD, `t=log_time`), as float arrays.
-
-    Raises:
-      RigDataError: the file is missing or unreadable, a column is absent, a cell not a number.
-    """
-    wanted = list(dict.fromkeys(spec.columns.values()))
-    if not path.is_file():
-        raise RigDataError(f"rig data not found: {path}")
-    suffix = path.suffix.lower()
-    if suffix == ".mcap":
-        if spec.columns["t"] != LOG_TIME or spec.units.get("t", "s") != "s":
-            raise RigDataError(
-                f"{path}: in an MCAP the time is the log time, in s: map t={LOG_TIME}, no unit"
-            )
-        return read_mcap_columns(
-            path, wanted, theta=spec.columns["theta"], tau=spec.columns["tau"], error=RigDataError
-        )
-    if suffix == ".parquet":
-        return _read_parquet(path, wanted)
-    if suffix != ".csv":
-        raise RigDataError(f"{path}: rig data must be .csv, .parquet or .mcap, got {path.suffix!r}")
-    with path.open(newline="") as f:
-        header = [h.strip() for h in next(csv.reader(f), [])]
-    _check_columns(path, header, wanted)
-    index = [header.index(c) for c in wanted]
-    try:  # numpy's C parser: twice as fast as the csv module alone
-        with warnings.catch_warnings():  # "input contained no data": the row count says so
-            warnings.simplefilter("ignore", UserWarning)
-            values = np.loadtxt(
-                path, delimiter=",", skiprows=1, usecols=index, ndmin=2, comments=None,
-                quotechar='"',
-            )  # fmt: skip
-    except ValueError:  # name the first bad cell
-        with path.open(newline="") as f:
-            reader = csv.reader(f)
-            next(reader)
-            for r, row in enumerate(reader):
-                if not row:
-                    continue  # numpy skips blank lines too
-                for column, i in zip(wanted, index, strict=True):
-                    if not _number(row, i):
-                        cell = row[i] if i < len(row) else ""
-                        raise RigDataError(
-                            f"{path}: line {r + 2}, column {column!r}: {cell!r} is not a number"
-                        ) from None
-        raise RigDataError(f"{path}: not a table of numbers under its header") from None
-    return {c: values[:, k] for k, c in enumerate(wanted)}
-
-
-def _number(row: list[str], i: int) -> bool:
-    try:
-        float(row[i])
-    except (ValueError, IndexError):
-        return False
-    return True
-
-
-def _read_parquet(path: Path, wanted: list[str]) -> dict[str, np.ndarray]:
-    try:
-        import pyarrow.parquet as pq
-    except ModuleNotFoundError:
-        raise RigDataError("Parquet needs pyarrow: pip install pyarrow (or export a CSV)") from None
-    try:
-        table = pq.read_table(path)
-    except Exception as exc:  # pyarrow's errors have no common base
-        reason = " ".join(str(exc).split())[:120]
-        raise RigDataError(f"{path}: not a Parquet file ({reason})") from None
-    _check_columns(path, table.column_names, wanted)
-    try:
-        return {c: table.column(c).to_numpy(zero_copy_only=False).astype(float) for c in wanted}
-    except (TypeError, ValueError) as exc:
-        raise RigDataError(f"{path}: a mapped column is not numeric ({exc})") from None
-
-
-def _check_columns(path: Path, header: list[str], wanted: list[str]) -> None:
-    for column in wanted:
-        if column not in header:
-            raise RigDataError(
-                f"{path}: no column {column!r} (columns: {', '.join(header) or 'none'})"
-            )
-
-
 @dataclass(frozen=True)
 class Resampled:
     """A table on the contract's grid, and what the resampling found."""
@@ -203,6 +119,8 @@ class Resampled:
     jitter: float
     gaps: list[dict[str, float]]
     derived: list[str]
+    machines: list[int | None]
+    """Each episode's machine id (the table's machine column); None: a machine of its own."""
 
 
 def resample(
@@ -232,10 +150,15 @@ def resample(
     if not np.all(step > 0):
         row = int(np.flatnonzero(step <= 0)[0]) + 2
         raise RigDataError(f"{source}: time does not increase at data row {row} ({t[row - 1]} s)")
+    same = np.ones(len(step), bool)
+    for name in LABELS:  # a new episode where the run's number or the machine changes
+        labels = fields.get(name)
+        if labels is None:
+            continue
+        if not np.all(labels == np.round(labels)):
+            raise RigDataError(f"{source}: the {name} column holds non-integers")
+        same &= labels[1:] == labels[:-1]
     episode = fields.get("episode")
-    if episode is not None and not np.all(episode == np.round(episode)):
-        raise RigDataError(f"{source}: the episode column holds non-integers")
-    same = np.ones(len(step), bool) if episode is None else episode[1:] == episode[:-1]
     median = float(np.median(step[same])) if same.any() else float(np.median(step))
     jitter = float(np.std(step[same & (step <= spec.max_gap * median)]) / median)
     if jitter > MAX_JITTER:
@@ -263,7 +186,9 @@ def resample(
     if episode is None:
         derived.append("episode")
     dataset = Dataset(**columns, run={})
-    return Resampled(dataset, 1.0 / median, jitter, gaps, derived)
+    machine = fields.get("machine")
+    machines = [None if machine is None else int(machine[a]) for a in starts]
+    return Resampled(dataset, 1.0 / median, jitter, gaps, derived, machines)
 
 
 def _episode(
@@ -311,17 +236,21 @@ def import_table(
     *,
     spec: ImportSpec,
     model_path: str | Path = MODEL_PATH,
+    machines: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Write the rig table `data`, or several (a file per run: each file's episodes follow the
     previous file's), as a dataset MCAP at `out`; return its run record (with the dataset's
     `summary`; `inputs` names each file with its sha256 and episodes).
 
     `model_path` is the MJCF of the machine (its geometry and torque limit go into the record;
-    the rig's own MJCF if the user has one, else the project's).
+    the rig's own MJCF if the user has one, else the project's). `machines`: each file's
+    machine, one label per file (files of one label are runs of one machine), where the files
+    have no machine column; None: the column's ids, or every episode a machine of its own.
     """
     files = [Path(data)] if isinstance(data, str | Path) else [Path(d) for d in data]
     if not files:
         raise RigDataError("no rig data given")
+    labels = _file_machines(machines, files, spec)
     resolved = [f.resolve() for f in files]
     for i, f in enumerate(files):  # before the first file is read
         if resolved[i] in resolved[:i]:
@@ -337,6 +266,11 @@ def import_table(
     dataset = _joined([r.dataset for r in results])
     digests = [hashlib.sha256(f.read_bytes()).hexdigest() for f in files]
     lengths = np.bincount(dataset.episode).tolist()
+    ids = [  # each episode's machine: its file's label, or the table's machine column
+        m if label is None else label
+        for r, label in zip(results, labels, strict=True)
+        for m in r.machines
+    ]
     run = {
         "source": "import",
         "input": ", ".join(f.name for f in files),
@@ -355,12 +289,32 @@ def import_table(
         "torque_limit": physics.torque_limit,
         "geometry": physics.geometry.as_dict(),
         "config": {"variability": RIG_SCENARIO},
-        "episodes": [{"index": k, "n_samples": n} for k, n in enumerate(lengths)],
+        "episodes": [
+            {"index": k, "n_samples": n} | ({} if m is None else {"machine_id": m})
+            for k, (n, m) in enumerate(zip(lengths, ids, strict=True))
+        ],
         **provenance(model_path),
     }
     run["summary"] = summarize(replace(dataset, run=run))
     write_dataset(out, dataset, None, run=run, model_xml=None)
     return run
+
+
+def _file_machines(
+    machines: Sequence[str] | None, files: list[Path], spec: ImportSpec
+) -> list[str | None]:
+    """Each file's machine label (`import_table`'s `machines`), None where not given."""
+    if machines is None:
+        return [None] * len(files)
+    if "machine" in spec.columns:
+        raise RigDataError("--machines names each file's machine: not with a machine column")
+    labels = [str(m).strip() for m in machines]
+    if len(labels) != len(files) or not all(labels):
+        raise RigDataError(
+            f"--machines: {len(labels)} label(s) for {len(files)} file(s); give one non-empty "
+            "label per file, in the files' order (e.g. --machines A,A,B)"
+        )
+    return labels
 
 
 def _joined(datasets: list[Dataset]) -> Dataset:

@@ -15,6 +15,7 @@ UNITS: dict[str, dict[str, float]] = {
     "tau": {"N*m": 1.0, "Nm": 1.0, "mN*m": 1e-3, "mNm": 1e-3},
     "slider_position": {"m": 1.0, "mm": 1e-3, "cm": 1e-2},
     "episode": {"1": 1.0},
+    "machine": {"1": 1.0},
 }
 """Factor to the contract's unit (the first of each field) per unit name."""
 
