@@ -177,13 +177,8 @@ def verify_command(
         "out", out, suffix=".json", inputs={"ocp_path": ocp, "data_path": data, "ppann": ppann}
     )
     from replay.statistics import format_table
-    from replay.verify_report import (
-        claim_text,
-        machine_rows,
-        output_paths,
-        sample_rows,
-        verify_file,
-    )
+    from replay.verify_report import claim_text, output_paths, verify_file
+    from replay.verify_tables import machine_rows, sample_rows, several_rows
 
     stats = verify_file(
         ocp,
@@ -197,7 +192,10 @@ def verify_command(
         figures=figures,
     )
     typer.echo(format_table(sample_rows(stats)))
-    if stats["model"] is not None:
+    if stats["machines"] is not None:
+        typer.echo(f"the runs of {stats['machines']['count']} machines, θ:")
+        typer.echo(format_table(several_rows(stats)))
+    elif stats["model"] is not None:
         typer.echo("if the runs are one machine's:")
         typer.echo(format_table(machine_rows(stats)))
     typer.echo(claim_text(stats))

@@ -47,7 +47,8 @@ machines' part is the scale on which the runs' mean slider says where their mach
   control_rate_hz    the rate the law was evaluated at (the plan's, or --control-rate)
   runs               per run {episode, offset (its sample lined up with sample 1), start_s,
                      samples (compared), played_rms (N·m), theta_rms (rad, from the plan's θ),
-                     slider {k: m}, below (under the height at any constraint sample)}
+                     slider {k: m}, below (under the height at any constraint sample),
+                     machine (its machine's label where the runs name several; else null)}
   samples.<k>        {height, below, lowest, observed_mean, observed_sigma (ddof 1),
                      observed_sigma_ci95 (bootstrap over the runs, replay/spread_interval.py),
                      predicted_mean, predicted_sigma (the PPANN's Monte-Carlo in the
@@ -62,6 +63,11 @@ machines' part is the scale on which the runs' mean slider says where their mach
                      white_ratio_ci95}: the motor angle's spread over the runs against the
                      white part's (white σ / observed σ: the runs read as one machine's)};
                      σ and its ratios null with one run, the split's without the PPANN
+  machines           runs named to several machines (replay/verify_machines.py): {count,
+                     labels, runs (per machine), samples.<k> {within_sigma (θ about each
+                     machine's mean, pooled), white_sigma, white_ratio, between_sigma (the
+                     machines' own θ spread), machine_sigma, machine_ratio, each σ and ratio
+                     with its _ci95}}; null unless the runs name two or more machines
   violating_runs, rate, rate_upper_95 (exact one-sided, replay/rates.py)
   verdict            holds | unconfirmed | fails against target_rate for a robust profile
                      (replay/rates.py); null for the nominal one, which claims nothing
@@ -85,6 +91,7 @@ from control.ocp_file import OCPFile, Profile
 from replay.played_law import PlayedLaw
 from replay.rates import rate_upper, verdict
 from replay.spread_interval import CALIBRATION_TRAJECTORIES, ratio_interval, sigma_interval
+from replay.verify_machines import machines_section, run_machines
 from twin.dataset import Dataset, check_step
 
 FORMAT = "crank-verify"
@@ -294,6 +301,11 @@ def verify_statistics(
         below |= values < c.height
     count, total = int(np.count_nonzero(below)), len(below)
     derived = "slider_position" in dataset.run.get("derived", [])
+    labels = run_machines(dataset, runs.episodes)
+    machines = None
+    if labels is not None:
+        theta_at = {k: runs.theta[:, k - 1] for k in c.constraint_samples}
+        machines = machines_section(theta_at, labels, split, seed=BOOTSTRAP_SEED)
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -340,6 +352,7 @@ def verify_statistics(
                 "theta_rms": float(theta_rms[r]),
                 "slider": {str(k): float(v[r]) for k, v in at.items()},
                 "below": bool(below[r]),
+                "machine": None if labels is None else labels[r],
             }
             for r in range(total)
         ],
@@ -349,6 +362,7 @@ def verify_statistics(
             )
             for k, v in at.items()
         },
+        "machines": machines,
         "violating_runs": count,
         "rate": count / total,
         "rate_upper_95": rate_upper(count, total),

@@ -27,6 +27,7 @@ from replay.verify import (
     verify_statistics,
 )
 from replay.verify_split import spread_split
+from replay.verify_tables import mm_text, sample_rows, spread_sections, table_lines
 from twin.mcap_dataset import read_dataset
 
 MAX_PER_SAMPLE = 64
@@ -53,68 +54,6 @@ def claim_text(stats: dict[str, Any]) -> str:
     return f"{below}: profile {o['profile']} {said}"
 
 
-def _mm(value: float | None, fmt: str = ".2f") -> str:
-    return "—" if value is None else f"{1e3 * value:{fmt}}"
-
-
-def _ratio(ratio: float | None, ci: list[float] | None) -> str:
-    """A ratio with its 95 % interval, as the tables show it."""
-    shown = "—" if ratio is None else f"{ratio:.2f}"
-    return shown if ci is None else f"{shown} ({ci[0]:.2f}–{ci[1]:.2f})"
-
-
-def sample_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
-    """One row per constraint sample, for the terminal and verify.md."""
-    k = stats["ocp"]["k_sigma"]
-    rows = []
-    for sample, s in stats["samples"].items():
-        observed = None if s["observed_sigma"] is None else k * s["observed_sigma"]
-        offset = s["mean_offset_sigma"]
-        rows.append(
-            {
-                "sample": sample,
-                "below": f"{s['below']}/{len(stats['runs'])}",
-                "lowest mm": _mm(s["lowest"]),
-                "mean obs/pred mm": f"{_mm(s['observed_mean'])}/{_mm(s['predicted_mean'])}",
-                f"{k:g}σ obs/pred mm": f"{_mm(observed)}/{_mm(k * s['predicted_sigma'])}",
-                "σ pred/obs (95 %)": _ratio(s["ratio"], s["ratio_ci95"]),
-                "mean offset σ": "—" if offset is None else f"{offset:+.2f}",
-            }
-        )
-    return rows
-
-
-def machine_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
-    """One row per constraint sample reading the runs as one machine's (no rows without the
-    PPANN's split)."""
-    if stats["model"] is None:
-        return []
-    rows = []
-    for sample, s in stats["samples"].items():
-        theta = s["theta"]
-        offset = s["machine_offset"]
-        observed = theta["observed_sigma"]
-        rows.append(
-            {
-                "sample": sample,
-                "θ σ obs/white mrad": f"{_mm(observed, '.1f')}/{_mm(theta['white_sigma'], '.1f')}",
-                "θ σ white/obs (95 %)": _ratio(theta["white_ratio"], theta["white_ratio_ci95"]),
-                "slider σ machines mm": _mm(s["machine_sigma"]),
-                "machine offset": "—" if offset is None else f"{offset:+.2f}",
-            }
-        )
-    return rows
-
-
-def _table(rows: list[dict[str, str]]) -> list[str]:
-    keys = list(rows[0])
-    return [
-        "| " + " | ".join(keys) + " |",
-        "|" + " --- |" * len(keys),
-        *("| " + " | ".join(r[k] for k in keys) + " |" for r in rows),
-    ]
-
-
 def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
     """verify.md: the verdict, the constraint samples, each run, and how to read them."""
     o, d = stats["ocp"], stats["data"]
@@ -126,8 +65,9 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
             "from s": f"{r['start_s']:.3f}",
             "played RMS N·m": f"{r['played_rms']:.3g}",
             "θ RMS rad": f"{r['theta_rms']:.3g}",
-            **{f"slider@{k} mm": _mm(v) for k, v in r["slider"].items()},
+            **{f"slider@{k} mm": mm_text(v) for k, v in r["slider"].items()},
             "below": "yes" if r["below"] else "no",
+            **({} if stats["machines"] is None else {"machine": str(r["machine"])}),
         }
         for i, r in enumerate(stats["runs"], start=1)
     ]
@@ -159,48 +99,22 @@ def report_markdown(stats: dict[str, Any], paths: dict[str, Path]) -> str:
         "",
         "## At the constraint samples",
         "",
-        *_table(sample_rows(stats)),
+        *table_lines(sample_rows(stats)),
         "",
         f"σ pred/obs: the PPANN's Monte-Carlo σ in the {o['loop']} loop over the runs' (95 % "
         "bootstrap interval over the runs); mean offset: the runs' mean slider minus the "
         "predicted one, in predicted σ.",
         "",
-        *_one_machine(stats),
+        *spread_sections(stats),
         "## Runs",
         "",
-        *_table(runs),
+        *table_lines(runs),
         "",
         f"Files: `{paths['json'].name}` (every number here), "
         + (f"`{paths['figure'].name}`." if paths.get("figure") else "no figure (--no-figures)."),
         "",
     ]
     return "\n".join(lines)
-
-
-def _one_machine(stats: dict[str, Any]) -> list[str]:
-    """verify.md's section reading the runs as one machine's, with the PPANN's split."""
-    rows = machine_rows(stats)
-    if not rows:
-        return [
-            "No split of the spread: the plan's PPANN is not beside it (give it with --ppann).",
-            "",
-        ]
-    model = stats["model"]
-    return [
-        "## If the runs are one machine's",
-        "",
-        f"The PPANN's spread split as its Monte-Carlo draws it (`{model['path']}`, "
-        f"{stats['split_trajectories']} trajectories a part): its white part alone, a machine "
-        "at the line's centre run after run, against the runs' spread in the motor angle θ "
-        "(near top dead centre one machine's slider spread depends on where the machine "
-        "sits; its θ spread does not); and its machines alone, the scale of the machine "
-        "offset (the runs' mean slider minus the predicted one, in the machines' σ: where the "
-        "runs sit; where the PPANN's machine part is small beside its white part, an offset of "
-        "several σ need not mean an unusual machine).",
-        "",
-        *_table(rows),
-        "",
-    ]
 
 
 def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
@@ -216,6 +130,9 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
     n = runs.theta.shape[1]
     t = np.arange(n) * ocp.dt
     below = np.array([r["below"] for r in stats["runs"]])
+    machines = stats["machines"]
+    if machines is not None:
+        machine_of_run = np.array([machines["labels"].index(r["machine"]) for r in stats["runs"]])
     color = COLORS.get(name, "C3")
     lower, upper = predicted_band(plan, plan.sigma_in(plan.loop), k, geometry=ocp.geometry)
     slider_ax.fill_between(
@@ -243,6 +160,13 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
         s = stats["samples"][str(sample)]
         values = runs.slider[:, sample - 1]
         spread = np.random.default_rng(0).uniform(-0.25, 0.25, len(values))  # only to see them
+        ticks, names = [0.0], ["runs"]
+        if machines is not None:  # a narrow column per machine, in the order they are named
+            width = 0.8 / len(machines["labels"])
+            ticks = list(-0.5 + width * (np.arange(len(machines["labels"])) + 0.5))
+            names = machines["labels"]
+            spread = -0.5 + width * (machine_of_run + 0.5 + 0.6 * spread)
+            ax.set_xlabel("runs by machine", fontsize=8)
         ax.scatter(spread, 1e3 * values, s=12, c=np.where(below, "C3", "k"), zorder=3)
         mean, sigma = s["predicted_mean"], s["predicted_sigma"]
         low, high = ocp.geometry.within_stroke(np.array([mean - k * sigma, mean + k * sigma]))
@@ -251,8 +175,8 @@ def verify_figure(ocp: OCPFile, runs: RigRuns, stats: dict[str, Any]) -> Figure:
             color=color, capsize=4, label=f"PPANN mean ±{k:g}σ",
         )  # fmt: skip
         ax.axhline(1e3 * s["height"], color="k", ls="--", lw=1, label="height")
-        ax.set_xlim(-0.6, 1.0)
-        ax.set_xticks([0.0, 0.6], ["runs", "PPANN"])
+        ax.set_xlim(-0.6 if machines is None else -0.55, 1.0)
+        ax.set_xticks([*ticks, 0.6], [*names, "PPANN"])
         floor = min(s["height"], s["lowest"], low)
         ax.set_ylim(1e3 * floor - 2.0, 1e3 * max(values.max(), high) + 1.0)
         ax.set_title(f"sample {sample}: {s['below']} below", fontsize=9)

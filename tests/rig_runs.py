@@ -35,10 +35,18 @@ def play_runs(
     return play(physics, ocp, profile=profile, mode=mode, machines=machines, config=config)
 
 
-def write_rig_csv(replay: Replay, path: Path, *, lead: int = 0, keep: int | None = None) -> Path:
+def write_rig_csv(
+    replay: Replay,
+    path: Path,
+    *,
+    lead: int = 0,
+    keep: int | None = None,
+    machines: list[int] | None = None,
+) -> Path:
     """Each run as a 1 kHz rig logs it: a row at every sample and one midway (states
     interpolated, the torque held), after `lead` samples at rest at its start angle with no
-    torque, its first `keep` samples only if given; runs 1 s apart."""
+    torque, its first `keep` samples only if given; runs 1 s apart; with `machines`, each run's
+    machine id in a column `unit`."""
     rows = []
     for run in range(replay.runs):
         series = [replay.theta[run], replay.omega[run], replay.slider_position[run]]
@@ -58,19 +66,29 @@ def write_rig_csv(replay: Replay, path: Path, *, lead: int = 0, keep: int | None
             -1e3 * tau[np.floor(fine).astype(int)],
             1e3 * np.interp(fine, index, slider),
             np.full(len(fine), run),
+            *(() if machines is None else (np.full(len(fine), machines[run]),)),
         )
         rows += zip(*(c.tolist() for c in columns), strict=True)
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["time_ms", "enc_deg", "speed_rpm", "cmd_mNm", "x_mm", "run"])
+        header = ["time_ms", "enc_deg", "speed_rpm", "cmd_mNm", "x_mm", "run"]
+        writer.writerow(header + ([] if machines is None else ["unit"]))
         writer.writerows(rows)
     return path
 
 
-def import_runs(replay: Replay, out: Path, **options: int | None) -> Path:
-    """The runs of `replay` as a rig's table (write_rig_csv `options`), imported to `out`."""
-    table = write_rig_csv(replay, out.with_suffix(".csv"), **options)
-    import_table(table, out, spec=SPEC)
+def import_runs(
+    replay: Replay, out: Path, *, machines: list[int] | None = None, **options: int | None
+) -> Path:
+    """The runs of `replay` as a rig's table (write_rig_csv `options`), imported to `out`; with
+    `machines`, each run's machine id in its machine column."""
+    table = write_rig_csv(replay, out.with_suffix(".csv"), machines=machines, **options)
+    spec = (
+        SPEC
+        if machines is None
+        else ImportSpec.parse(columns=MAP + ",machine=unit", units=UNITS, flip=FLIP)
+    )
+    import_table(table, out, spec=spec)
     return out
 
 

@@ -275,6 +275,43 @@ def test_runs_read_as_one_machines_beside_the_white_part(
     assert "give it with --ppann" in (tmp_path / "b" / "v.md").read_text()
 
 
+def test_runs_of_several_machines_are_taken_apart(
+    split_ocp: Path, ppann_path: Path, played: dict[str, Replay], tmp_path: Path
+) -> None:
+    """Twelve runs named to three machines (four each): at each constraint sample θ's spread
+    within a machine (pooled, N - M degrees of freedom) and the machines' own (var of the
+    machine means less the within variance / 4) equal numpy's to 1e-9, each inside its interval,
+    beside the PPANN's white and machine parts; verify.md takes them apart, not one machine's."""
+    labels = [7] * 4 + [8] * 4 + [9] * 4
+    runs = import_runs(played["open"], tmp_path / "r.mcap", machines=labels)
+    named = json.loads(split_ocp.read_text())
+    named["model"] = {"path": str(ppann_path), "kind": "ppann"}
+    plan = tmp_path / "ocp.json"
+    plan.write_text(json.dumps(named))
+    stats = verify_file(plan, runs, tmp_path / "a" / "v.json")
+    m = stats["machines"]
+    assert (m["count"], m["labels"], m["runs"]) == (3, ["7", "8", "9"], [4, 4, 4])
+    assert [r["machine"] for r in stats["runs"]] == [str(n) for n in labels]
+    for k in SAMPLES:
+        groups = played["open"].theta[:, k - 1].reshape(3, 4)
+        within = np.sqrt(((groups - groups.mean(1, keepdims=True)) ** 2).sum() / (12 - 3))
+        between = np.sqrt(max(groups.mean(1).var(ddof=1) - within**2 / 4, 0.0))
+        s = m["samples"][str(k)]
+        assert s["within_sigma"] == pytest.approx(within, rel=1e-9)
+        assert s["between_sigma"] == pytest.approx(between, rel=1e-9, abs=1e-15)
+        assert s["within_sigma_ci95"][0] <= within <= s["within_sigma_ci95"][1]
+        assert s["white_sigma"] == stats["samples"][str(k)]["theta"]["white_sigma"]
+        assert s["white_ratio"] == pytest.approx(s["white_sigma"] / within, rel=1e-12)
+        assert s["machine_sigma"] > 0
+    report = (tmp_path / "a" / "v.md").read_text()
+    assert "## The runs of 3 machines" in report and "one machine's" not in report
+    alone = verify_file(plan, import_runs(played["open"], tmp_path / "s.mcap"), tmp_path / "b.json")
+    assert alone["machines"] is None and alone["runs"][0]["machine"] is None
+    one = import_runs(played["open"], tmp_path / "o.mcap", machines=[7] * 12)
+    assert verify_file(plan, one, tmp_path / "c" / "v.json")["machines"] is None
+    assert "## If the runs are one machine's" in (tmp_path / "c" / "v.md").read_text()
+
+
 def test_a_folder_of_plan_runs_and_check_reads_the_same_anywhere(
     split_ocp: Path, played: dict[str, Replay], tmp_path: Path
 ) -> None:

@@ -1,0 +1,113 @@
+"""Runs of several machines, each run a few times (`crank verify` on runs whose import named each
+run's machine: `crank import`'s machine column or `--machines`; twin.dataset.episode_machines).
+
+A lab with a few machines does not have the line's machines nor one machine's: its runs' spread
+mixes both parts of the PPANN's. Named, they can be taken apart, on θ (replay/verify.py says why
+θ): at each constraint sample the runs' spread about their own machine's mean, pooled over the
+machines (its variance Σ_i Σ_r (θ_ir − θ̄_i)² / (N − M), N runs on M machines), set beside the
+PPANN's white part (mode step); and the machines' own spread, the method of moments of a one-way
+layout, σ_b² = var(θ̄_i) − mean(s_w² / n_i) (zero where the runs' spread alone explains the
+means'), beside the PPANN's machine part (mode machine). Each with a percentile bootstrap
+interval: runs resampled within their machine for the first; machines resampled, then their runs,
+for the second. With a handful of machines the second interval is wide, as it should be: M
+machines measure a spread to about 1 / sqrt(2 (M − 1)).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from replay.spread_interval import BOOTSTRAP_DRAWS, LEVEL, ratio_interval
+from twin.dataset import Dataset, episode_machines
+
+
+def run_machines(dataset: Dataset, episodes: np.ndarray) -> list[str] | None:
+    """Each run's machine (its label, or its number where the record has none) for the runs of
+    `episodes`; None unless they name two or more machines, one of them run twice or more."""
+    ids = {int(e["index"]): e.get("machine_id") for e in dataset.run.get("episodes", [])}
+    if all(ids.get(int(e)) is None for e in episodes):
+        return None
+    machine = episode_machines(dataset)
+    first = {int(e): int(machine[np.flatnonzero(dataset.episode == e)[0]]) for e in episodes}
+    labels = [
+        str(ids[int(e)]) if ids.get(int(e)) is not None else f"#{first[int(e)]}" for e in episodes
+    ]
+    _, counts = np.unique(labels, return_counts=True)
+    if len(counts) < 2 or counts.max() < 2:
+        return None
+    return labels
+
+
+def _parts(theta: np.ndarray, groups: list[np.ndarray]) -> tuple[float, float]:
+    """(within σ, between σ) of `theta` (runs,) over the machines' run indices `groups`."""
+    means = np.array([theta[g].mean() for g in groups])
+    sizes = np.array([len(g) for g in groups])
+    within = sum(float(((theta[g] - m) ** 2).sum()) for g, m in zip(groups, means, strict=True))
+    within /= max(int(sizes.sum()) - len(groups), 1)
+    between = float(means.var(ddof=1)) - float(np.mean(within / sizes))
+    return float(np.sqrt(within)), float(np.sqrt(max(between, 0.0)))
+
+
+def _intervals(
+    theta: np.ndarray, groups: list[np.ndarray], rng: np.random.Generator
+) -> tuple[list[float], list[float]]:
+    """LEVEL percentile-bootstrap intervals of (within σ, between σ)."""
+    within, between = np.empty(BOOTSTRAP_DRAWS), np.empty(BOOTSTRAP_DRAWS)
+    for d in range(BOOTSTRAP_DRAWS):
+        runs = [g[rng.integers(0, len(g), len(g))] for g in groups]
+        within[d] = _parts(theta, runs)[0]
+        picked = [groups[i] for i in rng.integers(0, len(groups), len(groups))]
+        between[d] = _parts(theta, [g[rng.integers(0, len(g), len(g))] for g in picked])[1]
+    tail = (1 - LEVEL) / 2
+    return tuple(
+        [float(v) for v in np.quantile(values, [tail, 1 - tail])] for values in (within, between)
+    )  # type: ignore[return-value]
+
+
+def _ratio(predicted: float | None, observed: float, interval: list[float]) -> dict[str, Any]:
+    if predicted is None or observed <= 0:
+        return {"ratio": None, "ratio_ci95": None}
+    return {
+        "ratio": predicted / observed,
+        "ratio_ci95": ratio_interval(predicted, observed, tuple(interval)),
+    }
+
+
+def machines_section(
+    theta: dict[int, np.ndarray],
+    labels: list[str],
+    split: dict[int, dict[str, float]] | None,
+    *,
+    seed: int,
+) -> dict[str, Any]:
+    """verify.json's `machines`: the machines' labels and runs, and per constraint sample (keys
+    of `theta`, each the runs' θ there) the runs' θ spread within a machine beside the PPANN's
+    white part and the machines' own beside its machine part (`split`: spread_split's; None
+    without the PPANN), with bootstrap intervals from the stream `seed`."""
+    names = list(dict.fromkeys(labels))
+    groups = [np.flatnonzero(np.array(labels) == name) for name in names]
+    rng = np.random.default_rng(seed)
+    samples = {}
+    for k, values in theta.items():
+        within, between = _parts(values, groups)
+        within_ci, between_ci = _intervals(values, groups, rng)
+        white = None if split is None else split[k]["theta_white"]
+        machine = None if split is None else split[k]["theta_machine"]
+        samples[str(k)] = {
+            "within_sigma": within,
+            "within_sigma_ci95": within_ci,
+            "white_sigma": white,
+            **{f"white_{key}": v for key, v in _ratio(white, within, within_ci).items()},
+            "between_sigma": between,
+            "between_sigma_ci95": between_ci,
+            "machine_sigma": machine,
+            **{f"machine_{key}": v for key, v in _ratio(machine, between, between_ci).items()},
+        }
+    return {
+        "count": len(names),
+        "labels": names,
+        "runs": [len(g) for g in groups],
+        "samples": samples,
+    }
