@@ -325,9 +325,11 @@ def test_rig_data_imports_inspects_trains_and_solves(
     runs played there imported and verified; no twin calibration in the report (there is no
     twin)."""
     _, dataset = twin_data
-    table = write_csv(tmp_path / "rig.csv", rig_table(dataset))
+    rows = rig_table(dataset)
+    rows["unit"] = rows["run"] // 2  # six runs on three machines, two each
+    table = write_csv(tmp_path / "rig.csv", rows)
 
-    common = ["--map", MAP, "--units", UNITS, "--flip", "tau"]
+    common = ["--map", MAP + ",machine=unit", "--units", UNITS, "--flip", "tau"]
     done = crank("import", str(table), *common, "--out", str(tmp_path / "rig.mcap"))
     assert done.returncode == 0, done.stderr
     assert "source_rate_hz" in done.stdout and "1000" in done.stdout
@@ -342,6 +344,8 @@ def test_rig_data_imports_inspects_trains_and_solves(
     assert trained.returncode == 0, trained.stderr
     report = json.loads((tmp_path / "m.report.json").read_text())
     assert report["calibration"] is None and not (tmp_path / "m.calibration.png").exists()
+    seen = report["models"]["ppann"]["spread_data"]
+    assert seen["machines"] == 3 and f"3 machines, {seen['episodes']} episodes" in trained.stdout
     assert (tmp_path / "m.bands.png").is_file()
     solved = crank(
         "solve", "--model", str(model), "--out", str(tmp_path / "ocp.json"),
@@ -369,8 +373,14 @@ def test_rig_data_imports_inspects_trains_and_solves(
         play_runs(physics, tmp_path / "ocp.json", profile="robust", mode="open", runs=4, seed=2),
         tmp_path / "runs.csv",
     )
+    lines = runs.read_text().splitlines()  # a file per machine: runs 0-1 on A, 2-3 on B
+    files = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    for path, kept in zip(files, (("0", "1"), ("2", "3")), strict=True):
+        path.write_text("\n".join([lines[0], *(r for r in lines[1:] if r.split(",")[-1] in kept)]))
     spec = ["--map", rig_runs.MAP, "--units", rig_runs.UNITS, "--flip", rig_runs.FLIP]
-    done = crank("import", str(runs), *spec, "--out", str(tmp_path / "runs.mcap"))
+    done = crank(
+        "import", *map(str, files), *spec, "--machines", "A,B", "--out", str(tmp_path / "runs.mcap")
+    )
     assert done.returncode == 0, done.stderr
     checked = crank(
         "verify", str(tmp_path / "ocp.json"), str(tmp_path / "runs.mcap"),
@@ -380,4 +390,5 @@ def test_rig_data_imports_inspects_trains_and_solves(
     stats = json.loads((tmp_path / "verify.json").read_text())
     assert len(stats["runs"]) == 4 and stats["ocp"]["profile"] == "robust"
     assert stats["model"]["sha256"] == ocp["model"]["sha256"]  # the plan's PPANN split it
-    assert "if the runs are one machine's:" in checked.stdout
+    assert stats["machines"]["labels"] == ["A", "B"] and stats["machines"]["runs"] == [2, 2]
+    assert "the runs of 2 machines, θ:" in checked.stdout
