@@ -22,10 +22,22 @@ import numpy as np
 from replay.spread_interval import BOOTSTRAP_DRAWS, LEVEL, ratio_interval
 from twin.dataset import Dataset, episode_machines
 
+UNDEFINED = tuple(
+    f"{part}_{key}"
+    for part, keys in (
+        ("within", "sigma"),
+        ("white", "ratio"),
+        ("between", "sigma"),
+        ("machine", "ratio"),
+    )
+    for key in (keys, f"{keys}_ci95")
+)
+"""The keys of a constraint sample that every machine running once leaves undefined."""
+
 
 def run_machines(dataset: Dataset, episodes: np.ndarray) -> list[str] | None:
     """Each run's machine (its label, or its number where the record has none) for the runs of
-    `episodes`; None unless they name two or more machines, one of them run twice or more."""
+    `episodes`; None unless they name two or more machines."""
     ids = {int(e["index"]): e.get("machine_id") for e in dataset.run.get("episodes", [])}
     if all(ids.get(int(e)) is None for e in episodes):
         return None
@@ -34,10 +46,7 @@ def run_machines(dataset: Dataset, episodes: np.ndarray) -> list[str] | None:
     labels = [
         str(ids[int(e)]) if ids.get(int(e)) is not None else f"#{first[int(e)]}" for e in episodes
     ]
-    _, counts = np.unique(labels, return_counts=True)
-    if len(counts) < 2 or counts.max() < 2:
-        return None
-    return labels
+    return labels if len(set(labels)) >= 2 else None
 
 
 def _parts(theta: np.ndarray, groups: list[np.ndarray]) -> tuple[float, float]:
@@ -85,16 +94,23 @@ def machines_section(
     """verify.json's `machines`: the machines' labels and runs, and per constraint sample (keys
     of `theta`, each the runs' θ there) the runs' θ spread within a machine beside the PPANN's
     white part and the machines' own beside its machine part (`split`: spread_split's; None
-    without the PPANN), with bootstrap intervals from the stream `seed`."""
+    without the PPANN), with bootstrap intervals from the stream `seed`; each σ and ratio None
+    where every machine ran once (the runs are then the line's machines, read as such above)."""
     names = list(dict.fromkeys(labels))
     groups = [np.flatnonzero(np.array(labels) == name) for name in names]
     rng = np.random.default_rng(seed)
     samples = {}
     for k, values in theta.items():
-        within, between = _parts(values, groups)
-        within_ci, between_ci = _intervals(values, groups, rng)
         white = None if split is None else split[k]["theta_white"]
         machine = None if split is None else split[k]["theta_machine"]
+        if len(values) == len(groups):  # each machine ran once: no spread within a machine
+            samples[str(k)] = dict.fromkeys(UNDEFINED) | {
+                "white_sigma": white,
+                "machine_sigma": machine,
+            }
+            continue
+        within, between = _parts(values, groups)
+        within_ci, between_ci = _intervals(values, groups, rng)
         samples[str(k)] = {
             "within_sigma": within,
             "within_sigma_ci95": within_ci,

@@ -77,17 +77,19 @@ def several_rows(stats: dict[str, Any]) -> list[dict[str, str]]:
     if stats["machines"] is None:
         return []
     rows = []
+
+    def spread(value: float | None, ci: list[float] | None) -> str:
+        shown = mm_text(value, ".1f")
+        return shown if ci is None else f"{shown} ({mm_text(ci[0], '.1f')}–{mm_text(ci[1], '.1f')})"
+
     for sample, s in stats["machines"]["samples"].items():
-        within, between = s["within_sigma_ci95"], s["between_sigma_ci95"]
         rows.append(
             {
                 "sample": sample,
-                "θ σ within mrad (95 %)": f"{mm_text(s['within_sigma'], '.1f')} "
-                f"({mm_text(within[0], '.1f')}–{mm_text(within[1], '.1f')})",
+                "θ σ within mrad (95 %)": spread(s["within_sigma"], s["within_sigma_ci95"]),
                 "white mrad": mm_text(s["white_sigma"], ".1f"),
                 "white/within": _ratio(s["white_ratio"], s["white_ratio_ci95"]),
-                "θ σ between mrad (95 %)": f"{mm_text(s['between_sigma'], '.1f')} "
-                f"({mm_text(between[0], '.1f')}–{mm_text(between[1], '.1f')})",
+                "θ σ between mrad (95 %)": spread(s["between_sigma"], s["between_sigma_ci95"]),
                 "machines mrad": mm_text(s["machine_sigma"], ".1f"),
                 "machines/between": _ratio(s["machine_ratio"], s["machine_ratio_ci95"]),
             }
@@ -107,8 +109,13 @@ def _several(stats: dict[str, Any]) -> list[str]:
         "own spread (their means' spread less what the runs' spread explains) against its "
         "machine part (the line's machine to machine)"
         + ("" if stats["model"] else " (no PPANN: give it with --ppann for the parts)")
-        + f". {m['count']} machines measure a spread to about "
-        f"{100 / max(2 * (m['count'] - 1), 1) ** 0.5:.0f} %: the interval says how little.",
+        + (
+            f". {m['count']} machines measure a spread to about "
+            f"{100 / max(2 * (m['count'] - 1), 1) ** 0.5:.0f} %: the interval says how little."
+            if max(m["runs"]) > 1
+            else ". Each machine ran once: there is no spread within a machine to take apart, "
+            "and the runs are the line's machines, read against its σ above."
+        ),
         "",
         *table_lines(several_rows(stats)),
         "",

@@ -307,6 +307,10 @@ def test_runs_of_several_machines_are_taken_apart(
     assert "## The runs of 3 machines" in report and "one machine's" not in report
     alone = verify_file(plan, import_runs(played["open"], tmp_path / "s.mcap"), tmp_path / "b.json")
     assert alone["machines"] is None and alone["runs"][0]["machine"] is None
+    each = import_runs(played["open"], tmp_path / "e.mcap", machines=list(range(12)))
+    apart = verify_file(plan, each, tmp_path / "d" / "v.json")["machines"]
+    assert apart["runs"] == [1] * 12 and apart["samples"]["50"]["within_sigma"] is None
+    assert "Each machine ran once" in (tmp_path / "d" / "v.md").read_text()
     one = import_runs(played["open"], tmp_path / "o.mcap", machines=[7] * 12)
     assert verify_file(plan, one, tmp_path / "c" / "v.json")["machines"] is None
     assert "## If the runs are one machine's" in (tmp_path / "c" / "v.md").read_text()
