@@ -85,19 +85,19 @@ def machine_design(
     return design
 
 
-def episode_sums(
+def machine_sums(
     residual: torch.Tensor,
     design: torch.Tensor,
     variance: torch.Tensor,
-    episode: torch.Tensor,
-    n_episodes: int,
+    machine: torch.Tensor,
+    n_machines: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """M (E, 3, 3) and b (E, 3) of the module docstring; `episode` (n,) holds 0..E-1."""
+    """M (E, 3, 3) and b (E, 3) of the module docstring; `machine` (n,) holds 0..E-1."""
     weight = 1.0 / variance
     outer = design[:, :, None] * design[:, None, :] * weight[:, None, None]
-    m = torch.zeros((n_episodes, 3, 3), dtype=design.dtype).index_add(0, episode, outer)
-    b = torch.zeros((n_episodes, 3), dtype=design.dtype).index_add(
-        0, episode, design * (residual * weight)[:, None]
+    m = torch.zeros((n_machines, 3, 3), dtype=design.dtype).index_add(0, machine, outer)
+    b = torch.zeros((n_machines, 3), dtype=design.dtype).index_add(
+        0, machine, design * (residual * weight)[:, None]
     )
     return m, b
 
@@ -115,10 +115,10 @@ class EpisodeTerms:
     """dr/dz_k per sample, (n, 3)."""
     block: torch.Tensor
     """(n,) the block of each sample, in 0..B-1."""
-    episode: torch.Tensor
-    """(B,) the machine of each block, in 0..n_episodes-1: its episode's index, or the machine
+    machine: torch.Tensor
+    """(B,) the machine of each block, in 0..n_machines-1: its episode's index, or the machine
     several episodes share (`build`'s `machine`), which then share one eta."""
-    n_episodes: int
+    n_machines: int
     lever: torch.Tensor | None = None
     """x'(theta_k)^2 per sample, (n,), for the slider force's channel (ppann/lever.py)."""
 
@@ -159,8 +159,8 @@ class EpisodeTerms:
             design=summed(design),
             derivative=derivative,
             block=block,
-            episode=group[new_block],
-            n_episodes=int(group.max()) + 1 if n else 0,
+            machine=group[new_block],
+            n_machines=int(group.max()) + 1 if n else 0,
             lever=lever,
         )
 
@@ -184,7 +184,7 @@ class EpisodeTerms:
         self, variance: torch.Tensor, machine_sigma: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """G = S M S (E, 3, 3), c = S b (E, 3) of the module docstring, and I + G."""
-        m, b = episode_sums(self.residual, self.design, variance, self.episode, self.n_episodes)
+        m, b = machine_sums(self.residual, self.design, variance, self.machine, self.n_machines)
         s = machine_sigma
         g = s[None, :, None] * m * s[None, None, :]
         return g, s[None, :] * b, torch.eye(3, dtype=g.dtype).expand_as(g) + g

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from replay.spread_interval import BOOTSTRAP_DRAWS, LEVEL, ratio_interval
-from twin.dataset import Dataset, episode_machines
+from twin.dataset import Dataset, episode_machines, machine_ids
 
 UNDEFINED = tuple(
     f"{part}_{key}"
@@ -38,13 +38,13 @@ UNDEFINED = tuple(
 def run_machines(dataset: Dataset, episodes: np.ndarray) -> list[str] | None:
     """Each run's machine (its label, or its number where the record has none) for the runs of
     `episodes`; None unless they name two or more machines."""
-    ids = {int(e["index"]): e.get("machine_id") for e in dataset.run.get("episodes", [])}
-    if all(ids.get(int(e)) is None for e in episodes):
+    ids = machine_ids(dataset)
+    if not any(int(e) in ids for e in episodes):
         return None
     machine = episode_machines(dataset)
-    first = {int(e): int(machine[np.flatnonzero(dataset.episode == e)[0]]) for e in episodes}
     labels = [
-        str(ids[int(e)]) if ids.get(int(e)) is not None else f"#{first[int(e)]}" for e in episodes
+        str(ids[e]) if e in ids else f"#{machine[np.argmax(dataset.episode == e)]}"
+        for e in map(int, episodes)
     ]
     return labels if len(set(labels)) >= 2 else None
 
@@ -70,9 +70,8 @@ def _intervals(
         picked = [groups[i] for i in rng.integers(0, len(groups), len(groups))]
         between[d] = _parts(theta, [g[rng.integers(0, len(g), len(g))] for g in picked])[1]
     tail = (1 - LEVEL) / 2
-    return tuple(
-        [float(v) for v in np.quantile(values, [tail, 1 - tail])] for values in (within, between)
-    )  # type: ignore[return-value]
+    low_high = np.quantile(np.stack([within, between]), [tail, 1 - tail], axis=1).T
+    return low_high[0].tolist(), low_high[1].tolist()
 
 
 def _ratio(predicted: float | None, observed: float, interval: list[float]) -> dict[str, Any]:

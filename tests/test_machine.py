@@ -146,7 +146,7 @@ def test_blocks_of_one_sample_are_eq_9_and_blocks_stay_inside_episodes() -> None
     assert torch.equal(white_nll(single, sigma), propagated_nll(residual, derivative, sigma))
     blocks = EpisodeTerms.build(residual, derivative, derivative, episode, block_length=3)
     assert blocks.block.tolist() == [0, 0, 0, 1, 1, 1, 2, 3, 3, 3, 4, 4]
-    assert blocks.episode.tolist() == [0, 0, 0, 1, 1]
+    assert blocks.machine.tolist() == [0, 0, 0, 1, 1]
     for b, (lo, hi) in enumerate([(0, 3), (3, 6), (6, 7), (7, 10), (10, 12)]):
         assert float(blocks.residual[b]) == pytest.approx(float(residual[lo:hi].sum()), abs=1e-12)
     variance = blocks.white_variance(sigma)

@@ -52,7 +52,7 @@ def test_a_machines_episodes_share_one_offset_in_the_likelihood() -> None:
         residual, derivative, design, episode, machine=machine, block_length=4
     )
     # 10 = 4+4+2 | 10 = 4+4+2 | 12 = 4+4+4 | 8 = 4+4: no block crosses an episode's end
-    assert blocks.episode.tolist() == [0] * 6 + [1] * 5
+    assert blocks.machine.tolist() == [0] * 6 + [1] * 5
     starts = np.flatnonzero(np.diff(blocks.block.numpy(), prepend=-1))
     assert starts.tolist() == [0, 4, 8, 10, 14, 18, 20, 24, 28, 32, 36]
 

@@ -243,12 +243,21 @@ def generate(
     return dataset, truth, episodes
 
 
+def machine_ids(dataset: Dataset) -> dict[int, str | int]:
+    """The run record's `machine_id` of each episode that has one, by episode index."""
+    return {
+        int(e["index"]): e["machine_id"]
+        for e in dataset.run.get("episodes", [])
+        if e.get("machine_id") is not None
+    }
+
+
 def episode_machines(dataset: Dataset) -> np.ndarray:
     """(n_samples,) the machine each sample was recorded on, numbered 0, 1, ... in order of first
     appearance. Episodes the run record gives one `machine_id` share a machine (a lab's runs of
     one machine: GenerationConfig.episodes_per_machine, `crank import`'s machine column); every
     other episode, as every episode of a dataset without ids, is a machine of its own."""
-    ids = {int(e["index"]): e.get("machine_id") for e in dataset.run.get("episodes", [])}
+    ids = machine_ids(dataset)
     episodes, first, inverse = np.unique(dataset.episode, return_index=True, return_inverse=True)
     numbers: dict[tuple[str, str], int] = {}
     of_episode = np.empty(len(episodes), dtype=np.int64)
