@@ -2,9 +2,11 @@
 episodes are one machine's (twin.dataset.episode_machines, session 78)?
 
     python bench/runs_per_machine.py --seeds 0,1,2 --machines 8 --runs 9 \
-        --heldout-seed 20261243 --out logs/runs_per_machine
+        --heldout-seed 20261243 --out logs/runs_per_machine [--variability line-15]
 
-Per training seed: `crank generate --episodes-per-machine RUNS` (MACHINES x RUNS episodes of 10 s),
+Per training seed: `crank generate --episodes-per-machine RUNS` (MACHINES x RUNS episodes of 10 s,
+the machines drawn from --variability; the held-out machines are drawn from the same scenario,
+the one ocp.json carries),
 and a copy of the same samples with the machine ids taken out of its run record (what training
 read before session 78: every episode a machine of its own). Each is trained (`train_and_report`,
 the PPANN alone, the two side by side on one core each), solved (`crank solve`, its default
@@ -113,6 +115,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=9)
     parser.add_argument("--heldout-seed", type=int, required=True)
     parser.add_argument("--heldout-runs", type=int, default=1000)
+    parser.add_argument("--variability", default="paper", help="scenario or range file")
     parser.add_argument("--out", type=Path, default=Path("logs/runs_per_machine"))
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -128,6 +131,7 @@ def main() -> None:
         if not data.exists():
             wait(crank("generate", "--seed", str(seed), "--episodes-per-machine",
                        str(args.runs), "--seconds", str(10.0 * args.machines * args.runs),
+                       "--variability", args.variability,
                        "--no-figures", "--out", str(data)))  # fmt: skip
         flat = folders["episodes"] / "dataset.mcap"
         if not flat.exists():
