@@ -24,6 +24,7 @@ from crank.console import (
     Confidence,
     Drift,
     EpisodeSeconds,
+    EpisodesPerMachine,
     FallbackOption,
     ModelPath,
     ProfilesOption,
@@ -44,6 +45,7 @@ from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
+from twin.dataset import GenerationConfig
 from twin.plan_config import PlanConfig
 
 if TYPE_CHECKING:
@@ -89,6 +91,7 @@ def run_command(
     ),
     name: Annotated[str | None, typer.Option(help="Run folder name (default: time stamp).")] = None,
     episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
+    episodes_per_machine: EpisodesPerMachine = GenerationConfig.episodes_per_machine,
     drift: Drift = True,
     variability: VariabilityOption = "paper",
     confidence: Confidence = OCPConfig.confidence,
@@ -170,6 +173,7 @@ FLAG_KEYS = {
     "seed": ("seed",),
     "seconds": ("generation", "seconds"),
     "episode_seconds": ("generation", "episode_seconds"),
+    "episodes_per_machine": ("generation", "episodes_per_machine"),
     "drift": ("generation", "drift"),
     "variability": ("generation", "variability"),
     "confidence": ("ocp", "confidence"),
@@ -308,6 +312,7 @@ def study_command(
     variability: VariabilityOption = "paper",
     seconds: Seconds = DATASET_SECONDS,
     episode_seconds: EpisodeSeconds = EPISODE_SECONDS,
+    episodes_per_machine: EpisodesPerMachine = GenerationConfig.episodes_per_machine,
     runs: Annotated[int, typer.Option(help="Campaign machines per profile and mode.")] = 100,
     heldout_runs: HeldoutRuns = HELDOUT_RUNS,
     heldout_seed: HeldoutSeed = HELDOUT_SEED,

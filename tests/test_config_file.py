@@ -65,6 +65,10 @@ def test_a_file_sets_any_stage_and_flags_override_it(tmp_path: Path) -> None:
     assert config.heldout_runs == HELDOUT_RUNS  # untouched keys keep their defaults
     assert not config.figures and RunConfig.from_dict(config.as_dict()) == config
     assert build(merge(read_values(path), flag_values({"figures": True}), source="f")).figures
+    # a lab's few machines: --episodes-per-machine reaches the dataset's generation
+    lab = build(merge(read_values(path), flag_values({"episodes_per_machine": 9}), source="f"))
+    assert lab.generation.episodes_per_machine == 9 and config.generation.episodes_per_machine == 1
+    assert RunConfig.from_dict(lab.as_dict()) == lab
 
 
 def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) -> None:
