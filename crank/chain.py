@@ -305,7 +305,12 @@ def run_chain(
     if rounds:
         planned = stage_result(
             "plan",
-            f"playing the plan on {config.plan.episodes} fresh machines",
+            f"playing the plan on {config.plan.episodes} "
+            + (
+                "fresh machines"
+                if config.generation.episodes_per_machine == 1
+                else "episodes of the dataset's machines"
+            ),
             lambda: stages.plan(config, run_dir / stages.DATASET, first / stages.OCP, run_dir),
         )
         round_record = {"first_solve": solved, "plan": planned}

@@ -55,8 +55,9 @@ if TYPE_CHECKING:
 PlanEpisodes = Annotated[
     int,
     typer.Option(
-        help="The plan round: play the first solve's robust torque on this many fresh machines, "
-        "add their episodes to the data, train and solve again; 0: none."
+        help="The plan round: play the first solve's robust torque on this many fresh machines "
+        "(with --episodes-per-machine: episodes of the dataset's machines), add their episodes "
+        "to the data, train and solve again; 0: none."
     ),
 ]
 PDOption = Annotated[

@@ -237,7 +237,12 @@ def _plan_rows(plan_round: dict[str, Any] | None) -> list[str]:
     plan = plan_round["plan"]
     played = {
         "played": f"the first solve's {plan['played']['profile']} torque (round-0/ocp.json), "
-        f"dither {plan['dither']:g} N·m, on {plan['episodes']} fresh machines",
+        f"dither {plan['dither']:g} N·m, on {plan['episodes']} "
+        + (
+            "fresh machines"
+            if plan.get("fresh_machines", True)
+            else f"episodes of the dataset's {plan['machines']} machines"
+        ),
         "samples added": f"{plan['samples_added']} (dataset after the round: {plan['samples']})",
     }
     if plan_round.get("first_tail_refused"):

@@ -160,7 +160,8 @@ def tell(hooks: Hooks, text: str) -> None:
 
 
 def plan(config: RunConfig, dataset: Path, ocp: Path, out: Path) -> dict[str, Any]:
-    """`dataset` with `config.plan.episodes` episodes of `ocp`'s torque on fresh machines:
+    """`dataset` with `config.plan.episodes` episodes of `ocp`'s torque on fresh machines (on the
+    dataset's own where it names them: twin/plan_data.py):
     `out`/plan.mcap. The torque is the open-loop robust profile's, or the nominal one's when the
     OCP asks for no open-loop robust profile or has none (refused)."""
     solved = read_ocp(ocp)

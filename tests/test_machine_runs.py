@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from common.errors import ConfigError
 from ppann.machine import EpisodeTerms, marginal_nll
 from ppann.model import PPANNConfig
 from ppann.train import History, sigma_data
@@ -139,33 +140,47 @@ def test_a_dataset_file_records_its_machines(tmp_path) -> None:
     assert np.array_equal(episode_machines(mixed), np.repeat(expected, 50))
 
 
-def test_a_plan_round_adds_fresh_machines_before_the_datasets_own(tmp_path) -> None:
-    """The plan round's episodes are machines of their own; the dataset's, after them, keep
-    their grouping (twin/plan_data.py)."""
+def test_a_labs_plan_round_plays_its_own_machines_again(tmp_path) -> None:
+    """On a dataset that names its machines (a lab's), the plan round's episodes are those
+    machines again, in turn, each with its recorded draw and id: phase 2 still sees the lab's two
+    machines; a dataset of fresh machines gets fresh ones (twin/plan_data.py)."""
     from twin.physics import SliderCrank
     from twin.plan_config import PlanConfig
-    from twin.plan_data import plan_dataset_file
+    from twin.plan_data import lab_machines, plan_dataset_file
 
-    base = tmp_path / "runs.mcap"
-    generate_file(
-        GenerationConfig(seconds=0.8, episode_seconds=0.1, episodes_per_machine=4),
-        out=base,
-        figures=False,
-    )
-    plan_dataset_file(
-        base,
-        tmp_path / "plan.mcap",
-        tau=np.full(30, 1.0),
-        theta0=0.5,
-        omega0=0.0,
-        config=PlanConfig(episodes=3),
-        seed=0,
-        physics=SliderCrank(),
-        played={},
-    )
-    merged = read_dataset(tmp_path / "plan.mcap")
-    expected = np.concatenate([np.repeat([0, 1, 2], 30), np.repeat([3, 4], 200)])
+    def round_on(config: GenerationConfig, name: str) -> tuple[Dataset, dict]:
+        base = tmp_path / f"{name}.mcap"
+        generate_file(config, out=base, figures=False)
+        summary = plan_dataset_file(
+            base,
+            tmp_path / f"{name}.plan.mcap",
+            tau=np.full(30, 1.0),
+            theta0=0.5,
+            omega0=0.0,
+            config=PlanConfig(episodes=3),
+            seed=0,
+            physics=SliderCrank(),
+            played={},
+        )
+        return read_dataset(tmp_path / f"{name}.plan.mcap"), summary
+
+    short = {"seconds": 0.8, "episode_seconds": 0.1}
+    merged, summary = round_on(GenerationConfig(**short, episodes_per_machine=4), "lab")
+    expected = np.concatenate([np.repeat([0, 1, 0], 30), np.repeat([0, 1], 200)])
     assert np.array_equal(episode_machines(merged), expected)
+    episodes = merged.run["episodes"]
+    assert [e["machine_id"] for e in episodes[:3]] == [0, 1, 0]
+    own = {e["machine_id"]: e["machine"] for e in episodes[3:]}
+    assert [e["machine"] for e in episodes[:3]] == [own[0], own[1], own[0]]
+    assert own[0] != own[1] and summary["machines"] == 2 and not summary["fresh_machines"]
+    assert [label for label, _ in lab_machines(merged.run)] == [0, 1]
+    fresh, summary = round_on(GenerationConfig(**short), "fresh")
+    assert np.array_equal(episode_machines(fresh), np.repeat(np.arange(11), [30] * 3 + [50] * 8))
+    plan_draws = [e["machine"] for e in fresh.run["episodes"][:3]]
+    assert not any(d in [e["machine"] for e in fresh.run["episodes"][3:]] for d in plan_draws)
+    assert summary["machines"] == 3 and summary["fresh_machines"]
+    with pytest.raises(ConfigError, match="machine 'A' has no recorded draw"):
+        lab_machines({"episodes": [{"index": 0, "machine_id": "A"}]})
 
 
 @pytest.fixture(scope="module")

@@ -1,14 +1,17 @@
-"""Data where the plans go: a dataset plus episodes of a planned torque played on fresh machines.
+"""Data where the plans go: a dataset plus episodes of a planned torque played on fresh machines,
+or on the dataset's own machines where it names them (a lab's few machines).
 
-The chain's plan round (crank/chain.py, `[plan] episodes`) trains a model, solves the OCP, plays
-the returned torque on `episodes` machines of the dataset's line that no other stage draws (the
-streams `plan_machines` and `plan_noise`), adds those episodes to the dataset, and trains and
-solves again. The excitation of the dataset rarely crawls over the dead centres the way a plan
-does; the machines' spread there is what the robust margin is made of (README, *The machine's
-factors on the motor's terms*, session 22).
+The chain's plan round (crank/chain.py, `[plan] episodes`) trains a model, solves the OCP, plays the
+returned torque on `episodes` machines of the dataset's line that no other stage draws (the streams
+`plan_machines` and `plan_noise`) — a lab's dataset: on its own machines again —, adds those
+episodes to the dataset, and trains and solves again. The excitation of the dataset rarely crawls
+over the dead centres the way a plan does; the machines' spread there is what the robust margin is
+made of (README, *The machine's factors on the motor's terms*, session 22).
 
-Each added episode is one machine drawn from the dataset's scenario, warm for U[0,
-max_start_time] s like the dataset's, started from the plan's first state, under the plan's
+Each added episode is one machine drawn from the dataset's scenario — or, where the dataset's run
+record names machines (`machine_id`: a lab runs its few machines again, it has no others), the
+next of those machines in turn, with its recorded draw and id —, warm for U[0, max_start_time] s
+like the dataset's, started from the plan's first state, under the plan's
 torque scaled by U(0.9, 1.1) plus a smooth dither (white of `dither` N·m averaged over 10 samples,
 scaled back to that standard deviation), clipped to the torque limit, with the scenario's slider
 force. The added episodes come first so that none lands in the validation tail of training.
@@ -30,7 +33,7 @@ from twin.mcap_dataset import read_dataset, read_model_xml, read_run, write_data
 from twin.physics import SAMPLE_RATE, SliderCrank
 from twin.plan_config import DITHER_SAMPLES, PlanConfig
 from twin.stepping import simulate
-from twin.variability import Variability
+from twin.variability import MachineDraw, Variability
 
 
 def plan_torques(
@@ -44,6 +47,27 @@ def plan_torques(
     smooth = np.stack([np.convolve(w, box, mode="valid") for w in white])
     scale = rng.uniform(0.9, 1.1, (episodes, 1))
     return np.clip(tau[None, :] * scale + dither * smooth, -limit, limit)
+
+
+def lab_machines(run: dict[str, Any]) -> list[tuple[Any, MachineDraw]]:
+    """The machines a dataset's run record names (`machine_id`), in order of first appearance, each
+    with its recorded draw; empty for a dataset of fresh machines.
+
+    Raises:
+      ConfigError: a named machine without a recorded draw (a rig's: the twin cannot play it).
+    """
+    named: dict[str, tuple[Any, MachineDraw]] = {}
+    for e in run.get("episodes", []):
+        label = e.get("machine_id")
+        if label is None or str(label) in named:
+            continue
+        if "machine" not in e:
+            raise ConfigError(
+                f"the dataset's machine {label!r} has no recorded draw: the plan round plays the "
+                "twin's machines, not a rig's"
+            )
+        named[str(label)] = (label, MachineDraw(**e["machine"]))
+    return list(named.values())
 
 
 def plan_dataset_file(
@@ -60,8 +84,9 @@ def plan_dataset_file(
 ) -> dict[str, Any]:
     """Write `out`: the dataset of `dataset_path` after `config.episodes` episodes of the torque
     `tau` (one per sample) from (`theta0`, `omega0`) on machines of its scenario drawn with the
-    root `seed`. `played` (which solve and profile the torque is) is recorded in the file's run
-    record under "plan_round". Returns the round's summary.
+    root `seed`, or on the dataset's own machines in turn where it names them (`lab_machines`).
+    `played` (which solve and profile the torque is) is recorded in the file's run record under
+    "plan_round". Returns the round's summary.
 
     Raises:
       ConfigError: no episodes asked for, or a torque that is not a finite sequence of two or
@@ -78,7 +103,12 @@ def plan_dataset_file(
     generation = dict(run["config"])
     variability = Variability.from_dict(generation["variability"])
     machines_rng = streams.rng(seed, "plan_machines")
-    machines = [variability.sample(machines_rng) for _ in range(config.episodes)]
+    lab = lab_machines(run)
+    if lab:
+        ids, machines = zip(*(lab[i % len(lab)] for i in range(config.episodes)), strict=True)
+    else:
+        ids = (None,) * config.episodes
+        machines = tuple(variability.sample(machines_rng) for _ in range(config.episodes))
     starts = machines_rng.uniform(0, generation.get("max_start_time", 0.0), config.episodes)
     noise = streams.rng(seed, "plan_noise")
     limit = physics.torque_limit
@@ -108,14 +138,18 @@ def plan_dataset_file(
         **{k: np.concatenate([v, getattr(base, k)]) for k, v in added.items()},
     )
     first = [
-        episode_record(Episode(i, n, machine, float(theta0), float(omega0), float(start)))
+        episode_record(
+            Episode(i, n, machine, float(theta0), float(omega0), float(start), machine_id=label)
+        )
         | {"plan_episode": True}
-        for i, (machine, start) in enumerate(zip(machines, starts, strict=True))
+        for i, (machine, start, label) in enumerate(zip(machines, starts, ids, strict=True))
     ]
     later = [e | {"index": e["index"] + config.episodes} for e in run.get("episodes", [])]
     summary = {
         "episodes": config.episodes,
         "dither": config.dither,
+        "machines": len(lab) or config.episodes,
+        "fresh_machines": not lab,
         "samples_added": int(config.episodes * n),
         "samples": len(episode),
         "played": played,
