@@ -27,11 +27,14 @@ finite Monte-Carlo (`confidence`, ppann/confidence.py, ppann/machine.py): the ma
 was trained on are a sample of the line, so the line's spread and mean are estimates, and so is
 k sigma. With confidence c > 0 and z = confidence_quantile(c) (2.13 at 0.95):
 - the Monte-Carlo's machines are drawn with the likelihood-ratio upper bound of machine_sigma at
-  z instead of its estimate (modes that draw machines);
+  z instead of its estimate (modes that draw machines), calibrated for the M machines the model
+  learnt the line from (ppann/confidence.py spread_level: the exact chi-square bound);
 - the tightening at sample k gains how far the line's mean slider can sit below the model's:
   the largest drop of the mean model's slider there when the whole line's log-factors shift by
-  a delta with delta^T C^-1 delta = z^2 (C the covariance of the line's mean log-factors),
-  simulated (`population_margin`); to first order z sqrt(g_k^T C g_k), g_k = d slider_k / d delta;
+  a delta with delta^T C^-1 delta = z_M^2 (C the covariance of the line's mean log-factors, z_M
+  the Student bound from M machines, ppann/confidence.py mean_quantile: 2.82 for 8 machines,
+  2.14 for 310), simulated (`population_margin`); to first order z_M sqrt(g_k^T C g_k),
+  g_k = d slider_k / d delta; a model learnt from one machine bounds nothing and is refused;
 - the tightening gains what makes it a one-sided upper confidence bound, at z, of the tightening
   an infinite Monte-Carlo would ask for (`sampling`, control/tightening.py: about z times the
   standard error).

@@ -17,7 +17,7 @@ import numpy as np
 from common.streams import PrefixDraws, rng, stream
 from control.config import OCPConfig, lower_tail
 from control.ocp import Solution
-from ppann.confidence import confidence_quantile
+from ppann.confidence import confidence_quantile, mean_quantile, one_machine, spread_level
 from ppann.heads import FusedHeads
 from ppann.machine import sigma_upper
 from ppann.modes import MONTE_CARLO_MODES
@@ -30,11 +30,34 @@ _DELTA = PrefixDraws()
 
 def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | None, float]:
     """The machine spread the Monte-Carlo draws with (None: the model's own) and z, for the
-    configured confidence (module docstring)."""
+    configured confidence (module docstring): the spread's bound from as many machines as the
+    model learnt it from (ppann/confidence.py spread_level).
+
+    Raises:
+      RobustError: a model learnt from one machine, at a confidence above 0."""
     z = confidence_quantile(config.confidence)
     if z == 0 or not MONTE_CARLO_MODES[config.mc_mode].machine:
         return None, z
-    return sigma_upper(heads.machine_sigma, heads.machine_profile, z), z
+    level = spread_level(config.confidence, _machines(heads, config))
+    return sigma_upper(heads.machine_sigma, heads.machine_profile, level), z
+
+
+def mean_allowance_quantile(heads: FusedHeads, config: OCPConfig) -> float:
+    """The radius of the line mean's ellipsoid (`population_margin`'s z) for the configured
+    confidence and the machines the model learnt the line from (ppann/confidence.py).
+
+    Raises:
+      RobustError: a model learnt from one machine, at a confidence above 0."""
+    return mean_quantile(config.confidence, _machines(heads, config))
+
+
+def _machines(heads: FusedHeads, config: OCPConfig) -> int:
+    """The machines the model's line was learnt from (0: unknown); refused if one."""
+    if heads.spread_machines == 1 and config.confidence > 0:
+        from control.records import RobustError  # control.records imports this module
+
+        raise RobustError(one_machine(config.confidence))
+    return heads.spread_machines
 
 
 def population_margin(
@@ -46,7 +69,8 @@ def population_margin(
     feedback: Feedback | None = None,
 ) -> np.ndarray:
     """How far the line's mean slider can sit below the model's at each constraint sample, at
-    one-sided normal quantile z (module docstring), m: the largest drop of the mean model's slider
+    z standard errors of the line's mean (`mean_allowance_quantile`: the one-sided bound from
+    the model's machines; module docstring), m: the largest drop of the mean model's slider
     over line shifts delta on the ellipsoid delta^T C^-1 delta = z^2, evaluated by simulation, not
     linearised (near top dead centre the slider is concave in theta: the linear bound was 30 %
     short in tests/test_tightening.py). The shifts tried: the ellipsoid's six vertices (+-z along
@@ -312,7 +336,8 @@ def slider_uncertainty(
             slider = heads.geometry.slider_position(every)
         constrained = slider[:, index]
         mean, std = slider.mean(axis=0), slider.std(axis=0, ddof=1)
-    population = population_margin(heads, solution, config, z, feedback=feedback)
+    z_mean = mean_allowance_quantile(heads, config)
+    population = population_margin(heads, solution, config, z_mean, feedback=feedback)
     tightened, standard_error, sampling = _tightened(solution, constrained, population, config, z)
     return Uncertainty(
         mean,

@@ -46,6 +46,11 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
     seen = report["models"]["ppann"].get("spread_data")
     if seen:  # what the machine spread was learnt from (ppann/machine.py)
         rows["spread learnt from"] = f"{seen['machines']} machines, {seen['episodes']} episodes"
+        quantile = report["models"]["ppann"].get("line_mean_quantile", 0.0)
+        if quantile is None:  # ppann/confidence.py: one machine bounds nothing about the line
+            rows["spread learnt from"] += "; no bound on the line at 0.95 (one machine)"
+        elif quantile:
+            rows["spread learnt from"] += f"; line mean bounded at {quantile:.2f} se (0.95)"
     force = report["models"]["ppann"].get("lever_sigma")
     if force is not None:  # the slider force's channel (ppann/lever.py)
         rows["slider force σ (fitted)"] = f"{force:.1f} N"

@@ -24,6 +24,11 @@ VERSION = 4
 the training machines leave open about the line (common_covariance, machine_profile)."""
 
 
+OPTIONAL_BUFFERS = ("spread_machines",)
+"""Buffers added within VERSION, whose zeros mean "not recorded" (ppann/confidence.py: the
+machines a spread was learnt from, since session 79): an older checkpoint loads with zeros."""
+
+
 class CheckpointError(CrankError, ValueError):
     """A file is not a checkpoint of this version and architecture."""
 
@@ -91,8 +96,12 @@ def load(path: str | Path) -> tuple[torch.nn.Module, dict[str, Any]]:
     for name, tensor in payload["state_dict"].items():
         if torch.is_tensor(tensor) and tensor.is_floating_point() and not tensor.isfinite().all():
             raise CheckpointError(f"{path}: tensor {name!r} holds NaN or inf")
+    state = dict(payload["state_dict"])
+    for name, value in model.state_dict().items():  # recorded since: zeros read as before
+        if name in OPTIONAL_BUFFERS:
+            state.setdefault(name, torch.zeros_like(value))
     try:
-        model.load_state_dict(payload["state_dict"])
+        model.load_state_dict(state)
     except RuntimeError as exc:
         reason = " ".join(str(exc).split())[:200]
         raise CheckpointError(f"{path}: weights from another architecture ({reason})") from None

@@ -55,6 +55,7 @@ class FusedHeads:
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         self.common_covariance = model.common_covariance.detach().numpy().copy()
         self.machine_profile = model.machine_profile.detach().numpy().copy()
+        self.spread_machines = int(model.spread_machines)  # 0: not recorded (ppann/confidence.py)
         self.transmission = model.transmission.detach().numpy().copy()
         self.geometry = model.geometry
         self.lever_sigma = float(getattr(model, "lever_sigma", torch.zeros(1))[0])

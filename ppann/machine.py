@@ -270,16 +270,16 @@ def population(
     return Population(torch.linalg.inv(hessian), profile)
 
 
-def sigma_upper(machine_sigma: np.ndarray, profile: np.ndarray, z: float) -> np.ndarray:
-    """Likelihood-ratio upper bound of each machine_sigma component at one-sided normal quantile
-    z: the smallest value above the estimate where the profile NLL rises by z^2 / 2 (linear
-    interpolation on PROFILE_GRID; the grid's end if it never does). z = 0, or a profile row of
-    zeros (no machine model fitted), gives the estimate."""
+def sigma_upper(machine_sigma: np.ndarray, profile: np.ndarray, level: float) -> np.ndarray:
+    """Likelihood-ratio upper bound of each machine_sigma component: the smallest value above the
+    estimate where the profile NLL rises by `level` (z^2 / 2 at one-sided normal quantile z for
+    many machines; ppann/confidence.py spread_level for M) (linear interpolation on
+    PROFILE_GRID; the grid's end if it never does). level 0, or a profile row of zeros (no
+    machine model fitted), gives the estimate."""
     machine_sigma = np.asarray(machine_sigma, dtype=float)
     upper = machine_sigma.copy()
-    if z <= 0:
+    if level <= 0:
         return upper
-    level = 0.5 * z * z
     for i, (estimate, rise) in enumerate(zip(machine_sigma, profile, strict=True)):
         if not np.any(rise):
             continue

@@ -89,6 +89,9 @@ class PPANN(nn.Module):
         self.register_buffer(
             "machine_profile", torch.zeros((3, len(PROFILE_GRID)), dtype=torch.float64)
         )
+        # The machines phase 2 learnt that line from (ppann/confidence.py: the bounds' small-sample
+        # factors); 0: not recorded (a checkpoint from before session 79: the normal z).
+        self.register_buffer("spread_machines", torch.zeros((), dtype=torch.float64))
         # Quantiles of the crank's angle to the motor (ppann/transmission.py); zeros: none.
         self.register_buffer(
             "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)

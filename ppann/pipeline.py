@@ -22,7 +22,7 @@ from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint
 from ppann import figures as plots
-from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile
+from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
 from ppann.fit import Fitted, fit_all
 from ppann.kinds import KINDS
 from ppann.machine import sigma_upper
@@ -42,10 +42,6 @@ from twin.dataset import Dataset, check_step
 from twin.mcap_dataset import has_model_xml, read_dataset, read_model_xml
 from twin.physics import SliderCrank, compile_mjcf
 from twin.rig_import import RIG_SCENARIO
-
-LINE_Z = confidence_quantile(DEFAULT_CONFIDENCE)
-"""The report's one-sided bounds on the line (z = 2.13): what the robust OCP allows for at its
-default confidence 0.95 (ppann/confidence.py)."""
 
 
 def sibling(out: Path, suffix: str) -> Path:
@@ -163,13 +159,20 @@ def train_and_report(
                 entry["lever_sigma"] = f.history.lever_sigma
             if f.history.residual_mean_share is not None:  # ppann/residual_mean.py
                 entry["residual_mean_share"] = f.history.residual_mean_share
-            # What the training machines leave open about the line (ppann/machine.py).
+            # What the training machines leave open about the line (ppann/machine.py): the
+            # bounds the robust OCP allows for at its default confidence 0.95, from as many
+            # machines as phase 2 saw (ppann/confidence.py; one machine bounds nothing).
+            machines = int(f.model.spread_machines)
+            level = spread_level(DEFAULT_CONFIDENCE, machines) if machines != 1 else np.inf
             upper = sigma_upper(
-                f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), LINE_Z
+                f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), level
             )
             entry["machine_sigma_upper"] = dict(zip(Z_NAMES, upper.tolist(), strict=True))
             line_se = f.model.common_covariance.diagonal().clamp(min=0).sqrt().tolist()
             entry["line_mean_se"] = dict(zip(Z_NAMES, line_se, strict=True))
+            entry["line_mean_quantile"] = (
+                mean_quantile(DEFAULT_CONFIDENCE, machines) if machines != 1 else None
+            )
             # The crank's angle to the motor, from the measured slider (ppann/transmission.py).
             q = f.model.transmission.tolist()
             entry["transmission_rad"] = {"q01": q[1], "median": q[50], "q99": q[99]}

@@ -321,5 +321,6 @@ def _fit_spread(
         with torch.no_grad():
             model.common_covariance.copy_(line.common_covariance)
             model.machine_profile.copy_(line.profile)
+            model.spread_machines.fill_(history.spread_data["machines"])
         history.machine_offsets = offsets.tolist()
         history.machine_common = common.detach().tolist()

@@ -285,8 +285,9 @@ def test_population_uncertainty_matches_directly_observed_machines(fitted_line) 
     s = model.machine_sigma[0].item()
     se = math.sqrt(model.common_covariance[0, 0].item())
     assert se == pytest.approx(s / math.sqrt(machines), rel=0.1)
+    assert int(model.spread_machines) == machines  # what the OCP's bounds count (test_small_sample)
     z = 1.96
-    upper = sigma_upper(model.machine_sigma.numpy(), model.machine_profile.numpy(), z)
+    upper = sigma_upper(model.machine_sigma.numpy(), model.machine_profile.numpy(), 0.5 * z * z)
     lo, hi = s, 3 * s  # bisection of the closed form
     for _ in range(60):
         mid = 0.5 * (lo + hi)

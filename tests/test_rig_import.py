@@ -346,6 +346,9 @@ def test_rig_data_imports_inspects_trains_and_solves(
     assert report["calibration"] is None and not (tmp_path / "m.calibration.png").exists()
     seen = report["models"]["ppann"]["spread_data"]
     assert seen["machines"] == 3 and f"3 machines, {seen['episodes']} episodes" in trained.stdout
+    # three machines bound the line's mean at Student's t_2 (ppann/confidence.py): 6.54 se
+    assert report["models"]["ppann"]["line_mean_quantile"] == pytest.approx(6.5393, abs=1e-4)
+    assert "line mean bounded at 6.54 se (0.95)" in trained.stdout
     assert (tmp_path / "m.bands.png").is_file()
     solved = crank(
         "solve", "--model", str(model), "--out", str(tmp_path / "ocp.json"),
