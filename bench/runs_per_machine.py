@@ -72,6 +72,7 @@ def summary(folder: Path) -> dict:
         "machine_sigma": ppann["machine_sigma"],
         "machine_sigma_upper": ppann["machine_sigma_upper"],
         "line_mean_se": ppann["line_mean_se"],
+        "line_mean_quantile": ppann.get("line_mean_quantile"),  # since session 79
         "epochs": ppann["epochs"],
     }
     if not ocp_path.exists():
@@ -89,7 +90,9 @@ def summary(folder: Path) -> dict:
         out["profiles"][name] = {
             "premium": r["cost"] / nominal - 1,
             "margins_mm": [1e3 * (h - height) for h in r["heights"]],
+            "population_mm": [1e3 * v for v in r.get("population", [])],
         }
+    out["refused"] = ocp.get("refused", {})
     held = json.loads((folder / "heldout.json").read_text())
     out["verdicts"] = held["verdicts"]
     out["heldout"] = {
