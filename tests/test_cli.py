@@ -46,13 +46,14 @@ def test_generate_writes_a_contract_dataset(tmp_path: Path) -> None:
 
 
 def test_run_writes_config_and_report(tmp_path: Path) -> None:
-    """2 s of data (from a config file) train a PPANN too uncertain for a robust profile, the
+    """3 s of data (from a config file) train a PPANN too uncertain for a robust profile, the
     open loop's and its fallback tube's alike: the chain runs to the robust OCP and stops there
     with one line naming both reasons, leaving no ocp.json or report; config.json holds the
     file's values under the flags given."""
     settings = tmp_path / "crank.toml"  # a config file, and a flag that overrides it
     settings.write_text(
-        "heldout_runs = 50\nheldout_trajectories = 500\n[generation]\nseconds = 2.0\n"
+        "heldout_runs = 50\nheldout_trajectories = 500\n[generation]\nseconds = 3.0\n"
+        "episode_seconds = 1.0\n"  # 3 machines: one would bound nothing (ppann/confidence.py)
         "[ocp]\nheight = 0.081\n[plan]\nepisodes = 0\n"  # one round: the refusal's line
         "[train]\nmean_wrap = false\n"  # eq. 14's z_K: with mean_wrap this model has a tube
     )
@@ -65,7 +66,7 @@ def test_run_writes_config_and_report(tmp_path: Path) -> None:
     assert "to try the closed loop" not in last  # the fallback was that closed loop
     run_dir = tmp_path / "r1"
     config = json.loads((run_dir / "config.json").read_text())
-    assert config["seed"] == 0 and config["generation"]["seconds"] == 2.0
+    assert config["seed"] == 0 and config["generation"]["seconds"] == 3.0
     assert config["ocp"]["height"] == 0.081 and config["heldout_runs"] == 7
     assert config["heldout_trajectories"] == 500
     assert config["ocp"]["horizon"] == 150 and config["ocp"]["mc_seed"] == 0

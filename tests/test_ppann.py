@@ -128,7 +128,7 @@ def test_phase2_leaves_the_mean_bit_identical() -> None:
     splits = make_splits(data, config)
     model = PPANN(PPANNConfig(trainable_physics=True))
     train_mean(model, splits, config, history=History())
-    phase2 = ("sigma", "common_covariance", "machine_profile")  # what phase 2 fits
+    phase2 = ("sigma", "common_covariance", "machine_profile", "spread_machines")  # phase 2 fits
     before = {
         k: v.clone() for k, v in model.state_dict().items() if not any(p in k for p in phase2)
     }
