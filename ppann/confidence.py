@@ -8,7 +8,7 @@ the line's spread, and on the Monte-Carlo's estimate. A confidence c is split ev
 them (Bonferroni), each bound at 1 - (1 - c) / 3, so that all three hold together with
 probability >= c.
 
-The two bounds on the line are exact for M machines, not asymptotic (beyond session 79, where
+The two bounds on the line are exact for M machines, not asymptotic (since session 79; before,
 both took the normal z whatever M): the line's mean and spread are estimated from M machines'
 offsets, and a normal quantile about a plug-in estimate holds only for many. For M machines
 observed directly (normal offsets, the spread's estimate s the maximum-likelihood one, divisor
@@ -20,10 +20,11 @@ M, as phase 2's is):
 - the spread is below the value where the profile likelihood has risen by `spread_level`,
   the rise at which the exact chi-square bound sits, M s^2 / sigma^2 ~ chi2_{M-1}: 2.33 s for 8
   machines where the asymptotic z^2 / 2 gave 1.91 s (a 5.2 % miss, not 1.7 %).
-With white noise in the runs the machines are seen less directly and the plug-in covariance and
-profile hold that share too; the small-sample factors then err on the safe side. Where the count
-is unknown (`machines` 0: a checkpoint from before it was recorded) both take the normal z, as
-before."""
+With white noise in the runs the machines are seen less directly: the covariance of the mean
+then holds a white share known to far more degrees of freedom than M - 1, and the Student factor
+on it errs on the safe side; the spread's level is the directly observed case's, not derived for
+the noisy one (`tests/test_small_sample.py` checks the exact case). Where the count is unknown
+(`machines` 0: a checkpoint from before it was recorded) both take the normal z, as before."""
 
 from __future__ import annotations
 
