@@ -22,15 +22,15 @@ import numpy as np
 from replay.spread_interval import BOOTSTRAP_DRAWS, LEVEL, ratio_interval
 from twin.dataset import Dataset, episode_machines, machine_ids
 
-UNDEFINED = tuple(
-    f"{part}_{key}"
-    for part, keys in (
-        ("within", "sigma"),
-        ("white", "ratio"),
-        ("between", "sigma"),
-        ("machine", "ratio"),
-    )
-    for key in (keys, f"{keys}_ci95")
+UNDEFINED = (
+    "within_sigma",
+    "within_sigma_ci95",
+    "white_ratio",
+    "white_ratio_ci95",
+    "between_sigma",
+    "between_sigma_ci95",
+    "machine_ratio",
+    "machine_ratio_ci95",
 )
 """The keys of a constraint sample that every machine running once leaves undefined."""
 
