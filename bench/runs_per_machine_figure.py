@@ -51,7 +51,7 @@ def main() -> None:
     records = [json.loads(p.read_text()) for p in args.records]
     fig = Figure(figsize=(11, 6.5), layout="constrained")
     se_ax, cost_ax = fig.subplots(2, 1, sharex=True)
-    ticks, names = [], []
+    ticks, names, refused = [], [], False
     for i, record in enumerate(records):
         seeds = sorted(record["seeds"], key=int)
         for j, seed in enumerate(seeds):
@@ -64,6 +64,7 @@ def main() -> None:
                 got = returned(entry)
                 if got is None:
                     cost_ax.plot(x, 0, "x", color="tab:red")
+                    refused = True
                     continue
                 name, premium, below = got
                 cost_ax.plot(x, premium, "o" if name == "robust" else "s", color=colour, ms=7)
@@ -81,7 +82,8 @@ def main() -> None:
     cost_ax.set_ylim(0, None)
     cost_ax.set_xticks(ticks, names)
     shapes = [Line2D([], [], ls="", marker=m, color="k", label=t) for m, t in SHAPES.items()]
-    shapes.append(Line2D([], [], ls="", marker="x", color="tab:red", label="no robust torque"))
+    if refused:  # a reading with no robust torque at all
+        shapes.append(Line2D([], [], ls="", marker="x", color="tab:red", label="no robust torque"))
     cost_ax.legend(handles=shapes, loc="center left", fontsize=8)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)
