@@ -47,8 +47,21 @@ machine_sigma / sqrt(E) (measured on line-15: the training machines were 2-4 % m
 the line, and the twin ran 0.1 rad ahead of the model at sample 100); and machine_sigma itself
 has a ~1 / sqrt(2 E) relative error (24 % at E = 9). Two summaries of the marginal likelihood
 carry this into the checkpoint:
-- `common_covariance` (3, 3): the inverse Hessian of the summed NLL in the common offset, exact
-  (the NLL is quadratic in it), the covariance of the line's mean log-factors;
+- `common_covariance` (3, 3): the covariance of the mean model's offset from the line's mean
+  log-factors. The mean model is not the likelihood's estimate of the line's mean: phase 1 fits
+  every sample alike, knowing nothing of machines, so it averages the machines as a pooled fit
+  does, each by the information its runs carry (M_e, with e now counting machines), not by the
+  1 / (machine_sigma^2 + M_e^-1) the likelihood would. Its covariance is the pooled fit's
+  (the sandwich) at the fitted spread,
+
+      (sum_e M_e)^-1 [ sum_e M_e (S^2 + M_e^-1) M_e ] (sum_e M_e)^-1,
+
+  never below the inverse Hessian of the summed NLL in the common offset (the likelihood's own,
+  the best a linear average can do; Gauss-Markov), and equal to it when the machines carry
+  equal information. Where they do not, it is wider: after the default chain's plan round the
+  240 plan machines' short runs see a machine's damping to 0.8 sigma, the dataset's 70 to 0.1,
+  and the pooled mean's standard error was 1.6x the likelihood's in the damping
+  (bench/bound_coverage.md; until session 80 the inverse Hessian was used);
 - `profile` (3, len(PROFILE_GRID)): the summed NLL with one machine_sigma component moved to
   each grid value and everything else at its estimate, minus the NLL at the estimate, so that a
   likelihood-ratio upper bound at any confidence can be read off later (`sigma_upper`): unlike
@@ -235,7 +248,8 @@ class Population:
     """What the training machines tell about the line (module docstring, last section)."""
 
     common_covariance: torch.Tensor
-    """(3, 3) covariance of the line's mean log-factors."""
+    """(3, 3) covariance of the mean model's offset from the line's mean log-factors: the pooled
+    average's (`pooled_covariance`)."""
     profile: torch.Tensor
     """(3, len(PROFILE_GRID)) NLL increase with one machine_sigma component at each grid value."""
 
@@ -253,11 +267,6 @@ def population(
     lever = None if lever_sigma is None else lever_sigma.detach()
     n = terms.residual.shape[0]
 
-    def total(offset: torch.Tensor) -> torch.Tensor:
-        return n * marginal_nll(terms.shifted(offset), sigma, machine_sigma, lever)
-
-    hessian = torch.autograd.functional.hessian(total, common)
-    hessian = 0.5 * (hessian + hessian.T)
     shifted = terms.shifted(common)
     with torch.no_grad():
         base = n * marginal_nll(shifted, sigma, machine_sigma, lever)
@@ -267,7 +276,24 @@ def population(
                 moved = machine_sigma.clone()
                 moved[i] = float(value)
                 profile[i, j] = n * marginal_nll(shifted, sigma, moved, lever) - base
-    return Population(torch.linalg.inv(hessian), profile)
+    return Population(pooled_covariance(terms, sigma, machine_sigma, lever), profile)
+
+
+def pooled_covariance(
+    terms: EpisodeTerms,
+    sigma: torch.Tensor,
+    machine_sigma: torch.Tensor,
+    lever_sigma: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """The covariance (3, 3) of the machines' pooled average log-factors (each machine weighted
+    by its information M_e) about the line's mean, for machine spread `machine_sigma` (module
+    docstring, `common_covariance`): (sum M)^-1 [sum M_e S^2 M_e + M_e] (sum M)^-1."""
+    variance = terms.white_variance(sigma, lever_sigma)
+    info, _ = machine_sums(terms.residual, terms.design, variance, terms.machine, terms.n_machines)
+    spread = torch.diag(machine_sigma**2)
+    inverse = torch.linalg.inv(info.sum(0))
+    covariance = inverse @ (info @ spread @ info + info).sum(0) @ inverse
+    return 0.5 * (covariance + covariance.T)
 
 
 def sigma_upper(machine_sigma: np.ndarray, profile: np.ndarray, level: float) -> np.ndarray:
