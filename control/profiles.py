@@ -22,11 +22,10 @@ Monte-Carlo at the raised k, and a full solve from its multipliers where it was 
 scheme's own: control/robust.py `solve_robust`; the same margins to the loop's tolerance as from
 the nominal, in fewer solves), then with the quantile tightening; the last torque is returned.
 
-Before the returned solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise
-would follow, it is made inside the open-loop aware scheme, from its draft near the fixed point,
-so that the loop settles once, at the raised k (16-17 of 25 default models × Monte-Carlo seeds
-within 3 nominal solves, from 8); the returned torque's check starts from that draft's lines.
-"""
+Before the returned solve (session 47, `_draft_raise`; bench/draft_check.md): where that raise would
+follow, it is made inside the open-loop aware scheme, from its draft near the fixed point, so that
+the loop settles once, at the raised k (16-17 of 25 default models × Monte-Carlo seeds within 3
+nominal solves, from 8); the returned torque's check starts from that draft's lines."""
 
 from __future__ import annotations
 
@@ -174,6 +173,7 @@ def solve_decided(
     except RobustError as exc:
         bare = _bare(heads, result, checks[-1], config, profile=profile)
         exc.args = (f"{why}{bare}; and with the quantile tightening: {exc}",)
+        exc.tail_checked = True
         raise
     return replace(
         quantile,
@@ -187,13 +187,13 @@ def _draft_raise(
 ) -> Callable[[Solution, Uncertainty, OCPConfig], float | None] | None:
     """The open-loop aware scheme's draft near its fixed point checked before its full solve
     (session 47; control/aware.py `iterate`'s `draft_check`), where its own tail would be checked
-    and raised afterwards: on DRAFT_LINES lines; their rate moved to where the loop would settle
-    at this k (control/raise_k.py `prediction`, `short`: the draft's margin is up to
-    aware.NEAR tolerances short of its tightening) and, where that is TAIL_BAND of the lines'
-    standard errors above the target (the returned torque's check would raise it), the k
-    predicted to bring it to the aim, so that the loop settles once, at that k. `seen`
-    collects each check; None where there is none to make (a tube, the bracketed loop, plain
-    sampling, the quantile tightening, no check or no raise)."""
+    and raised afterwards: on DRAFT_LINES lines; their rate moved to where the loop would settle at
+    this k (control/raise_k.py `prediction`, `short`: the draft's margin is up to aware.NEAR
+    tolerances short of its tightening) and, where that is TAIL_BAND of the lines' standard errors
+    above the target (the returned torque's check would raise it), the k predicted to bring it to
+    the aim, so that the loop settles once, at that k. `seen` collects each check; None where there
+    is none to make (a tube, the bracketed loop, plain sampling, the quantile tightening, no check
+    or no raise)."""
     if not (
         config.tail_check
         and config.tail_remedy == "raise-k"
@@ -395,5 +395,6 @@ def solve_profiles(
         if len(refused) > 1:
             first.args = ("; ".join(f"{name}: {exc}" for name, exc in refused.items()),)
         first.partials = {name: exc.partial for name, exc in refused.items() if exc.partial}
+        first.tail_checked = any(exc.tail_checked for exc in refused.values())
         raise first
     return Solved(results=results, refused=refused)

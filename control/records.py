@@ -21,6 +21,9 @@ class RobustError(NoSolutionError, RuntimeError):
 
     partial: Partial | None = None
     partials: dict[str, Partial] | None = None
+    tail_checked: bool = False
+    """The refusal came after a torque's own tail check (control/profiles.py solve_decided; of
+    any profile, for solve_profiles): without the check, the loop's torque might stand."""
 
 
 class BeyondStrokeError(RobustError):

@@ -104,14 +104,16 @@ def solve(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[st
 
 def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks) -> dict[str, Any]:
     """The plan round's first solve into `out` (round-0). Its torque is only played on fresh
-    machines to collect data, never returned, so where every robust profile is refused with the
-    own-tail check on (control/tail.py), the loop's torque without the check is played instead;
+    machines to collect data, never returned, so where a robust profile is refused by its
+    own-tail check (control/tail.py; `RobustError.tail_checked`: a refusal before the check,
+    such as a tightening beyond the stroke, would only be met again), and every one is refused,
+    the loop's torque without the check is played instead;
     the summary keeps the refusal under "tail_refused", its files as `out`/ocp.tail_refused.json
     (bench/refused_k3.md: such refusals were the first round's over-predicted spread, which the
-    round corrected on the paper task). Where they are refused even without the check (a line
-    no open-loop torque holds), `config.ocp.fallback` is solved as a one-round run would, and
-    the round plays the nominal torque (`plan`); its ocp.json says why each was refused. The
-    second round's solve checks its own torque as always.
+    round corrected on the paper task). Where they are refused before or even without the check
+    (a line no open-loop torque holds), `config.ocp.fallback` is solved as a one-round run
+    would, and the round plays the nominal torque (`plan`); its ocp.json says why each was
+    refused. The second round's solve checks its own torque as always.
 
     Raises:
       RobustError: the first solve refused even without the check and with no fallback, or the
@@ -123,7 +125,7 @@ def solve_first_round(config: RunConfig, model: Path, out: Path, *, hooks: Hooks
         return solve(config, model, out, hooks=hooks)
     except RobustError as exc:
         first = exc
-    if config.ocp.tail_check:
+    if config.ocp.tail_check and first.tail_checked:
         # what the refused solve kept (its nominal plan and margin history), out of the way of
         # the retry, which removes a stale ocp.failed.json when it succeeds
         failed = failed_path(out / OCP)

@@ -238,10 +238,11 @@ def test_a_sweep_leaf_with_the_round_is_the_chain(planned_run, tmp_path: Path) -
 def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    """stages.solve_first_round: a refusal with the own-tail check on is solved again without it
-    (only the check differs), the refusal kept in the summary; a refusal without the check, or
-    with the check already off, is the solve's own error where no fallback is asked for, and the
-    fallback's solve (the check as asked) where one is."""
+    """stages.solve_first_round: a refusal by the own-tail check is solved again without it
+    (only the check differs), the refusal kept in the summary; a refusal without the check, one
+    before the check (RobustError.tail_checked false), or with the check already off, is the
+    solve's own error where no fallback is asked for, and the fallback's solve (the check as
+    asked) where one is."""
 
     calls: list[tuple[bool, tuple[str, ...]]] = []
 
@@ -253,7 +254,9 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
             return {"refused": {"robust": "beyond the stroke"}, "fallback": config.ocp.fallback}
         if config.ocp.tail_check:
             failed.write_text('{"margins": "checked"}')
-            raise RobustError(f"below the height on 1.31 %; the margin history is in {failed}")
+            refusal = RobustError(f"below the height on 1.31 %; the margin history is in {failed}")
+            refusal.tail_checked = tail_refuses  # as control/profiles.py marks it
+            raise refusal
         if fail_unchecked:
             raise RobustError("beyond the stroke")
         failed.unlink(missing_ok=True)
@@ -261,7 +264,7 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
 
     monkeypatch.setattr(stages, "solve", solve)
     checked = replace(PLANNED, ocp=replace(PLANNED.ocp, tail_check=True, fallback=()))
-    fail_unchecked = False
+    fail_unchecked, tail_refuses = False, True
     told: list[str] = []
     solved = stages.solve_first_round(
         checked, tmp_path / "m.pt", tmp_path, hooks=Hooks(on_stage=told.append)
@@ -285,6 +288,14 @@ def test_a_first_round_refused_by_its_tail_check_plays_the_unchecked_torque(
     with pytest.raises(RobustError, match="beyond the stroke"):  # the check was off: no retry
         stages.solve_first_round(unchecked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
     assert calls == [(False, ())]
+
+    # a refusal before any tail check (beyond the stroke) would only be met again: no retry
+    calls.clear()
+    tail_refuses = False
+    with pytest.raises(RobustError, match=r"1\.31 %"):
+        stages.solve_first_round(checked, tmp_path / "m.pt", tmp_path, hooks=Hooks())
+    assert calls == [(True, ())]
+    tail_refuses = True
 
     # a line no open-loop torque holds: refused with and without the check, the fallback solved
     # with the check as asked, its refusals in the summary (the round then plays the nominal)

@@ -57,6 +57,7 @@ def test_an_undecided_verdict_draws_more_trajectories(monkeypatch: pytest.Monkey
     with pytest.raises(BeyondStrokeError) as refused:
         solve_decided(WIDE, CONFIG, profile="robust", ocp=wide, nominal=wide.solve())
     assert refused.value.se > 0
+    assert not refused.value.tail_checked  # refused before its tail was checked
     assert refused.value.partial.nominal_uncertainty.samples == most
 
 
