@@ -227,7 +227,58 @@ def bounds(
         k: np.stack([sigma_upper(s[j].numpy(), profile[j], lv) for j in range(len(b))])
         for k, lv in levels.items()
     }
-    return {"se": se, "profile": profile, **upper}
+    counts = effective_counts(setup, s)
+    upper["effective"] = np.stack(
+        [
+            [
+                sigma_upper(s[j, i : i + 1].numpy(), profile[j, i : i + 1], lv)[0]
+                for i, lv in enumerate(_spread_levels(counts["spread"][j]))
+            ]
+            for j in range(len(b))
+        ]
+    )
+    return {"se": se, "profile": profile, "counts": counts, **upper}
+
+
+def effective_counts(setup: Setup, s: torch.Tensor) -> dict[str, np.ndarray]:
+    """Satterthwaite's effective machine counts at each line's fitted spread s (L, 3), per
+    component, equal to M for M directly observed machines of equal runs (an experiment, not
+    the product's): "mean", the degrees of freedom of the pooled average's estimated variance
+    V = sum_j A_ij s_j^2 + B_i, V^2 / sum_j A_ij^2 Var(s_j^2) / 2 with Var(s_j^2) =
+    2 / sum_e u_ej^2, u_ej = 1 / (s_j^2 + tau_ej^2), tau_ej^2 = (M_e^-1)_jj; "spread", the
+    machines' worth of information on s_j^2, s_j^4 sum_e u_ej^2."""
+    info = setup.info
+    tau2 = torch.diagonal(torch.linalg.inv(info), dim1=-2, dim2=-1)  # (E, 3)
+    rows = torch.linalg.inv(info.sum(0)) @ info  # (E, 3, 3): machine e's weight matrix
+    a = (rows**2).sum(0)  # (3, 3)
+    noise = torch.diagonal((rows @ torch.linalg.inv(info) @ rows.transpose(1, 2)).sum(0))
+    u2 = (1.0 / (s[:, None, :] ** 2 + tau2[None]) ** 2).sum(1)  # (L, 3)
+    v = (a[None] * s[:, None, :] ** 2).sum(-1) + noise  # (L, 3)
+    mean = v**2 / (a[None] ** 2 / u2[:, None, :]).sum(-1)
+    return {"mean": mean.numpy(), "spread": (s**4 * u2).numpy()}
+
+
+def _spread_levels(counts: np.ndarray) -> list[float]:
+    """spread_level at each effective count (above 1; a count at or below 1 bounds nothing:
+    infinite)."""
+    from scipy.stats import chi2
+
+    miss = (1 - DEFAULT_CONFIDENCE) / 3
+    levels = []
+    for m in counts:
+        u = chi2.ppf(miss, m - 1) / m if m > 1 else 0.0
+        levels.append(0.5 * m * (u - 1 - math.log(u)) if u > 0 else math.inf)
+    return levels
+
+
+def _mean_quantiles(counts: np.ndarray) -> np.ndarray:
+    """mean_quantile at effective counts (above 1; infinite at or below)."""
+    from scipy.stats import t
+
+    level = 1 - (1 - DEFAULT_CONFIDENCE) / 3
+    m = np.where(counts > 1, counts, 2.0)
+    q = t.ppf(level, m - 1) * np.sqrt(m / (m - 1))
+    return np.where(counts > 1, q, np.inf)
 
 
 def reference_check(setup: Setup, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor) -> float:
@@ -298,8 +349,17 @@ def misses(
     found = bounds(setup, b, log_s, c, m)
     truth_s, truth_c = setup.sigma.numpy(), setup.common.numpy()
     counts = {}
-    for name in ("exact", "normal"):
+    for name in ("exact", "normal", "effective"):
         counts[f"spread {name}"] = (found[name] < truth_s).sum(0)
+    error = (estimates["pooled"].numpy() - truth_c) / found["se"]["pooled"]
+    for name, q in (
+        ("own", _mean_quantiles(found["counts"]["mean"])),
+        ("least", _mean_quantiles(found["counts"]["mean"].min(-1, keepdims=True))),
+    ):
+        key = f"mean effective ({name}), pooled se, about pooled"
+        counts[key] = (error > q).sum(0) + (error < -q).sum(0)
+    counts["effective mean count"] = found["counts"]["mean"].sum(0)
+    counts["effective spread count"] = found["counts"]["spread"].sum(0)
     exact = mean_quantile(DEFAULT_CONFIDENCE, m)
     for about, estimate in estimates.items():
         for se, name, q in (
@@ -378,7 +438,7 @@ def main() -> None:
                 raise SystemExit("the fast path is not phase 2's likelihood")
         estimates = {"pooled": pooled(kept, b), "ML": c}
         for fit, (ls, cc) in (("phase 2", adam), ("ML", (log_s, c))):
-            shown = estimates if fit == "phase 2" else {}
+            shown = estimates if fit == "phase 2" else {"pooled": estimates["pooled"]}
             for key, value in misses(kept, b, ls, cc, m, shown).items():
                 totals[fit][key] = totals[fit].get(key, 0) + value
         done += n
@@ -390,16 +450,16 @@ def main() -> None:
         f" the mean's two sides averaged); ML fits left with a gradient above"
         f" {UNCONVERGED:g}: {unconverged} of {args.lines}"
     )
-    print(f"{'fit':8} {'bound':40}" + "".join(f"{n:>10}" for n in Z_NAMES))
+    print(f"{'fit':8} {'bound':52}" + "".join(f"{n:>10}" for n in Z_NAMES))
     table = {}
     for fit, counts in totals.items():
         for key, value in counts.items():
             per = 2 * args.lines if key.startswith("mean") else args.lines
             rate = np.asarray(value, dtype=float) / per
             table[f"{fit}.{key}"] = rate.tolist()
-            ratio = key.endswith("truth")
+            ratio = key.endswith("truth") or key.endswith("count")
             cells = (f"{v:9.3f} " if ratio else f"{100 * v:8.2f} %" for v in rate)
-            print(f"{fit:8} {key:40}" + "".join(cells))
+            print(f"{fit:8} {key:52}" + "".join(cells))
     if args.out:
         args.out.write_text(
             json.dumps(
