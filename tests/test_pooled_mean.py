@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 import torch
 
-from ppann.machine import EpisodeTerms, machine_sums, marginal_nll, pooled_covariance
+from ppann.machine import (
+    EpisodeTerms,
+    machine_sums,
+    marginal_nll,
+    pooled_covariance,
+    population,
+)
 
 SPREAD = torch.tensor([0.3, 0.2, 0.1], dtype=torch.float64)
 
@@ -121,3 +127,14 @@ def test_directly_observed_machines_give_the_textbook_standard_error(machines: i
     terms = _repeated(400, machines, scale=1e2)
     se = torch.sqrt(torch.diagonal(pooled_covariance(terms, _ones(terms), SPREAD)))
     assert torch.allclose(se, SPREAD / math.sqrt(machines), rtol=1e-3)
+
+
+def test_phase_twos_population_carries_the_pooled_covariance() -> None:
+    """What phase 2 stores in the checkpoint (`population`'s common_covariance) is the pooled
+    average's, not the likelihood's inverse Hessian, on machines of unequal runs."""
+    terms = _line([200] * 3 + [20] * 3, seed=4)
+    ones = _ones(terms)
+    line = population(terms, ones, SPREAD, torch.zeros(3, dtype=torch.float64))
+    pooled = pooled_covariance(terms, ones, SPREAD)
+    assert torch.allclose(line.common_covariance, pooled, rtol=1e-12, atol=0.0)
+    assert not torch.allclose(pooled, _likelihood_covariance(terms), rtol=0.05)
