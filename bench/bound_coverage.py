@@ -41,18 +41,15 @@ import torch
 
 from ppann import checkpoint
 from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile, mean_quantile, spread_level
-from ppann.lever import lever_squared
-from ppann.losses import propagated_terms
 from ppann.machine import (
     EpisodeTerms,
-    machine_design,
     machine_sums,
     marginal_nll,
     population,
     sigma_upper,
 )
 from ppann.model import PROFILE_GRID, Z_NAMES
-from ppann.train import MACHINE_SIGMA_START, make_splits, sigma_data
+from ppann.train import MACHINE_SIGMA_START, make_splits, spread_samples
 from ppann.train_config import TrainConfig
 from twin.mcap_dataset import read_dataset
 
@@ -73,23 +70,11 @@ def setup(model_path: Path) -> Setup:
     model, payload = checkpoint.load(model_path)
     config = TrainConfig(**payload["train_config"])
     dataset = read_dataset(model_path.parent / payload["data_path"])
-    splits = make_splits(dataset, config)
-    theta, omega, tau, alpha, episode, machine = sigma_data(dataset, splits.split)
+    data = spread_samples(model, dataset, make_splits(dataset, config).split, config)
+    terms = data.terms  # phase 2's own blocks (ppann/train.py)
     with torch.no_grad():
-        residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
-        design = machine_design(model, theta, omega, derivative)
-        lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
-        terms = EpisodeTerms.build(
-            residual,
-            derivative,
-            design,
-            episode,
-            machine=machine,
-            block_length=config.sigma_block,
-            lever=lever,
-        )
         force = model.lever_sigma if model.config.sigma_lever else None
-        variance = terms.white_variance(model.z_sigma(theta, omega), force)
+        variance = terms.white_variance(model.z_sigma(data.theta, data.omega), force)
         info, _ = machine_sums(
             terms.residual, terms.design, variance, terms.machine, terms.n_machines
         )

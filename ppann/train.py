@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -172,6 +172,50 @@ def sigma_data(dataset: Dataset, stop: int) -> tuple[torch.Tensor, ...]:
     )
 
 
+@dataclass(frozen=True)
+class SpreadSamples:
+    """Phase 2's samples at the frozen mean model (`spread_samples`): per sample the state,
+    torque, machine, torque residual and design D_k; their blocks (ppann/machine.py)."""
+
+    theta: torch.Tensor
+    omega: torch.Tensor
+    tau: torch.Tensor
+    machine: torch.Tensor
+    residual: torch.Tensor
+    design: torch.Tensor
+    terms: EpisodeTerms
+    """The blocks, the residual summed into them."""
+    machines: int
+    episodes: int
+
+    def blocks(self, residual: torch.Tensor) -> EpisodeTerms:
+        """The same blocks with another per-sample residual (n,) summed into them."""
+        summed = torch.zeros_like(self.terms.residual).index_add(0, self.terms.block, residual)
+        return replace(self.terms, residual=summed)
+
+
+def spread_samples(model: PPANN, dataset: Dataset, stop: int, config: TrainConfig) -> SpreadSamples:
+    """What phase 2 fits on: the samples before `stop` with a valid acceleration (`sigma_data`)
+    at the frozen mean model, in blocks of `config.sigma_block` (a machine's episodes share its
+    offset)."""
+    theta, omega, tau, alpha, episode, machine = sigma_data(dataset, stop)
+    with torch.no_grad():
+        residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
+        design = machine_design(model, theta, omega, derivative)
+    lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
+    terms = EpisodeTerms.build(
+        residual,
+        derivative,
+        design,
+        episode,
+        machine=machine,
+        block_length=config.sigma_block,
+        lever=lever,
+    )
+    machines, episodes = int(machine.max()) + 1, int(episode.max()) + 1
+    return SpreadSamples(theta, omega, tau, machine, residual, design, terms, machines, episodes)
+
+
 def train_sigma(
     model: PPANN,
     dataset: Dataset,
@@ -191,49 +235,31 @@ def train_sigma(
     residual's mean given the sample's state and torque (fitted with the first pass's machine
     offsets out) taken out of the residual (ppann/residual_mean.py).
     """
-    theta, omega, tau, alpha, episode, machine = sigma_data(dataset, splits.split)
-    history.spread_data = {
-        "machines": int(machine.max()) + 1,
-        "episodes": int(episode.max()) + 1,
-    }
-    with torch.no_grad():
-        residual, derivative = propagated_terms(model, theta, omega, tau, alpha)
-        design = machine_design(model, theta, omega, derivative)
-    lever = lever_squared(model.geometry, theta) if model.config.sigma_lever else None
-
-    def blocks(values: torch.Tensor) -> EpisodeTerms:
-        return EpisodeTerms.build(
-            values,
-            derivative,
-            design,
-            episode,
-            machine=machine,
-            block_length=config.sigma_block,
-            lever=lever,
-        )
-
-    terms = blocks(residual)
+    data = spread_samples(model, dataset, splits.split, config)
+    history.spread_data = {"machines": data.machines, "episodes": data.episodes}
+    terms, theta, omega = data.terms, data.theta, data.omega
     initial = copy.deepcopy(model.sigma_nets.state_dict())
     _fit_spread(model, terms, theta, omega, config, history=history, on_epoch=on_epoch)
     if not config.residual_mean:
         return
     # The mean model's own one-step error is not noise: its mean is fitted on the residual with
     # the machines' offsets of the first pass taken out, and the spread fitted again around it.
+    design = data.design
     shift = torch.zeros_like(design)  # each sample's machine offset (none without the model)
     if history.machine_offsets:
         shift = (
             torch.tensor(history.machine_common, dtype=design.dtype)
-            + torch.tensor(history.machine_offsets, dtype=design.dtype)[machine]
+            + torch.tensor(history.machine_offsets, dtype=design.dtype)[data.machine]
         )
-    own = residual + (design * shift).sum(-1)
-    fitted = fit_residual_mean(own, theta=theta, omega=omega, tau=tau, block=terms.block)
+    own = data.residual + (design * shift).sum(-1)
+    fitted = fit_residual_mean(own, theta=theta, omega=omega, tau=data.tau, block=terms.block)
     model.sigma_nets.load_state_dict(initial)
     history.sigma.clear()
     history.residual_mean_share = fitted.share
     second = None if on_epoch is None else (lambda e, loss: on_epoch(config.sigma_epochs + e, loss))
     _fit_spread(
         model,
-        blocks(residual - fitted.mean),
+        data.blocks(data.residual - fitted.mean),
         theta,
         omega,
         config,
