@@ -184,8 +184,7 @@ class SpreadSamples:
     residual: torch.Tensor
     design: torch.Tensor
     terms: EpisodeTerms
-    """The blocks, the residual summed into them."""
-    machines: int
+    """The blocks, the residual summed into them; its `n_machines` the machines."""
     episodes: int
 
     def blocks(self, residual: torch.Tensor) -> EpisodeTerms:
@@ -212,8 +211,8 @@ def spread_samples(model: PPANN, dataset: Dataset, stop: int, config: TrainConfi
         block_length=config.sigma_block,
         lever=lever,
     )
-    machines, episodes = int(machine.max()) + 1, int(episode.max()) + 1
-    return SpreadSamples(theta, omega, tau, machine, residual, design, terms, machines, episodes)
+    episodes = int(episode.max()) + 1
+    return SpreadSamples(theta, omega, tau, machine, residual, design, terms, episodes)
 
 
 def train_sigma(
@@ -236,7 +235,7 @@ def train_sigma(
     offsets out) taken out of the residual (ppann/residual_mean.py).
     """
     data = spread_samples(model, dataset, splits.split, config)
-    history.spread_data = {"machines": data.machines, "episodes": data.episodes}
+    history.spread_data = {"machines": data.terms.n_machines, "episodes": data.episodes}
     terms, theta, omega = data.terms, data.theta, data.omega
     initial = copy.deepcopy(model.sigma_nets.state_dict())
     _fit_spread(model, terms, theta, omega, config, history=history, on_epoch=on_epoch)
