@@ -28,9 +28,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from bound_coverage import MISS, Setup, adam_fit, line_nll, pooled, setup, simulate
+from bound_coverage import (
+    MISS,
+    PICK_SEED,
+    adam_fit,
+    kept_machines,
+    line_nll,
+    pooled,
+    setup,
+    simulate,
+)
 
 from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
+from ppann.machine import pooled_from_information
 from ppann.model import Z_NAMES
 
 
@@ -46,12 +56,9 @@ def drawn_at(info: torch.Tensor, sigma: torch.Tensor, common: torch.Tensor, inne
 
 
 def pooled_se(info: torch.Tensor, log_s: torch.Tensor) -> torch.Tensor:
-    """The pooled average's standard errors (L, 3) at spreads exp(log_s) (ppann/machine.py
-    pooled_covariance)."""
-    total = torch.linalg.inv(info.sum(0))
-    spread = torch.diag_embed(log_s.exp() ** 2)[:, None]
-    sandwich = total @ (info @ spread @ info + info).sum(1) @ total
-    return torch.sqrt(torch.diagonal(sandwich, dim1=-2, dim2=-1))
+    """The pooled average's standard errors (L, 3) at spreads exp(log_s) (ppann/machine.py)."""
+    covariance = pooled_from_information(info, log_s.exp())
+    return torch.sqrt(torch.diagonal(covariance, dim1=-2, dim2=-1))
 
 
 def rises_at(
@@ -81,12 +88,7 @@ def main() -> None:
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
     full = setup(args.model)
-    kept = full
-    if args.machines:  # the same draw as bench/bound_coverage.py's at its default seed
-        pick = np.sort(
-            np.random.default_rng(20261205).choice(full.info.shape[0], args.machines, False)
-        )
-        kept = Setup(full.info[pick], full.sigma, full.common, full.config)
+    kept = kept_machines(full, args.machines, np.random.default_rng(PICK_SEED))
     m, info = kept.info.shape[0], kept.info
     exact_level = spread_level(DEFAULT_CONFIDENCE, m)
     exact_radius = mean_quantile(DEFAULT_CONFIDENCE, m)

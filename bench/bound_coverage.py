@@ -45,6 +45,7 @@ from ppann.machine import (
     EpisodeTerms,
     machine_sums,
     marginal_nll,
+    pooled_from_information,
     population,
     sigma_upper,
 )
@@ -80,6 +81,19 @@ def setup(model_path: Path) -> Setup:
         )
     common = torch.tensor(payload["history"]["machine_common"], dtype=torch.float64)
     return Setup(info, model.machine_sigma.detach().clone(), common, config)
+
+
+PICK_SEED = 20261205
+"""The simulation's default seed; its first draw picks `--machines` (`kept_machines`)."""
+
+
+def kept_machines(full: Setup, machines: int, rng: np.random.Generator) -> Setup:
+    """`machines` of the setup's machines, drawn once from `rng` (0: all of them); the other
+    bench scripts pass np.random.default_rng(PICK_SEED) to keep this script's default draw."""
+    if not machines:
+        return full
+    pick = np.sort(rng.choice(full.info.shape[0], machines, replace=False))
+    return Setup(full.info[pick], full.sigma, full.common, full.config)
 
 
 def line_nll(
@@ -187,9 +201,7 @@ def bounds(
     g = s[:, None, :, None] * info * s[:, None, None, :]
     inner = torch.linalg.solve(torch.eye(3, dtype=info.dtype) + g, s[:, None, :, None] * info)
     hessian = (info - info @ (s[:, None, :, None] * inner)).sum(1)
-    total = torch.linalg.inv(info.sum(0))
-    spread = torch.diag_embed(s**2)[:, None]
-    sandwich = total @ (info @ spread @ info + info).sum(1) @ total
+    sandwich = pooled_from_information(info, s)
     se = {
         name: torch.sqrt(torch.diagonal(cov, dim1=-2, dim2=-1)).numpy()
         for name, cov in (("likelihood", torch.linalg.inv(hessian)), ("pooled", sandwich))
@@ -372,16 +384,14 @@ def main() -> None:
     parser.add_argument("--machines", type=int, default=0, help="keep this many (0: all)")
     parser.add_argument("--lines", type=int, default=4000)
     parser.add_argument("--chunk", type=int, default=50)
-    parser.add_argument("--seed", type=int, default=20261205, help="the simulation's seed")
+    parser.add_argument("--seed", type=int, default=PICK_SEED, help="the simulation's seed")
     parser.add_argument("--out", type=Path, default=None, help="JSON of the counts")
     args = parser.parse_args()
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
     full = setup(args.model)
     kept = full
-    if args.machines:
-        pick = np.sort(rng.choice(full.info.shape[0], args.machines, replace=False))
-        kept = Setup(full.info[pick], full.sigma, full.common, full.config)
+    kept = kept_machines(full, args.machines, rng)
     m = kept.info.shape[0]
     sd = torch.sqrt(torch.diagonal(torch.linalg.inv(kept.info), dim1=-2, dim2=-1))
     seen = (sd / kept.sigma).median(0).values.numpy()
@@ -393,8 +403,7 @@ def main() -> None:
         + " sigma (median; 0 = directly)"
     )
     info, var = kept.info, torch.diag(kept.sigma**2)
-    total = torch.linalg.inv(info.sum(0))
-    spread_pooled = total @ (info @ var @ info + info).sum(0) @ total
+    spread_pooled = pooled_from_information(info, kept.sigma)
     spread_gls = torch.linalg.inv(torch.linalg.inv(torch.linalg.inv(info) + var).sum(0))
     wider = torch.sqrt(torch.diagonal(spread_pooled) / torch.diagonal(spread_gls)).numpy()
     print(

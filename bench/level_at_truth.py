@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from bootstrap_levels import rises_at
-from bound_coverage import MISS, Setup, adam_fit, setup, simulate
+from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, setup, simulate
 
 from ppann.confidence import DEFAULT_CONFIDENCE, spread_level
 from ppann.model import Z_NAMES
@@ -30,12 +30,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(2)
     full = setup(args.model)
-    kept = full
-    if args.machines:  # bench/bound_coverage.py's draw at its default seed
-        pick = np.sort(
-            np.random.default_rng(20261205).choice(full.info.shape[0], args.machines, False)
-        )
-        kept = Setup(full.info[pick], full.sigma, full.common, full.config)
+    kept = kept_machines(full, args.machines, np.random.default_rng(PICK_SEED))
     rng, rises, done = np.random.default_rng(args.seed), [], 0
     while done < args.lines:
         n = min(4000, args.lines - done)

@@ -290,10 +290,16 @@ def pooled_covariance(
     docstring, `common_covariance`): (sum M)^-1 [sum M_e S^2 M_e + M_e] (sum M)^-1."""
     variance = terms.white_variance(sigma, lever_sigma)
     info, _ = machine_sums(terms.residual, terms.design, variance, terms.machine, terms.n_machines)
-    spread = torch.diag(machine_sigma**2)
-    inverse = torch.linalg.inv(info.sum(0))
-    covariance = inverse @ (info @ spread @ info + info).sum(0) @ inverse
-    return 0.5 * (covariance + covariance.T)
+    return pooled_from_information(info, machine_sigma)
+
+
+def pooled_from_information(info: torch.Tensor, machine_sigma: torch.Tensor) -> torch.Tensor:
+    """`pooled_covariance` from the machines' information M_e `info` (E, 3, 3), for spreads
+    `machine_sigma` (..., 3): (..., 3, 3) (bench/bound_coverage.py takes it for many lines)."""
+    spread = torch.diag_embed(machine_sigma**2)[..., None, :, :]
+    inverse = torch.linalg.inv(info.sum(-3))
+    covariance = inverse @ (info @ spread @ info + info).sum(-3) @ inverse
+    return 0.5 * (covariance + covariance.mT)
 
 
 def sigma_upper(machine_sigma: np.ndarray, profile: np.ndarray, level: float) -> np.ndarray:
