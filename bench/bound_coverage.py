@@ -39,8 +39,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ppann import checkpoint
+from ppann import checkpoint, inversion
 from ppann.confidence import DEFAULT_CONFIDENCE, confidence_quantile, mean_quantile, spread_level
+from ppann.inversion import line_nll
 from ppann.machine import (
     EpisodeTerms,
     machine_sums,
@@ -96,53 +97,19 @@ def kept_machines(full: Setup, machines: int, rng: np.random.Generator) -> Setup
     return Setup(full.info[pick], full.sigma, full.common, full.config)
 
 
-def line_nll(
-    info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor
-) -> torch.Tensor:
-    """Each line's summed phase-2 NLL (ppann/machine.py's, less what does not depend on the
-    parameters), (L,), for M_e `info` (E, 3, 3), statistics `b` (L, E, 3), log machine sigma and
-    common offset (L, 3) each (`s` and `c` broadcast to (L, ..., 3) for the profile's grid)."""
-    s = log_s.exp()
-    shifted = b + torch.einsum("eij,...j->...ei", info, c)
-    white = 2 * torch.einsum("...ei,...i->...", b, c) + torch.einsum(
-        "...i,eij,...j->...", c, info, c
-    )
-    g = s[..., None, :, None] * info * s[..., None, None, :]
-    ct = s[..., None, :] * shifted
-    chol = torch.linalg.cholesky(torch.eye(3, dtype=info.dtype) + g)
-    solved = torch.cholesky_solve(ct[..., None], chol)[..., 0]
-    quad = (ct * solved).sum((-1, -2))
-    logdet = 2 * torch.log(torch.diagonal(chol, dim1=-2, dim2=-1)).sum((-1, -2))
-    return 0.5 * (white - quad + logdet)
-
-
 def simulate(setup: Setup, lines: int, rng: np.random.Generator) -> torch.Tensor:
     """b (L, E, 3) of `lines` lines drawn under phase 2's model with the setup's truth."""
-    info = setup.info.numpy()
-    e = info.shape[0]
-    eta = setup.common.numpy() + setup.sigma.numpy() * rng.standard_normal((lines, e, 3))
-    chol = np.linalg.cholesky(info + 1e-300 * np.eye(3))
-    noise = np.einsum("eij,lej->lei", chol, rng.standard_normal((lines, e, 3)))
-    return torch.from_numpy(-np.einsum("eij,lej->lei", info, eta) + noise)
+    truth = setup.sigma[None].expand(lines, 3)
+    return inversion.simulate(setup.info, truth, setup.common[None].expand(lines, 3), rng)
 
 
 def adam_fit(setup: Setup, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Phase 2's own fit of the machine parameters (ppann/train.py SpreadFit: Adam at
-    machine_lr for sigma_epochs from sigma MACHINE_SIGMA_START and offset 0), every line at once
-    (Adam is per parameter, so the lines' fits are independent)."""
-    lines = b.shape[0]
-    log_s = torch.full((lines, 3), math.log(MACHINE_SIGMA_START), dtype=torch.float64)
-    c = torch.zeros((lines, 3), dtype=torch.float64)
-    log_s.requires_grad_(True)
-    c.requires_grad_(True)
-    optimizer = torch.optim.Adam([log_s, c], lr=setup.config.machine_lr)
-    blocks = 1.0 / b.shape[1]  # phase 2 averages over blocks; Adam is blind to the scale
-    for _ in range(setup.config.sigma_epochs):
-        loss = line_nll(setup.info, b, log_s, c).sum() * blocks
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-    return log_s.detach(), c.detach()
+    """Phase 2's own fit of the machine parameters (ppann/inversion.py adam_fit), every line
+    at once."""
+    config = setup.config
+    return inversion.adam_fit(
+        setup.info, b, epochs=config.sigma_epochs, lr=config.machine_lr, start=MACHINE_SIGMA_START
+    )
 
 
 def ml_fit(
@@ -372,10 +339,8 @@ def misses(
 
 
 def pooled(setup: Setup, b: torch.Tensor) -> torch.Tensor:
-    """The line's mean as a pooled least-squares fit reads it (the machines weighted by their
-    information M_e alone, not by the spread, as phase 1's mean model averages its data): the
-    minimum of sum_e |eta_e - c|^2 in M_e, -(sum M_e)^-1 sum b_e, (L, 3)."""
-    return -torch.linalg.solve(setup.info.sum(0), b.sum(1)[..., None])[..., 0]
+    """The line's mean as phase 1's mean model reads it (ppann/inversion.py pooled_mean)."""
+    return inversion.pooled_mean(setup.info, b)
 
 
 def main() -> None:

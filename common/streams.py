@@ -30,6 +30,7 @@ STREAMS: dict[str, str] = {
     "dataset_noise": "slider disturbance of the dataset's episodes",
     "dataset_start_times": "how long each dataset machine has run before its episode",
     "training": "network initialisation and minibatch order",
+    "spread_calibration": "simulated lines that calibrate the line's bounds after training",
     "monte_carlo": "Monte-Carlo draws of the OCP's robust loop",
     "tail_check": "Monte-Carlo draws of a robust torque's own tail, checked after its loop",
     "tail_lines": "the lines of that check by line sampling",

@@ -17,9 +17,9 @@ import numpy as np
 from common.streams import PrefixDraws, rng, stream
 from control.config import OCPConfig, lower_tail
 from control.ocp import Solution
-from ppann.confidence import confidence_quantile, mean_quantile, one_machine, spread_level
+from ppann.confidence import confidence_quantile, one_machine
 from ppann.heads import FusedHeads
-from ppann.machine import sigma_upper
+from ppann.inversion import line_bounds
 from ppann.modes import MONTE_CARLO_MODES
 from ppann.montecarlo import Feedback, monte_carlo, rollout
 from ppann.transmission import draw
@@ -30,47 +30,46 @@ _DELTA = PrefixDraws()
 
 def line_allowance(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray | None, float]:
     """The machine spread the Monte-Carlo draws with (None: the model's own) and z, for the
-    configured confidence (module docstring): the spread's bound from as many machines as the
-    model learnt it from (ppann/confidence.py spread_level).
-
-    Raises:
-      RobustError: a model learnt from one machine, at a confidence above 0."""
+    configured confidence (module docstring): the spread's bound (`_bounds`)."""
     z = confidence_quantile(config.confidence)
     if z == 0 or not MONTE_CARLO_MODES[config.mc_mode].machine:
         return None, z
-    level = spread_level(config.confidence, _machines(heads, config))
-    return sigma_upper(heads.machine_sigma, heads.machine_profile, level), z
+    return _bounds(heads, config)[0], z
 
 
-def mean_allowance_quantile(heads: FusedHeads, config: OCPConfig) -> float:
-    """The radius of the line mean's ellipsoid (`population_margin`'s z) for the configured
-    confidence and the machines the model learnt the line from (ppann/confidence.py).
-
-    Raises:
-      RobustError: a model learnt from one machine, at a confidence above 0."""
-    return mean_quantile(config.confidence, _machines(heads, config))
+def mean_allowance_quantile(heads: FusedHeads, config: OCPConfig) -> np.ndarray:
+    """The line mean's radius along each component (`population_margin`'s z) for the configured
+    confidence (`_bounds`)."""
+    return _bounds(heads, config)[1]
 
 
-def _machines(heads: FusedHeads, config: OCPConfig) -> int:
-    """The machines the model's line was learnt from (0: unknown); refused if one."""
+def _bounds(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray, float, bool]:
+    """ppann/inversion.py line_bounds at the configured confidence (RobustError: one machine)."""
     if heads.spread_machines == 1 and config.confidence > 0:
         from control.records import RobustError  # control.records imports this module
 
         raise RobustError(one_machine(config.confidence))
-    return heads.spread_machines
+    return line_bounds(
+        machine_sigma=heads.machine_sigma,
+        profile=heads.machine_profile,
+        machines=heads.spread_machines,
+        confidence=config.confidence,
+        calibration=heads.calibration,
+    )
 
 
 def population_margin(
     heads: FusedHeads,
     solution: Solution,
     config: OCPConfig,
-    z: float,
+    z: float | np.ndarray,
     *,
     feedback: Feedback | None = None,
 ) -> np.ndarray:
     """How far the line's mean slider can sit below the model's at each constraint sample, at
     z standard errors of the line's mean (`mean_allowance_quantile`: the one-sided bound from
-    the model's machines; module docstring), m: the largest drop of the mean model's slider
+    the model's machines, module docstring; per component (3,): the ellipsoid's axes scaled
+    so that each component reaches its own), m: the largest drop of the mean model's slider
     over line shifts delta on the ellipsoid delta^T C^-1 delta = z^2, evaluated by simulation, not
     linearised (near top dead centre the slider is concave in theta: the linear bound was 30 %
     short in tests/test_tightening.py). The shifts tried: the ellipsoid's six vertices (+-z along
@@ -84,12 +83,13 @@ def population_margin(
     linear bound of 1.98 mm beside 1.33 mm a torque later); the worst case they pointed to was
     then no worst case, and the simulated allowance fell from 1.45 to 1.33 mm."""
     count = len(config.constraint_samples)
-    if z == 0 or not np.any(heads.common_covariance):
+    radius = np.broadcast_to(np.asarray(z, dtype=float), (3,))  # per component: scaled axes
+    if not radius.any() or not np.any(heads.common_covariance):
         return np.zeros(count)
     index = np.array(config.constraint_samples) - 1
-    steps = int(index.max())
-    x0, tau = solution.states[0], solution.tau[:steps]
-    c = heads.common_covariance
+    x0, tau = solution.states[0], solution.tau[: int(index.max())]
+    z = float(radius.max())
+    c = heads.common_covariance * np.outer(radius / z, radius / z)
     values, vectors = np.linalg.eigh(0.5 * (c + c.T))
     root = vectors * np.sqrt(np.clip(values, 0.0, None))  # root @ root.T == c
     vertices = z * np.concatenate([root.T, -root.T])

@@ -23,7 +23,7 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
     bar is closed when the block ends, also when the chain fails."""
     from crank.chain import Hooks  # torch and CasADi: not for `crank --help`
 
-    bars = EpochBars({"mean": config.train.max_epochs, "sigma": config.train.phase2_epochs})
+    bars = EpochBars.of(config.train)
     with (
         Progress(config.generation.n_samples, "simulating") as simulated,
         Progress(config.generation.n_samples, "writing MCAP") as written,

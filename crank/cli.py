@@ -162,7 +162,7 @@ def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any
     """`train_and_report` with progress bars."""
     from ppann.pipeline import train_and_report
 
-    bars = EpochBars({"mean": config.max_epochs, "sigma": config.phase2_epochs})
+    bars = EpochBars.of(config)
     try:
         return train_and_report(
             data,

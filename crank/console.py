@@ -22,6 +22,7 @@ from crank.progress import close_bar, progress_bar
 
 if TYPE_CHECKING:
     from control.robust import Iteration
+    from ppann.train_config import TrainConfig
 
 app = typer.Typer(
     add_completion=False,
@@ -272,6 +273,14 @@ class EpochBars:
         self.epochs = epochs
         self.bars: dict[str, tuple[str, Any]] = {}
         """Per model kind, its current phase and bar."""
+
+    @classmethod
+    def of(cls, config: TrainConfig) -> EpochBars:
+        """The bars of training under `config`: phase 1, phase 2 and the bounds' calibration."""
+        from ppann.inversion import calibration_epochs  # torch: not for `crank --help`
+
+        bounds = calibration_epochs(config.sigma_epochs, lines=config.bound_lines)
+        return cls({"mean": config.max_epochs, "sigma": config.phase2_epochs, "bounds": bounds})
 
     def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:
         if kind not in self.bars or self.bars[kind][0] != phase:

@@ -49,6 +49,12 @@ def train_summary(report: dict[str, Any]) -> dict[str, Any]:
         quantile = report["models"]["ppann"].get("line_mean_quantile", 0.0)
         if quantile is None:  # ppann/confidence.py: one machine bounds nothing about the line
             rows["spread learnt from"] += "; no bound on the line at 0.95 (one machine)"
+        elif report["models"]["ppann"].get("bounds_calibrated"):  # ppann/inversion.py
+            radius = report["models"]["ppann"]["line_mean_radius"]
+            rows["spread learnt from"] += "; line mean bounded at " + ", ".join(
+                f"{name} {r:.2f}" for name, r in zip("JBK", radius, strict=True)
+            )
+            rows["spread learnt from"] += " se (0.95; calibrated by simulation)"
         elif quantile:
             rows["spread learnt from"] += f"; line mean bounded at {quantile:.2f} se (0.95)"
     force = report["models"]["ppann"].get("lever_sigma")

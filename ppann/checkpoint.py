@@ -24,9 +24,10 @@ VERSION = 4
 the training machines leave open about the line (common_covariance, machine_profile)."""
 
 
-OPTIONAL_BUFFERS = ("spread_machines",)
+OPTIONAL_BUFFERS = ("spread_machines", "spread_candidates", "spread_rise_tail", "spread_mean_tail")
 """Buffers added within VERSION, whose zeros mean "not recorded" (ppann/confidence.py: the
-machines a spread was learnt from, since session 79): an older checkpoint loads with zeros."""
+machines a spread was learnt from, since session 79; ppann/inversion.py: the bounds' calibration,
+since session 81): an older checkpoint loads with zeros."""
 
 
 class CheckpointError(CrankError, ValueError):

@@ -44,7 +44,7 @@ def confidence_quantile(confidence: float) -> float:
     return statistics.NormalDist().inv_cdf(1 - (1 - confidence) / CONFIDENCE_BOUNDS)
 
 
-def _bound_level(confidence: float) -> float:
+def bound_level(confidence: float) -> float:
     """The one-sided level of each bound: 1 - (1 - c) / 3."""
     return 1 - (1 - confidence) / CONFIDENCE_BOUNDS
 
@@ -65,7 +65,7 @@ def mean_quantile(confidence: float, machines: int) -> float:
         raise ValueError(one_machine(confidence))
     from scipy.stats import t
 
-    return float(t.ppf(_bound_level(confidence), machines - 1)) * (machines / (machines - 1)) ** 0.5
+    return float(t.ppf(bound_level(confidence), machines - 1)) * (machines / (machines - 1)) ** 0.5
 
 
 def spread_level(confidence: float, machines: int) -> float:
@@ -84,7 +84,7 @@ def spread_level(confidence: float, machines: int) -> float:
         raise ValueError(one_machine(confidence))
     from scipy.stats import chi2
 
-    u = float(chi2.ppf(1 - _bound_level(confidence), machines - 1)) / machines
+    u = float(chi2.ppf(1 - bound_level(confidence), machines - 1)) / machines
     return 0.5 * machines * (u - 1 - math.log(u))
 
 

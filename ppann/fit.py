@@ -179,6 +179,7 @@ def train_model(
             config,
             history=history,
             on_epoch=None if on_epoch is None else (lambda e, loss: on_epoch("sigma", e, loss)),
+            on_bounds=None if on_epoch is None else (lambda e, loss: on_epoch("bounds", e, loss)),
         )
     model.eval()
     return Fitted(kind, model, history, time.perf_counter() - started)

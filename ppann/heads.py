@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from ppann.friction import coulomb_friction
+from ppann.inversion import calibration_of
 from ppann.lever import lever_arm
 from ppann.model import OUTPUTS, PPANN, Z_NAMES, sees_angle_alone, tabulate
 
@@ -56,6 +57,7 @@ class FusedHeads:
         self.common_covariance = model.common_covariance.detach().numpy().copy()
         self.machine_profile = model.machine_profile.detach().numpy().copy()
         self.spread_machines = int(model.spread_machines)  # 0: not recorded (ppann/confidence.py)
+        self.calibration = calibration_of(model)  # None: the exact levels (ppann/inversion.py)
         self.transmission = model.transmission.detach().numpy().copy()
         self.geometry = model.geometry
         self.lever_sigma = float(getattr(model, "lever_sigma", torch.zeros(1))[0])

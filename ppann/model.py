@@ -36,6 +36,12 @@ machine-level log-factors, ppann/machine.py)."""
 PROFILE_GRID = np.geomspace(1e-4, 1.0, 97)
 """machine_sigma values (log-factor standard deviations) at which the likelihood profile of
 ppann/machine.py is kept in the model (`machine_profile`): 1e-4 to 1 in steps of a factor 1.1."""
+RISE_GRID = np.array([0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.5, 8.0])
+"""Profile rises at which ppann/inversion.py's candidate spreads sit (0: the estimate); 8 is
+z^2 / 2 at z = 4."""
+TAIL_GRID = np.geomspace(0.25, 0.005, 24)
+"""Upper-tail probabilities at which ppann/inversion.py keeps its statistics' quantiles: (1 - c) / 3
+for confidences c from 0.25 to 0.985."""
 
 
 def _mlp(inputs: int, hidden: int) -> nn.Sequential:
@@ -92,6 +98,15 @@ class PPANN(nn.Module):
         # The machines phase 2 learnt that line from (ppann/confidence.py: the bounds' small-sample
         # factors); 0: not recorded (a checkpoint from before session 79: the normal z).
         self.register_buffer("spread_machines", torch.zeros((), dtype=torch.float64))
+        # The laws that calibrate the line's bounds for few machines (ppann/inversion.py); zeros:
+        # none (many machines, or a checkpoint from before session 81: the exact levels).
+        rises, tails = len(RISE_GRID), len(TAIL_GRID)
+        for name, shape in (
+            ("spread_candidates", (3, rises)),
+            ("spread_rise_tail", (3, rises, tails)),
+            ("spread_mean_tail", (rises, 3, tails)),
+        ):
+            self.register_buffer(name, torch.zeros(shape, dtype=torch.float64))
         # Quantiles of the crank's angle to the motor (ppann/transmission.py); zeros: none.
         self.register_buffer(
             "transmission", torch.zeros(len(TRANSMISSION_LEVELS), dtype=torch.float64)

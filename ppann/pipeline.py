@@ -22,8 +22,9 @@ from common.figures import save_figure
 from common.jsonio import recorded_path, write_json
 from ppann import checkpoint
 from ppann import figures as plots
-from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
+from ppann.confidence import DEFAULT_CONFIDENCE
 from ppann.fit import Fitted, fit_all
+from ppann.inversion import calibration_of, line_bounds
 from ppann.kinds import KINDS
 from ppann.machine import sigma_upper
 from ppann.model import Z_NAMES, PPANNConfig
@@ -162,17 +163,25 @@ def train_and_report(
             # What the training machines leave open about the line (ppann/machine.py): the
             # bounds the robust OCP allows for at its default confidence 0.95, from as many
             # machines as phase 2 saw (ppann/confidence.py; one machine bounds nothing).
+            # Calibrated by simulation for few machines (ppann/inversion.py: `bounds_calibrated`).
             machines = int(f.model.spread_machines)
-            level = spread_level(DEFAULT_CONFIDENCE, machines) if machines != 1 else np.inf
-            upper = sigma_upper(
-                f.model.machine_sigma.numpy(), f.model.machine_profile.numpy(), level
-            )
+            sigma, profile = f.model.machine_sigma.numpy(), f.model.machine_profile.numpy()
+            if machines == 1:
+                upper, radius, calibrated = sigma_upper(sigma, profile, np.inf), None, False
+            else:
+                upper, radius, calibrated = line_bounds(
+                    machine_sigma=sigma,
+                    profile=profile,
+                    machines=machines,
+                    confidence=DEFAULT_CONFIDENCE,
+                    calibration=calibration_of(f.model),
+                )
             entry["machine_sigma_upper"] = dict(zip(Z_NAMES, upper.tolist(), strict=True))
             line_se = f.model.common_covariance.diagonal().clamp(min=0).sqrt().tolist()
             entry["line_mean_se"] = dict(zip(Z_NAMES, line_se, strict=True))
-            entry["line_mean_quantile"] = (
-                mean_quantile(DEFAULT_CONFIDENCE, machines) if machines != 1 else None
-            )
+            entry["line_mean_quantile"] = None if radius is None else float(radius.max())
+            entry["line_mean_radius"] = None if radius is None else radius.tolist()
+            entry["bounds_calibrated"] = calibrated
             # The crank's angle to the motor, from the measured slider (ppann/transmission.py).
             q = f.model.transmission.tolist()
             entry["transmission_rad"] = {"q01": q[1], "median": q[50], "q99": q[99]}

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import torch
 
-from common.streams import torch_seed
+from common.streams import rng, torch_seed
 from ppann.data import (
     Windows,
     acceleration,
@@ -30,11 +30,13 @@ from ppann.data import (
     windows,
     windows_over,
 )
+from ppann.inversion import CALIBRATED_MACHINES, calibrate, store_calibration
 from ppann.lever import LEVER_START, lever_squared
 from ppann.losses import n_step_mse, propagated_terms
 from ppann.machine import (
     EpisodeTerms,
     machine_design,
+    machine_sums,
     marginal_nll,
     population,
     posterior_offsets,
@@ -223,8 +225,10 @@ def train_sigma(
     *,
     history: History,
     on_epoch: Callable[[int, float], None] | None = None,
+    on_bounds: Callable[[int, float], None] | None = None,
 ) -> None:
-    """Phase 2, in place; everything but the sigma networks (and machine_sigma) is frozen.
+    """Phase 2, in place, then the line's bounds calibrated (`on_bounds`: their Adam epochs,
+    ppann/inversion.py); everything but the sigma networks (and machine_sigma) is frozen.
 
     With `config.machine_model` the sigma networks and the machine-level spread are fitted jointly
     by the marginal likelihood of ppann/machine.py (a machine's episodes share its offset); without
@@ -239,8 +243,23 @@ def train_sigma(
     terms, theta, omega = data.terms, data.theta, data.omega
     initial = copy.deepcopy(model.sigma_nets.state_dict())
     _fit_spread(model, terms, theta, omega, config, history=history, on_epoch=on_epoch)
-    if not config.residual_mean:
-        return
+    if config.residual_mean:
+        model.sigma_nets.load_state_dict(initial)
+        terms = _second_pass(model, data, config, history=history, on_epoch=on_epoch)
+    _calibrate(model, terms, theta, omega, config, history=history, on_epoch=on_bounds)
+
+
+def _second_pass(
+    model: PPANN,
+    data: SpreadSamples,
+    config: TrainConfig,
+    *,
+    history: History,
+    on_epoch: Callable[[int, float], None] | None,
+) -> EpisodeTerms:
+    """`train_sigma`'s second pass (its docstring), the sigma networks back at their start: the
+    blocks it fitted."""
+    terms, theta, omega = data.terms, data.theta, data.omega
     # The mean model's own one-step error is not noise: its mean is fitted on the residual with
     # the machines' offsets of the first pass taken out, and the spread fitted again around it.
     design = data.design
@@ -252,19 +271,48 @@ def train_sigma(
         )
     own = data.residual + (design * shift).sum(-1)
     fitted = fit_residual_mean(own, theta=theta, omega=omega, tau=data.tau, block=terms.block)
-    model.sigma_nets.load_state_dict(initial)
     history.sigma.clear()
     history.residual_mean_share = fitted.share
     second = None if on_epoch is None else (lambda e, loss: on_epoch(config.sigma_epochs + e, loss))
-    _fit_spread(
-        model,
-        data.blocks(data.residual - fitted.mean),
-        theta,
-        omega,
-        config,
-        history=history,
-        on_epoch=second,
+    terms = data.blocks(data.residual - fitted.mean)
+    _fit_spread(model, terms, theta, omega, config, history=history, on_epoch=second)
+    return terms
+
+
+def _calibrate(
+    model: PPANN,
+    terms: EpisodeTerms,
+    theta: torch.Tensor,
+    omega: torch.Tensor,
+    config: TrainConfig,
+    *,
+    history: History,
+    on_epoch: Callable[[int, float], None] | None,
+) -> None:
+    """The line's bounds calibrated by simulation (ppann/inversion.py) for a line of 2 to
+    CALIBRATED_MACHINES machines, from the machines' information in phase 2's last blocks."""
+    few = 2 <= terms.n_machines <= CALIBRATED_MACHINES
+    if not config.machine_model or not config.bound_lines or not few:
+        return
+    with torch.no_grad():
+        force = model.lever_sigma if terms.lever is not None else None
+        variance = terms.white_variance(model.z_sigma(theta, omega), force)
+        info, _ = machine_sums(
+            terms.residual, terms.design, variance, terms.machine, terms.n_machines
+        )
+    found = calibrate(
+        info,
+        model.machine_sigma.detach(),
+        torch.tensor(history.machine_common, dtype=torch.float64),
+        model.machine_profile.numpy(),
+        epochs=config.sigma_epochs,
+        lr=config.machine_lr,
+        start=MACHINE_SIGMA_START,
+        rng=rng(config.seed, "spread_calibration"),
+        lines=config.bound_lines,
+        on_epoch=on_epoch,
     )
+    store_calibration(model, found)
 
 
 @dataclass

@@ -100,6 +100,7 @@ def test_the_replays_operating_time_follows_the_files_dataset(tmp_path: Path) ->
         ("[generation]\nvariability = 'line-99'\n", "unknown variability scenario 'line-99'"),
         ("[generation]\nseconds = nan\n", "seconds must be a finite number"),
         ("[ocp\n", "is not TOML"),
+        ("[train]\nbound_lines = 50\n", "bound_lines must be 0 or at least 200, got 50"),
     ],
 )
 def test_a_bad_file_is_refused_naming_the_key(tmp_path: Path, text: str, match: str) -> None:

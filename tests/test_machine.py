@@ -258,7 +258,7 @@ def _phase_two(
         {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
         | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
     )
-    options = TrainConfig(sigma_epochs=400, validation_fraction=0.05, **train)
+    options = TrainConfig(**({"sigma_epochs": 400, "validation_fraction": 0.05} | train))
     splits = make_splits(dataset, options)
     train_sigma(model, dataset, splits, options, history=history or History())
     return model, splits.split
@@ -357,3 +357,55 @@ def test_a_damping_line_is_read_on_the_term_the_machines_scale(terms: str) -> No
     print(f"{terms}: drawn {drawn:.4f}, fitted {model.machine_sigma.tolist()}")
     assert model.machine_sigma[1].item() == pytest.approx(expected, rel=0.2)
     assert model.machine_sigma[0].item() < 0.3 * expected
+
+
+def test_a_few_machines_calibrate_their_bounds_reproducibly(tmp_path) -> None:
+    """Phase 2 on 6 machines calibrates the line's bounds (ppann/inversion.py): the candidates
+    start at the fitted spread and rise, the estimate is never rejected, the same seed gives the
+    same calibration to the bit, and the checkpoint and the OCP's heads carry it; the 40 machines
+    of `fitted_line` (above CALIBRATED_MACHINES) keep the exact levels."""
+    from ppann import checkpoint
+    from ppann.inversion import CALIBRATED_MACHINES, calibration_of, line_bounds
+
+    dataset, truth_model, _ = _machines_dataset(episodes=6, seconds=2.0, spread=0.15, seed=5)
+    found = []
+    for _ in range(2):
+        torch.manual_seed(0)
+        model, _ = _phase_two(
+            truth_model, dataset, PPANNConfig(sigma_hidden=4), sigma_epochs=30, bound_lines=2000
+        )
+        found.append(calibration_of(model))
+    first, again = found
+    assert first is not None and int(model.spread_machines) <= CALIBRATED_MACHINES
+    assert np.array_equal(first.candidates[:, 0], model.machine_sigma.numpy())
+    assert np.all(np.diff(first.candidates, axis=1) >= 0)
+    assert not first.rise_tail[:, 0].any() and np.all(first.rise_tail[:, 1:] >= 0)
+    assert np.array_equal(first.rise_tail, again.rise_tail)
+    assert np.array_equal(first.mean_tail, again.mean_tail)
+    path = tmp_path / "m.pt"
+    checkpoint.save(path, model, kind="ppann", extra={})
+    loaded, _ = checkpoint.load(path)
+    assert np.array_equal(FusedHeads(loaded).calibration.rise_tail, first.rise_tail)
+    upper, radius, calibrated = line_bounds(
+        machine_sigma=model.machine_sigma.numpy(),
+        profile=model.machine_profile.numpy(),
+        machines=int(model.spread_machines),
+        confidence=0.95,
+        calibration=first,
+    )
+    assert calibrated and np.all(upper >= model.machine_sigma.numpy()) and np.all(radius > 0)
+
+
+def test_many_machines_keep_the_exact_levels() -> None:
+    """40 machines (above ppann/inversion.py CALIBRATED_MACHINES): no calibration kept even where
+    asked; 6 machines: none unless asked (TrainConfig.bound_lines 0, the default)."""
+    from ppann.inversion import CALIBRATED_MACHINES, calibration_of
+
+    options = {"sigma_epochs": 30}
+    for episodes, lines in ((40, 2000), (6, 0)):
+        dataset, truth, _ = _machines_dataset(episodes=episodes, seconds=2.0, spread=0.15, seed=5)
+        torch.manual_seed(0)
+        config = PPANNConfig(sigma_hidden=4)
+        model, _ = _phase_two(truth, dataset, config, bound_lines=lines, **options)
+        assert (int(model.spread_machines) > CALIBRATED_MACHINES) == (episodes == 40)
+        assert calibration_of(model) is None and FusedHeads(model).calibration is None

@@ -1,0 +1,154 @@
+"""Do the calibrated bounds (ppann/inversion.py) miss as often as they say, where the exact levels
+did not (a few machines seen unequally)? Each simulated line is calibrated as training would
+calibrate it, so this costs a calibration per line.
+
+    python bench/calibrated_coverage.py --model logs/<run>/model.pt --machines 8 \\
+        [--lines 400] [--inner 500] [--worker 0 --workers 2] --out X.jsonl
+
+As bench/bound_coverage.py: the training machines' information M_e rebuilt from the model and
+its data (`--machines K` keeps the same K machines as there), lines simulated under phase 2's
+model with the model's fitted spread and offset as the truth, each fitted by phase 2's own Adam
+and its profile taken; then each line is calibrated by `ppann.inversion.calibrate` from its own
+fit (`--inner` lines a candidate: the product takes 2000; fewer make the quantiles noisier, which
+can only raise the misses) and its bounds taken by `line_bounds` at confidence 0.95, beside the
+exact levels (ppann/confidence.py) on the same lines. One JSON line per simulated line (`--out`,
+appended: workers and reruns add up; `--summary` prints the misses of every file given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, pooled, setup, simulate
+
+from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
+from ppann.inversion import calibrate, line_bounds, line_nll
+from ppann.machine import pooled_from_information, sigma_upper
+from ppann.model import PROFILE_GRID, Z_NAMES
+from ppann.train import MACHINE_SIGMA_START
+
+SEED = 20261208
+"""The simulation's seed (not a machine root: no twin is drawn); each line its own child."""
+
+
+def profile_of(info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor):
+    """The line's profile rise on PROFILE_GRID (3, len(PROFILE_GRID)), as ppann/machine.py's
+    `population` takes it: one component moved, the rest and the offset at the fit."""
+    grid = torch.as_tensor(PROFILE_GRID)
+    profile = np.empty((3, len(grid)))
+    for i in range(3):
+        moved = log_s.repeat(len(grid), 1)
+        moved[:, i] = grid.log()
+        profile[i] = (
+            line_nll(info, b, moved, c.expand_as(moved)) - line_nll(info, b, log_s, c)
+        ).numpy()
+    return profile
+
+
+def one_line(kept, index: int, inner: int) -> dict:
+    """Line `index` of the simulation: its bounds calibrated and exact, and whether each missed."""
+    rng = np.random.default_rng(np.random.SeedSequence(SEED).spawn(index + 1)[index])
+    b = simulate(kept, 1, rng)
+    log_s, c = adam_fit(kept, b)
+    profile = profile_of(kept.info, b, log_s, c)
+    config = kept.config
+    found = calibrate(
+        kept.info,
+        log_s[0].exp(),
+        c[0],
+        profile,
+        epochs=config.sigma_epochs,
+        lr=config.machine_lr,
+        start=MACHINE_SIGMA_START,
+        rng=rng,
+        lines=inner,
+    )
+    m = kept.info.shape[0]
+    options = {"machine_sigma": log_s[0].exp().numpy(), "profile": profile, "machines": m}
+    upper, radius, calibrated = line_bounds(
+        confidence=DEFAULT_CONFIDENCE, calibration=found, **options
+    )
+    exact_upper = sigma_upper(
+        options["machine_sigma"], profile, spread_level(DEFAULT_CONFIDENCE, m)
+    )
+    se = torch.sqrt(torch.diagonal(pooled_from_information(kept.info, log_s.exp())[0])).numpy()
+    error = ((pooled(kept, b)[0] - kept.common).numpy()) / se
+    truth = kept.sigma.numpy()
+    exact_radius = mean_quantile(DEFAULT_CONFIDENCE, m)
+    return {
+        "line": index,
+        "machines": m,
+        "calibrated": bool(calibrated),
+        "upper": upper.tolist(),
+        "exact_upper": exact_upper.tolist(),
+        "radius": radius.tolist(),
+        "error": error.tolist(),
+        "spread_miss": (upper < truth).tolist(),
+        "exact_spread_miss": (exact_upper < truth).tolist(),
+        "mean_miss": ((error > radius).astype(int) + (error < -radius)).tolist(),
+        "exact_mean_miss": ((error > exact_radius).astype(int) + (error < -exact_radius)).tolist(),
+    }
+
+
+def summary(paths: list[Path]) -> None:
+    rows = {}
+    for path in paths:
+        for text in path.read_text().splitlines():
+            row = json.loads(text)
+            rows[row["line"]] = row  # a rerun's line counts once
+    n = len(rows)
+    se = math.sqrt(MISS * (1 - MISS) / n) if n else float("nan")
+    print(f"{n} lines; each bound stands for {100 * MISS:.2f} % (binomial se {100 * se:.2f} %)")
+    print(f"{'bound':28}" + "".join(f"{z:>9}" for z in Z_NAMES))
+    for key, per in (
+        ("spread_miss", n),
+        ("exact_spread_miss", n),
+        ("mean_miss", 2 * n),
+        ("exact_mean_miss", 2 * n),
+    ):
+        rate = np.sum([r[key] for r in rows.values()], axis=0) / per
+        print(f"{key:28}" + "".join(f"{100 * v:8.2f}%" for v in rate))
+    for key in ("upper", "exact_upper"):
+        med = np.median([r[key] for r in rows.values()], axis=0)
+        print(f"median {key:21}" + "".join(f"{v:9.4f}" for v in med))
+    machines = next(iter(rows.values()))["machines"]
+    radius = np.median([r["radius"] for r in rows.values()], axis=0)
+    exact = mean_quantile(DEFAULT_CONFIDENCE, machines)
+    print("median radius" + "".join(f"{v:9.3f}" for v in radius) + f" (exact {exact:.3f})")
+    print(f"calibrated {sum(r['calibrated'] for r in rows.values())} of {n}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", type=Path)
+    parser.add_argument("--machines", type=int, default=8)
+    parser.add_argument("--lines", type=int, default=400)
+    parser.add_argument("--inner", type=int, default=500)
+    parser.add_argument("--worker", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--summary", type=Path, nargs="*")
+    args = parser.parse_args()
+    if args.summary:
+        summary(args.summary)
+        return
+    torch.set_num_threads(1)
+    kept = kept_machines(setup(args.model), args.machines, np.random.default_rng(PICK_SEED))
+    started = time.perf_counter()
+    mine = range(args.worker, args.lines, args.workers)
+    for done, index in enumerate(mine, start=1):
+        row = one_line(kept, index, args.inner)
+        with args.out.open("a") as out:
+            out.write(json.dumps(row) + "\n")
+        left = (time.perf_counter() - started) / done * (len(mine) - done)
+        print(f"line {index}: {done}/{len(mine)}, {left:.0f} s left", flush=True)
+
+
+if __name__ == "__main__":
+    main()
