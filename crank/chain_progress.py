@@ -1,12 +1,13 @@
 """What a chain shows on stderr while it runs, for `crank run` and each seed of `crank study`:
 a line per stage, a bar per long step (the dataset simulated and written, each model's epochs,
-the replay's runs, the held-out machines) and the robust iterations."""
+the replay's runs, the held-out machines) and the robust iterations; and `crank train`'s bars."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -15,6 +16,7 @@ from crank.progress import Progress
 
 if TYPE_CHECKING:
     from crank.chain import Hooks, RunConfig
+    from ppann.train_config import TrainConfig
 
 
 @contextmanager
@@ -50,4 +52,25 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
         except BaseException:
             bars.close(stopped=True)  # where each model's training stopped, not "done"
             raise
+        bars.close()
+
+
+def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any]:
+    """`train_and_report` with progress bars."""
+    from ppann.pipeline import train_and_report
+
+    bars = EpochBars.of(config)
+    try:
+        return train_and_report(
+            data,
+            out,
+            config=config,
+            on_epoch=bars,
+            on_trained=bars.done,
+            on_stage=lambda _: bars.close(),
+        )
+    except BaseException:
+        bars.close(stopped=True)  # where each model's training stopped, not "done"
+        raise
+    finally:
         bars.close()

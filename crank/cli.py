@@ -16,6 +16,7 @@ import typer
 
 from common.atomic import check_output
 from control.config import OCPConfig, OCPConfigError
+from crank.chain_progress import train_models
 from crank.console import (
     DEFAULT_FALLBACK,
     DEFAULT_PROFILES,
@@ -24,7 +25,6 @@ from crank.console import (
     Drift,
     EpisodeSeconds,
     EpisodesPerMachine,
-    EpochBars,
     FallbackOption,
     ModelPath,
     ProfilesOption,
@@ -158,27 +158,6 @@ def inspect_command(
     print_summary(f"{path}: seed {dataset.run.get('seed')}", summarize(dataset, truth))
 
 
-def train_models(*, data: Path, out: Path, config: TrainConfig) -> dict[str, Any]:
-    """`train_and_report` with progress bars."""
-    from ppann.pipeline import train_and_report
-
-    bars = EpochBars.of(config)
-    try:
-        return train_and_report(
-            data,
-            out,
-            config=config,
-            on_epoch=bars,
-            on_trained=bars.done,
-            on_stage=lambda _: bars.close(),
-        )
-    except BaseException:
-        bars.close(stopped=True)  # where each model's training stopped, not "done"
-        raise
-    finally:
-        bars.close()
-
-
 @app.command(
     "train", short_help="Train the PPANN and both baselines; write checkpoints and report."
 )
@@ -239,6 +218,13 @@ def train_command(
             "linear (to first order about the mean: zero-mean)."
         ),
     ] = TrainConfig.white_inertia,
+    bound_lines: Annotated[
+        int,
+        typer.Option(
+            help="Calibrate the line's bounds by simulation, this many lines a candidate, for "
+            "2-32 machines (0: the exact levels; 2000 its design; opt-in, being measured)."
+        ),
+    ] = TrainConfig.bound_lines,
     seed: Seed = 0,
 ) -> None:
     """Train the PPANN and both baselines; write checkpoints and the validation report."""
@@ -258,6 +244,7 @@ def train_command(
         coulomb=coulomb,
         mean_wrap=mean_wrap,
         white_inertia=white_inertia,
+        bound_lines=bound_lines,
         seed=seed,
     )
     report = train_models(data=data, out=out, config=config)

@@ -120,7 +120,7 @@ def adam_fit(
         loss.backward()
         optimizer.step()
         if on_epoch is not None:
-            on_epoch(float(loss) / lines)
+            on_epoch(float(loss.detach()) / lines)
     return log_s.detach(), c.detach()
 
 

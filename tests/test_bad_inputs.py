@@ -222,6 +222,7 @@ CASES: list[tuple[str, str]] = [
     ("train --data {ds.mcap} --out o/m.pt --seed -1", "seed must be"),
     ("train --data {ds.mcap} --out o/m.pt --seed 100000000000000000000000", "seed must be"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block 0", "sigma_block must be an integer"),
+    ("train --data {ds.mcap} --out o/m.pt --bound-lines 50", "bound_lines must be 0 or at least"),
     ("train --data {ds.mcap} --out o/m.pt --early-stopping best", "early_stopping must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --machine-terms motor", "machine_terms must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --white-inertia exact", "white_inertia must be one of"),
