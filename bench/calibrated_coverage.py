@@ -74,16 +74,17 @@ def one_line(kept, index: int, inner: int) -> dict:
     upper, radius, calibrated = line_bounds(
         confidence=DEFAULT_CONFIDENCE, calibration=found, **options
     )
+    truth = kept.sigma.numpy()
     exact_upper = sigma_upper(
         options["machine_sigma"], profile, spread_level(DEFAULT_CONFIDENCE, m)
     )
     se = torch.sqrt(torch.diagonal(pooled_from_information(kept.info, log_s.exp())[0])).numpy()
     error = ((pooled(kept, b)[0] - kept.common).numpy()) / se
-    truth = kept.sigma.numpy()
     exact_radius = mean_quantile(DEFAULT_CONFIDENCE, m)
     return {
         "line": index,
         "machines": m,
+        "truth": truth.tolist(),
         "calibrated": bool(calibrated),
         "upper": upper.tolist(),
         "exact_upper": exact_upper.tolist(),
@@ -96,12 +97,15 @@ def one_line(kept, index: int, inner: int) -> dict:
     }
 
 
-def summary(paths: list[Path]) -> None:
+def summary(paths: list[Path], truth: np.ndarray | None = None, *, start: int = 0) -> None:
+    """The misses of every line in `paths`; `truth` (the model's spread) for rows written before
+    they carried it (the larger-bound rows need it); lines from `start` on."""
     rows = {}
     for path in paths:
         for text in path.read_text().splitlines():
             row = json.loads(text)
-            rows[row["line"]] = row  # a rerun's line counts once
+            if row["line"] >= start:
+                rows[row["line"]] = row  # a rerun's line counts once
     n = len(rows)
     se = math.sqrt(MISS * (1 - MISS) / n) if n else float("nan")
     print(f"{n} lines; each bound stands for {100 * MISS:.2f} % (binomial se {100 * se:.2f} %)")
@@ -114,6 +118,16 @@ def summary(paths: list[Path]) -> None:
     ):
         rate = np.sum([r[key] for r in rows.values()], axis=0) / per
         print(f"{key:28}" + "".join(f"{100 * v:8.2f}%" for v in rate))
+    first = next(iter(rows.values()))
+    truth = np.array(first["truth"]) if "truth" in first else truth
+    if truth is not None:  # the larger of the two bounds (never narrower than the exact level)
+        both = [np.maximum(r["upper"], r["exact_upper"]) < truth for r in rows.values()]
+        print(f"{'larger spread bound':28}" + "".join(f"{100 * v:8.2f}%" for v in np.mean(both, 0)))
+        exact = mean_quantile(DEFAULT_CONFIDENCE, next(iter(rows.values()))["machines"])
+        larger = [np.maximum(r["radius"], exact) for r in rows.values()]
+        errors = [np.asarray(r["error"]) for r in rows.values()]
+        miss = [(e > q).astype(int) + (e < -q) for e, q in zip(errors, larger, strict=True)]
+        print(f"{'larger mean radius':28}" + "".join(f"{50 * v:8.2f}%" for v in np.mean(miss, 0)))
     for key in ("upper", "exact_upper"):
         med = np.median([r[key] for r in rows.values()], axis=0)
         print(f"median {key:21}" + "".join(f"{v:9.4f}" for v in med))
@@ -134,12 +148,15 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path)
     parser.add_argument("--summary", type=Path, nargs="*")
+    parser.add_argument("--from-line", type=int, default=0, help="summary: lines from this on")
     args = parser.parse_args()
+    kept = None
+    if args.model:
+        kept = kept_machines(setup(args.model), args.machines, np.random.default_rng(PICK_SEED))
     if args.summary:
-        summary(args.summary)
+        summary(args.summary, None if kept is None else kept.sigma.numpy(), start=args.from_line)
         return
     torch.set_num_threads(1)
-    kept = kept_machines(setup(args.model), args.machines, np.random.default_rng(PICK_SEED))
     started = time.perf_counter()
     mine = range(args.worker, args.lines, args.workers)
     for done, index in enumerate(mine, start=1):
