@@ -142,7 +142,8 @@ class Calibration:
     candidates: np.ndarray
     """(3, len(RISE_GRID)) each component's candidate spreads (the first: the estimate)."""
     rise_tail: np.ndarray
-    """(3, len(RISE_GRID), len(TAIL_GRID)) the one-sided rise's quantiles at each candidate."""
+    """(3, len(RISE_GRID), len(TAIL_GRID)) the one-sided rise's quantiles at each candidate
+    (the first: at the estimate, every component's truth there)."""
     mean_tail: np.ndarray
     """(len(RISE_GRID), 3, len(TAIL_GRID)) each component's radius of the mean in standard
     errors (the one-sided pivot's quantile, both sides pooled) with every component's spread at
@@ -183,9 +184,7 @@ def calibrate(
     ]
     truth = torch.from_numpy(np.repeat(np.array(truths), lines, axis=0))
     mean = common.detach()[None].expand(len(truth), 3)
-    set_of = np.arange(len(truth)) // lines
-    moved_component = np.maximum(set_of - k, 0) // (k - 1)
-    rise = np.zeros(len(truth))
+    rise = np.zeros((len(truth), 3))
     pivot = np.zeros((len(truth), 3))
     for first in range(0, len(truth), chunk):
         part = slice(first, min(first + chunk, len(truth)))
@@ -193,20 +192,22 @@ def calibrate(
         done = first // chunk * epochs
         told = None if on_epoch is None else _counter(on_epoch, done)
         log_s, c = adam_fit(info, b, epochs=epochs, lr=lr, start=start, on_epoch=told)
-        rows, i = torch.arange(len(b)), torch.from_numpy(moved_component[part])
-        at_truth = log_s.clone()
-        at_truth[rows, i] = truth[part][rows, i].log()
         with torch.no_grad():
-            up = line_nll(info, b, at_truth, c) - line_nll(info, b, log_s, c)
-            below = log_s[rows, i] < at_truth[rows, i]  # one-sided: an estimate above the truth
-            rise[part] = torch.where(below, up.clamp_min(0.0), 0.0).numpy()  # rejects nothing
+            base = line_nll(info, b, log_s, c)
+            for j in range(3):  # each component's one-sided rise at its truth
+                at_truth = log_s.clone()
+                at_truth[:, j] = truth[part][:, j].log()
+                up = line_nll(info, b, at_truth, c) - base
+                below = log_s[:, j] < at_truth[:, j]  # an estimate above the truth rejects nothing
+                rise[part, j] = torch.where(below, up.clamp_min(0.0), 0.0).numpy()
             cov = pooled_from_information(info, log_s.exp())
             se = torch.sqrt(torch.diagonal(cov, dim1=-2, dim2=-1))
             pivot[part] = ((pooled_mean(info, b) - mean[part]) / se).numpy()
-    rises = rise[k * lines :].reshape(3, k - 1, lines)
-    rise_tail = np.concatenate(
-        [np.zeros((3, 1, len(TAIL_GRID))), _upper_quantiles(rises)], axis=1
-    )  # at the estimate itself no line is rejected (the observed rise there is 0)
+    # each component's rise at the estimate (the first set: every truth there) and at its own
+    # candidates (its sets, the others at the estimate)
+    own = rise[k * lines :].reshape(3, k - 1, lines, 3)[np.arange(3), :, :, np.arange(3)]
+    at_estimate = rise[:lines].T[:, None]  # (3, 1, lines)
+    rise_tail = _upper_quantiles(np.concatenate([at_estimate, own], axis=1))
     sides = pivot[: k * lines].reshape(k, lines, 3)
     both = np.concatenate([sides, -sides], axis=1).transpose(0, 2, 1)  # (k, 3, 2 lines)
     return Calibration(candidates, rise_tail, _upper_quantiles(both))
@@ -296,7 +297,7 @@ def calibrated_upper(
     for i in range(3):
         observed = np.interp(np.log(candidates[i]), np.log(PROFILE_GRID), profile[i])
         excess = observed - critical[i]
-        excess[0] = min(excess[0], 0.0)  # the estimate is never rejected
+        excess[0] = min(excess[0], 0.0)  # the estimate is never rejected (its rise is 0)
         j = int(np.flatnonzero(excess <= 0)[-1])
         if j == len(excess) - 1:
             upper[i] = PROFILE_GRID[-1]

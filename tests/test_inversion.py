@@ -66,7 +66,7 @@ def test_simulated_laws_are_the_exact_ones_for_machines_seen_directly() -> None:
     rise at the truth has the exact law of ppann/confidence.py (the chi-square bound's level,
     whatever the candidate: the statistic is pivotal), and the mean's pivot Student's t, so the
     calibrated quantiles at each bound's tail are spread_level and mean_quantile for 8 machines,
-    within the simulation's error (600 lines a candidate; the 11 candidates' levels averaged)."""
+    within the simulation's error (600 lines a candidate; the 12 candidates' levels averaged)."""
     info = torch.eye(3, dtype=torch.float64).expand(8, 3, 3) * 1e6 / 0.02**2
     truth = torch.tensor([[0.02, 0.03, 0.015]], dtype=torch.float64)
     rng = np.random.default_rng(3)
@@ -82,14 +82,13 @@ def test_simulated_laws_are_the_exact_ones_for_machines_seen_directly() -> None:
         info, log_s[0].exp(), c[0], profile, epochs=400, lr=0.02, start=0.05, rng=rng, lines=600
     )
     assert np.allclose(found.candidates[:, 0], log_s[0].exp().numpy())
-    assert not found.rise_tail[:, 0].any()  # the estimate itself is never rejected
 
     def at_tail(table: np.ndarray) -> np.ndarray:  # read at TAIL, in log tail as line_bounds
         return np.apply_along_axis(
             lambda row: np.interp(np.log(TAIL), np.log(TAIL_GRID[::-1]), row[::-1]), -1, table
         )
 
-    levels = at_tail(found.rise_tail[:, 1:]).mean(1)
+    levels = at_tail(found.rise_tail).mean(1)  # the estimate's and the 11 candidates' alike
     radius = at_tail(found.mean_tail)  # (candidates, 3)
     exact_level = spread_level(0.95, 8)
     print("levels", levels, "exact", exact_level, "radius", radius.mean(0))

@@ -258,7 +258,10 @@ def _phase_two(
         {k: v for k, v in truth.state_dict().items() if not k.startswith("sigma_nets")}
         | {k: v for k, v in model.state_dict().items() if k.startswith("sigma_nets")}
     )
-    options = TrainConfig(**({"sigma_epochs": 400, "validation_fraction": 0.05} | train))
+    # the bounds' calibration (ppann/inversion.py) only where a test asks for it: not what these
+    # tests measure, and on 30 machines at 400 epochs it took 110 s of a test's 115
+    defaults = {"sigma_epochs": 400, "validation_fraction": 0.05, "bound_lines": 0}
+    options = TrainConfig(**(defaults | train))
     splits = make_splits(dataset, options)
     train_sigma(model, dataset, splits, options, history=history or History())
     return model, splits.split
@@ -361,9 +364,8 @@ def test_a_damping_line_is_read_on_the_term_the_machines_scale(terms: str) -> No
 
 def test_a_few_machines_calibrate_their_bounds_reproducibly(tmp_path) -> None:
     """Phase 2 on 6 machines calibrates the line's bounds (ppann/inversion.py): the candidates
-    start at the fitted spread and rise, the estimate is never rejected, the same seed gives the
-    same calibration to the bit, and the checkpoint and the OCP's heads carry it; the 40 machines
-    of `fitted_line` (above CALIBRATED_MACHINES) keep the exact levels."""
+    start at the fitted spread and rise, the rises' quantiles are not negative, the same seed
+    gives the same calibration to the bit, and the checkpoint and the OCP's heads carry it."""
     from ppann import checkpoint
     from ppann.inversion import CALIBRATED_MACHINES, calibration_of, line_bounds
 
@@ -379,7 +381,7 @@ def test_a_few_machines_calibrate_their_bounds_reproducibly(tmp_path) -> None:
     assert first is not None and int(model.spread_machines) <= CALIBRATED_MACHINES
     assert np.array_equal(first.candidates[:, 0], model.machine_sigma.numpy())
     assert np.all(np.diff(first.candidates, axis=1) >= 0)
-    assert not first.rise_tail[:, 0].any() and np.all(first.rise_tail[:, 1:] >= 0)
+    assert np.all(first.rise_tail >= 0)
     assert np.array_equal(first.rise_tail, again.rise_tail)
     assert np.array_equal(first.mean_tail, again.mean_tail)
     path = tmp_path / "m.pt"
@@ -398,7 +400,7 @@ def test_a_few_machines_calibrate_their_bounds_reproducibly(tmp_path) -> None:
 
 def test_many_machines_keep_the_exact_levels() -> None:
     """40 machines (above ppann/inversion.py CALIBRATED_MACHINES): no calibration kept even where
-    asked; 6 machines: none unless asked (TrainConfig.bound_lines 0, the default)."""
+    asked; 6 machines: none where bound_lines is 0."""
     from ppann.inversion import CALIBRATED_MACHINES, calibration_of
 
     options = {"sigma_epochs": 30}
