@@ -221,8 +221,8 @@ def train_command(
     bound_lines: Annotated[
         int,
         typer.Option(
-            help="Calibrate the line's bounds by simulation, this many lines a candidate, for "
-            "2-32 machines (0: the exact levels; 2000 its design; opt-in, being measured)."
+            help="Lines a candidate of the bounds' calibration by simulation, for a line of "
+            "2-32 machines (0: the exact levels of the directly observed case)."
         ),
     ] = TrainConfig.bound_lines,
     seed: Seed = 0,

@@ -57,13 +57,11 @@ class TrainConfig:
     """Fit the machine-level spread (ppann/machine.py) jointly with the sigma networks."""
     machine_lr: float = 2e-2
     """Adam learning rate of log machine_sigma in phase 2."""
-    bound_lines: int = 0
+    bound_lines: int = 2000
     """Lines simulated at each candidate to calibrate the line's bounds after phase 2 for a line
-    of 2 to 32 machines (ppann/inversion.py, session 81; 2000 is its design); 0, the default:
-    the exact levels of ppann/confidence.py. Opt-in until its coverage is measured: on 60 lines
-    of 8 unequally seen machines the calibrated spread bound missed J 3 and K 2 times, the exact
-    one never (bench/calibrated_coverage.py). At least 200 (fewer leave no line in the smallest
-    tails kept)."""
+    of 2 to 32 machines (ppann/inversion.py, session 81; the default since its coverage run,
+    bench/calibrated_coverage.md); 0: the exact levels of ppann/confidence.py. At least 200
+    (fewer leave no line in the smallest tails kept)."""
     sigma_block: int = 10
     """Phase 2 fits the white spread to sums of the residual over blocks of this many samples
     (ppann/machine.py, "Blocks"); 1 is the paper's eq. 9. The default is phase 1's horizon, the
