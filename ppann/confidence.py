@@ -26,8 +26,8 @@ on it errs on the safe side; the spread's level is the directly observed case's,
 the noisy one (`tests/test_small_sample.py` checks the exact case). Where the count is unknown
 (`machines` 0: a checkpoint from before it was recorded) both take the normal z, as before.
 Through phase 2's fit the levels hold where the machines ran alike and not for a few seen
-unequally (bench/bound_coverage.md); ppann/inversion.py calibrates both by simulation instead,
-opt-in (`TrainConfig.bound_lines`), and falls back to these outside its tails."""
+unequally (bench/bound_coverage.md); ppann/inversion.py calibrates both by simulation instead for
+a line of 2-32 machines (`TrainConfig.bound_lines`), and falls back to these outside its tails."""
 
 from __future__ import annotations
 
