@@ -43,7 +43,7 @@ def mean_allowance_quantile(heads: FusedHeads, config: OCPConfig) -> np.ndarray:
     return _bounds(heads, config)[1]
 
 
-def _bounds(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray, float, bool]:
+def _bounds(heads: FusedHeads, config: OCPConfig) -> tuple[np.ndarray, np.ndarray, bool]:
     """ppann/inversion.py line_bounds at the configured confidence (RobustError: one machine)."""
     if heads.spread_machines == 1 and config.confidence > 0:
         from control.records import RobustError  # control.records imports this module

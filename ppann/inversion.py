@@ -13,13 +13,20 @@ the statistic depends on how well each machine was seen, which the training data
   lines are drawn under phase 2's model with the truth at the estimate but sigma_i = g, each fitted
   by phase 2's own Adam (its epochs, rate and start), and the one-sided rise of the profile at
   the truth recorded (the rise at g of the NLL with the other parameters at the line's fit, 0
-  where the line's estimate is above g). The bound is the first candidate where the observed
-  rise exceeds that rise's quantile at the asked level: the largest g the data cannot reject.
-  Candidates sit where the observed profile has risen by RISE_GRID, so the observed rise at
-  each is known without interpolating the quantiles across values;
-- the mean: with the truth at the estimate, the pooled average of each line's machines (what
-  the mean model stands for) less the truth, in standard errors of the pooled covariance at the
-  line's fitted spread; the radius is the largest of the three components' one-sided quantiles.
+  where the line's estimate is above g; at the estimate itself too). The bound is the largest
+  candidate whose observed rise does not exceed that rise's quantile at the asked level: the
+  largest g the data cannot reject (the accepted set need not be an interval). Candidates sit
+  where the observed profile has risen by RISE_GRID, so the observed rise at each is known
+  without interpolating the quantiles across values;
+- the mean: with every component's spread at its k-th candidate (k = 0: the estimate), the
+  pooled average of each line's machines (what the mean model stands for) less the truth, in
+  standard errors of the pooled covariance at the line's fitted spread; each component's radius
+  is its one-sided quantile's largest over the candidates up to the first that covers the
+  spread's bound (the pivot's tail is not monotone in the spread).
+
+Measured (bench/calibrated_coverage.md, 825 lines of 8 unequally seen machines): the spread's
+bound misses 1.70 / 2.18 / 1.94 % and the mean's 0.55 / 0.97 / 0.00 % against the 1.67 % each
+stands for, where the exact levels missed the damping 2.91 / 3.52 %. The default since then.
 
 Each statistic's quantiles are kept at TAIL_GRID's upper-tail probabilities (the OCP's
 confidence is chosen later, `ppann/confidence.py`: each bound's tail is (1 - c) / 3); a tail
