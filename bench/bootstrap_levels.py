@@ -33,13 +33,13 @@ from bound_coverage import (
     PICK_SEED,
     adam_fit,
     kept_machines,
-    line_nll,
     pooled,
     setup,
     simulate,
 )
 
 from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
+from ppann.inversion import one_sided_rises
 from ppann.machine import pooled_from_information
 from ppann.model import Z_NAMES
 
@@ -59,20 +59,6 @@ def pooled_se(info: torch.Tensor, log_s: torch.Tensor) -> torch.Tensor:
     """The pooled average's standard errors (L, 3) at spreads exp(log_s) (ppann/machine.py)."""
     covariance = pooled_from_information(info, log_s.exp())
     return torch.sqrt(torch.diagonal(covariance, dim1=-2, dim2=-1))
-
-
-def rises_at(
-    info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor, at: torch.Tensor
-) -> torch.Tensor:
-    """Each line's profile rise (L, 3) with one spread component moved to `at` (L, 3), the rest
-    and the offset at the line's fit; 0 where `at` is below the fit (the bound is upper)."""
-    base = line_nll(info, b, log_s, c)
-    out = torch.empty_like(log_s)
-    for i in range(3):
-        moved = log_s.clone()
-        moved[:, i] = at[:, i].log()
-        out[:, i] = line_nll(info, b, moved, c) - base
-    return torch.where(at > log_s.exp(), out, torch.zeros_like(out))
 
 
 def main() -> None:
@@ -111,7 +97,7 @@ def main() -> None:
         inner_b = drawn_at(info, log_s.exp(), c, args.inner, rng)
         inner_s, inner_c = adam_fit(kept, inner_b)
         truth_s = log_s.exp().repeat_interleave(args.inner, 0)
-        rise = rises_at(info, inner_b, inner_s, inner_c, truth_s).reshape(n, args.inner, 3)
+        rise = one_sided_rises(info, inner_b, inner_s, inner_c, truth_s).reshape(n, args.inner, 3)
         err = (pooled(kept, inner_b) - c.repeat_interleave(args.inner, 0)) / pooled_se(
             info, inner_s
         )
@@ -121,7 +107,7 @@ def main() -> None:
         levels.append(level)
         radii.append(radius)
         # the outer lines judged
-        outer = rises_at(info, b, log_s, c, kept.sigma.expand(n, 3))
+        outer = one_sided_rises(info, b, log_s, c, kept.sigma.expand(n, 3))
         miss["spread exact"] += (outer > exact_level).sum(0).numpy()
         miss["spread boot"] += (outer > level).sum(0).numpy()
         miss["spread boot|exact"] += (outer > level.clamp_min(exact_level)).sum(0).numpy()

@@ -173,16 +173,7 @@ def bounds(
         name: torch.sqrt(torch.diagonal(cov, dim1=-2, dim2=-1)).numpy()
         for name, cov in (("likelihood", torch.linalg.inv(hessian)), ("pooled", sandwich))
     }
-    base = line_nll(info, b, log_s, c)
-    grid = torch.as_tensor(PROFILE_GRID)
-    profile = np.empty((len(b), 3, len(grid)))
-    for i in range(3):
-        moved = log_s[:, None, :].repeat(1, len(grid), 1)
-        moved[:, :, i] = grid.log()
-        profile[:, i] = (
-            line_nll(info, b[:, None], moved, c[:, None, :].expand(-1, len(grid), -1))
-            - base[:, None]
-        ).numpy()
+    profile = inversion.profile_rises(info, b, log_s, c).numpy()
     levels = {
         "exact": spread_level(DEFAULT_CONFIDENCE, machines),
         "normal": 0.5 * confidence_quantile(DEFAULT_CONFIDENCE) ** 2,

@@ -28,27 +28,13 @@ import torch
 from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, pooled, setup, simulate
 
 from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
-from ppann.inversion import calibrate, line_bounds, line_nll
+from ppann.inversion import calibrate, line_bounds, profile_rises
 from ppann.machine import pooled_from_information, sigma_upper
-from ppann.model import PROFILE_GRID, Z_NAMES
+from ppann.model import Z_NAMES
 from ppann.train import MACHINE_SIGMA_START
 
 SEED = 20261208
 """The simulation's seed (not a machine root: no twin is drawn); each line its own child."""
-
-
-def profile_of(info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor):
-    """The line's profile rise on PROFILE_GRID (3, len(PROFILE_GRID)), as ppann/machine.py's
-    `population` takes it: one component moved, the rest and the offset at the fit."""
-    grid = torch.as_tensor(PROFILE_GRID)
-    profile = np.empty((3, len(grid)))
-    for i in range(3):
-        moved = log_s.repeat(len(grid), 1)
-        moved[:, i] = grid.log()
-        profile[i] = (
-            line_nll(info, b, moved, c.expand_as(moved)) - line_nll(info, b, log_s, c)
-        ).numpy()
-    return profile
 
 
 def one_line(kept, index: int, inner: int) -> dict:
@@ -56,7 +42,7 @@ def one_line(kept, index: int, inner: int) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence(SEED).spawn(index + 1)[index])
     b = simulate(kept, 1, rng)
     log_s, c = adam_fit(kept, b)
-    profile = profile_of(kept.info, b, log_s, c)
+    profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
     config = kept.config
     found = calibrate(
         kept.info,

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from bootstrap_levels import rises_at
 from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, setup, simulate
 
 from ppann.confidence import DEFAULT_CONFIDENCE, spread_level
+from ppann.inversion import one_sided_rises
 from ppann.model import Z_NAMES
 
 
@@ -36,7 +36,7 @@ def main() -> None:
         n = min(4000, args.lines - done)
         b = simulate(kept, n, rng)
         log_s, c = adam_fit(kept, b)
-        rises.append(rises_at(kept.info, b, log_s, c, kept.sigma.expand(n, 3)))
+        rises.append(one_sided_rises(kept.info, b, log_s, c, kept.sigma.expand(n, 3)))
         done += n
     rise = torch.cat(rises)
     m = kept.info.shape[0]

@@ -110,25 +110,58 @@ def adam_fit(
     epochs: int,
     lr: float,
     start: float,
-    on_epoch: Callable[[float], None] | None = None,
+    on_epoch: Callable[[int, float], None] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Phase 2's own fit of each line's machine parameters (ppann/train.py SpreadFit: Adam at
     `lr` for `epochs` from sigma `start` and offset 0), every line at once (Adam is per
     parameter: the lines' fits are independent). Log sigma and offset, (L, 3) each; `on_epoch`
-    is told each epoch's loss (the lines' mean NLL per machine)."""
+    is told each epoch and its loss (the lines' mean NLL per machine)."""
     lines = b.shape[0]
     log_s = torch.full((lines, 3), math.log(start), dtype=torch.float64, requires_grad=True)
     c = torch.zeros((lines, 3), dtype=torch.float64, requires_grad=True)
     optimizer = torch.optim.Adam([log_s, c], lr=lr)
     blocks = 1.0 / b.shape[1]  # phase 2 averages over blocks; Adam is blind to the scale
-    for _ in range(epochs):
+    for epoch in range(epochs):
         loss = line_nll(info, b, log_s, c).sum() * blocks
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         if on_epoch is not None:
-            on_epoch(float(loss.detach()) / lines)
+            on_epoch(epoch, float(loss.detach()) / lines)
     return log_s.detach(), c.detach()
+
+
+def one_sided_rises(
+    info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor, at: torch.Tensor
+) -> torch.Tensor:
+    """Each line's profile rise (L, 3) with one spread component moved to `at` (L, 3), the rest
+    and the offset at the line's fit (`log_s`, `c`); 0 where `at` is not above the fit (the
+    bound is upper: an estimate above the truth rejects nothing)."""
+    with torch.no_grad():
+        base = line_nll(info, b, log_s, c)
+        out = torch.empty_like(log_s)
+        for i in range(3):
+            moved = log_s.clone()
+            moved[:, i] = at[:, i].log()
+            out[:, i] = line_nll(info, b, moved, c) - base
+        return torch.where(log_s < at.log(), out, torch.zeros_like(out))
+
+
+def profile_rises(
+    info: torch.Tensor, b: torch.Tensor, log_s: torch.Tensor, c: torch.Tensor
+) -> torch.Tensor:
+    """Each line's profile rise on PROFILE_GRID (L, 3, len(PROFILE_GRID)), as ppann/machine.py's
+    `population` takes it: one spread component moved, the rest and the offset at the fit."""
+    grid = torch.as_tensor(PROFILE_GRID)
+    with torch.no_grad():
+        base = line_nll(info, b, log_s, c)
+        profile = torch.empty((len(b), 3, len(grid)), dtype=torch.float64)
+        for i in range(3):
+            moved = log_s[:, None, :].repeat(1, len(grid), 1)
+            moved[:, :, i] = grid.log()
+            offset = c[:, None, :].expand(-1, len(grid), -1)
+            profile[:, i] = line_nll(info, b[:, None], moved, offset) - base[:, None]
+    return profile
 
 
 def pooled_mean(info: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -197,16 +230,11 @@ def calibrate(
         part = slice(first, min(first + chunk, len(truth)))
         b = simulate(info, truth[part], mean[part], rng)
         done = first // chunk * epochs
-        told = None if on_epoch is None else _counter(on_epoch, done)
+        told = None if on_epoch is None else (lambda e, loss, d=done: on_epoch(d + e, loss))
         log_s, c = adam_fit(info, b, epochs=epochs, lr=lr, start=start, on_epoch=told)
+        # each component's one-sided rise at its truth
+        rise[part] = one_sided_rises(info, b, log_s, c, truth[part]).clamp_min(0.0).numpy()
         with torch.no_grad():
-            base = line_nll(info, b, log_s, c)
-            for j in range(3):  # each component's one-sided rise at its truth
-                at_truth = log_s.clone()
-                at_truth[:, j] = truth[part][:, j].log()
-                up = line_nll(info, b, at_truth, c) - base
-                below = log_s[:, j] < at_truth[:, j]  # an estimate above the truth rejects nothing
-                rise[part, j] = torch.where(below, up.clamp_min(0.0), 0.0).numpy()
             cov = pooled_from_information(info, log_s.exp())
             se = torch.sqrt(torch.diagonal(cov, dim1=-2, dim2=-1))
             pivot[part] = ((pooled_mean(info, b) - mean[part]) / se).numpy()
@@ -224,11 +252,6 @@ def calibration_epochs(epochs: int, *, lines: int = CALIBRATION_LINES) -> int:
     """The Adam epochs of `calibrate` at `epochs` per chunk: its progress bar's length."""
     sets = len(RISE_GRID) + 3 * (len(RISE_GRID) - 1)
     return epochs * math.ceil(sets * lines / CALIBRATION_CHUNK)
-
-
-def _counter(on_epoch: Callable[[int, float], None], done: int) -> Callable[[float], None]:
-    count = iter(range(done, 2**62))
-    return lambda loss: on_epoch(next(count), loss)
 
 
 def store_calibration(model: torch.nn.Module, found: Calibration) -> None:

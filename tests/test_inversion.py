@@ -18,6 +18,7 @@ from ppann.inversion import (
     calibrated_upper,
     line_bounds,
     line_nll,
+    profile_rises,
     simulate,
 )
 from ppann.machine import EpisodeTerms, machine_sums, marginal_nll, sigma_upper
@@ -72,12 +73,7 @@ def test_simulated_laws_are_the_exact_ones_for_machines_seen_directly() -> None:
     rng = np.random.default_rng(3)
     b = simulate(info, truth, torch.zeros((1, 3), dtype=torch.float64), rng)
     log_s, c = adam_fit(info, b, epochs=400, lr=0.02, start=0.05)
-    grid = torch.as_tensor(PROFILE_GRID)
-    profile = np.empty((3, len(grid)))
-    for i in range(3):
-        moved = log_s.repeat(len(grid), 1)
-        moved[:, i] = grid.log()
-        profile[i] = line_nll(info, b, moved, c.expand_as(moved)) - line_nll(info, b, log_s, c)
+    profile = profile_rises(info, b, log_s, c)[0].numpy()
     found = calibrate(
         info, log_s[0].exp(), c[0], profile, epochs=400, lr=0.02, start=0.05, rng=rng, lines=600
     )
