@@ -34,12 +34,13 @@ from ppann.model import Z_NAMES
 from ppann.train import MACHINE_SIGMA_START
 
 SEED = 20261208
-"""The simulation's seed (not a machine root: no twin is drawn); each line its own child."""
+"""The simulation's default seed (not a machine root: no twin is drawn); each line its own
+child. Session 82's 2- and 3-machine rows took 20261209 (`--seed`)."""
 
 
-def one_line(kept, index: int, inner: int) -> dict:
+def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
     """Line `index` of the simulation: its bounds calibrated and exact, and whether each missed."""
-    rng = np.random.default_rng(np.random.SeedSequence(SEED).spawn(index + 1)[index])
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(index + 1)[index])
     b = simulate(kept, 1, rng)
     log_s, c = adam_fit(kept, b)
     profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
@@ -69,6 +70,7 @@ def one_line(kept, index: int, inner: int) -> dict:
     exact_radius = mean_quantile(DEFAULT_CONFIDENCE, m)
     return {
         "line": index,
+        "seed": seed,
         "machines": m,
         "truth": truth.tolist(),
         "calibrated": bool(calibrated),
@@ -130,6 +132,7 @@ def main() -> None:
     parser.add_argument("--machines", type=int, default=8)
     parser.add_argument("--lines", type=int, default=400)
     parser.add_argument("--inner", type=int, default=500)
+    parser.add_argument("--seed", type=int, default=SEED, help="the simulation's seed")
     parser.add_argument("--worker", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path)
@@ -146,7 +149,7 @@ def main() -> None:
     started = time.perf_counter()
     mine = range(args.worker, args.lines, args.workers)
     for done, index in enumerate(mine, start=1):
-        row = one_line(kept, index, args.inner)
+        row = one_line(kept, index, args.inner, seed=args.seed)
         with args.out.open("a") as out:
             out.write(json.dumps(row) + "\n")
         left = (time.perf_counter() - started) / done * (len(mine) - done)
