@@ -3,13 +3,15 @@ what it took).
 
 Each stage's time is a sum of unit costs times what the request asks for (dataset seconds, windows
 × epochs, runs × samples), with the unit costs measured on an idle 2-core machine of the project's
-kind (`crank run` defaults, 2026-11-23: generate 6.1 s, train 139 s, solve 6.8 s, replay 8.0 s,
-held-out check 26.5 s). A busy machine takes longer: two chains side by side took 1.5-2.5× as
-long. The unit costs of generation, training and the held-out check are those of session 70's
-fresh-clone `crank run` (602dd34, the networks' tanh as 2 sigmoid(2x) - 1, idle AMD EPYC): phase 1
-of the PPANN 1.61 s an epoch, phase 2 153 s, the rest of the stage 25 s, the dataset 34 s, the
-held-out check 26 s. Sessions 52-53's (phase 1 1.98-2.73 s an epoch with `torch.tanh`) put
-that run's training at the bottom of its range; session 21's had said 3-7 min for trainings
+kind. A busy machine takes longer: two chains side by side took 1.5-2.5× as long. The unit costs
+of generation, training, the solves, the plan stage and the replay are those of session 82's
+idle `crank run --seed 0 --heldout-runs 0` (71d315b, AMD EPYC; 458 s where the estimate of then
+said 9-18 min): phase 1 of the PPANN 0.78 and 0.87 s an epoch (the plan round's beside the
+baselines), phase 2 111 and 126 s, the rest of the stage 15 and 23 s, the dataset 24 s, each
+solve 4.9 s, the replay 5.9 s. Session 70's (602dd34) had counted phase 1 1.61 s an epoch,
+phase 2 153 s, the dataset 34 s; the held-out check's 26 s and the MPC's steps are older
+measurements, not taken again. Sessions 52-53's (phase 1 1.98-2.73 s an epoch with `torch.tanh`)
+put that run's training at the bottom of its range; session 21's had said 3-7 min for trainings
 that took 7-9.5. Phase 1 of training stops early at a number of epochs nobody knows in advance
 (58-73 on seeds 0-4 of `paper`, 37-117 on `line-30`, 68-188 in the plan round's two trainings),
 so the training estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
@@ -29,36 +31,40 @@ if TYPE_CHECKING:
     from ppann.train_config import TrainConfig
     from twin.dataset import GenerationConfig
 
-GENERATE_PER_SECOND = 0.047
-"""Seconds of generation (simulation and MCAP) per second of dataset (34 s for 720 s in session
-70's run; 0.068 in session 52's)."""
-REWRITE_PER_SECOND = 0.0054
+GENERATE_PER_SECOND = 0.033
+"""Seconds of generation (simulation and MCAP) per second of dataset (23.6 s for 720 s in session
+82's run; 0.047 in session 70's, 0.068 in session 52's)."""
+REWRITE_PER_SECOND = 0.0030
 """The plan stage's seconds per second of the dataset it adds its episodes to, beside the
 generation of those episodes: it reads the dataset and writes it again with them (the plan
 stage of the four idle fresh-clone runs of sessions 70-71 took 6, 7, 7 and 9 s, 7.25 s on
 average, of which the generation of its 72 s counts 3.4 s: 3.9 s for the 720 s dataset; timed
 apart in session 72 beside a sweep (in its own scheduling group), reading it took 1.0 s and
-writing it 2.1 s)."""
-WINDOW_STEP_EPOCH = {"ppann": 3.57e-6, "physics": 0.20e-6, "blackbox": 3.11e-6}
-"""Phase-1 seconds per training window, window step and epoch, per model kind (session 70's
-fresh-clone run, of 45 000 windows of 10 steps: 75 PPANN epochs in 120.6 s alone; in the plan
-round's training, 107 black-box epochs in 149.8 s and 193 physics-only ones in 17.3 s beside
-the PPANN; session 52's, with `torch.tanh`, were 4.77e-6, 0.18e-6, 4.03e-6)."""
-SIGMA_SAMPLE_EPOCH = 0.55e-6
+writing it 2.1 s). Session 82's plan stage took 4.5 s: 2.1 s beside the 2.4 s the generation
+counts, 0.0030 a dataset second (0.0054 before)."""
+WINDOW_STEP_EPOCH = {"ppann": 1.83e-6, "physics": 0.105e-6, "blackbox": 1.36e-6}
+"""Phase-1 seconds per training window, window step and epoch, per model kind (session 82's run,
+of 45 000 windows of 10 steps: 75 PPANN epochs in 58.8 s alone and 93 in 80.6 s in the plan
+round beside the baselines, their mean; there 107 black-box epochs in 65.5 s and 193
+physics-only ones in 9.1 s; session 70's were 3.57e-6, 0.20e-6, 3.11e-6, session 52's, with
+`torch.tanh`, 4.77e-6, 0.18e-6, 4.03e-6)."""
+SIGMA_SAMPLE_EPOCH = 0.40e-6
 """Phase-2 seconds per training sample and epoch (that run: 800 epochs of 348 000 samples in
-153.4 s; the plan round's 800 of 382 568 in 178.5 s, 0.58e-6; session 52's 0.65e-6)."""
-VALIDATION = 25.0
+110.9 s, the plan round's 800 of 382 568 in 125.7 s; session 70's 0.55e-6, session 52's
+0.65e-6)."""
+VALIDATION = 19.0
 """Validation, Monte-Carlo bands and the 100-run twin calibration of the default dataset, s
-(the training stage less its two phases: 25.0 and 25.4 s in that run's two trainings; 33-34 s
-in sessions 52 and 53)."""
+(the training stage less its two phases: 15.1 and 22.5 s in that run's two trainings; 25.0 and
+25.4 in session 70's, 33-34 s in sessions 52 and 53)."""
 EARLY_EPOCHS = 37
 """The fewest phase-1 epochs seen before early stopping (seeds 0-4 of paper and line-30)."""
-SOLVE = 6.8
-"""The nominal and robust OCP at the default horizon (150) and Monte-Carlo (1000), s."""
-REPLAY_FIXED, REPLAY_PER_SAMPLE = 2.0, 128e-6
+SOLVE = 4.9
+"""The nominal and robust OCP at the default horizon (150) and Monte-Carlo (1000), s (4.8 and
+5.1 s in session 82's run; 6.8 before)."""
+REPLAY_FIXED, REPLAY_PER_SAMPLE = 2.0, 65e-6
 """A campaign: fixed seconds (figures, Rerun) and seconds per run, profile, mode and sample
-(100 µs measured in the default run, and 28 µs more since the log carries Foxglove's channels:
-bench_replay's log of 200 runs took 1.50 s against 0.59 s before)."""
+(session 82's run: 5.9 s for 100 runs of 2 profiles in 2 modes of 150 samples; 128e-6 before,
+when the log had just come to carry Foxglove's channels)."""
 HELDOUT_PER_SAMPLE = 87e-6
 """The held-out check: seconds per machine, profile and sample (with its Monte-Carlo): 26 s for
 the default's 1000 machines, two profiles and 150 samples in session 70's run (31 s, 103e-6,
