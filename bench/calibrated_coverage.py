@@ -27,8 +27,14 @@ import numpy as np
 import torch
 from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, pooled, setup, simulate
 
-from ppann.confidence import DEFAULT_CONFIDENCE, mean_quantile, spread_level
-from ppann.inversion import calibrate, line_bounds, profile_rises
+from ppann.confidence import DEFAULT_CONFIDENCE, bound_level, mean_quantile, spread_level
+from ppann.inversion import (
+    calibrate,
+    calibrated_radius,
+    calibrated_upper,
+    line_bounds,
+    profile_rises,
+)
 from ppann.machine import pooled_from_information, sigma_upper
 from ppann.model import Z_NAMES
 from ppann.train import MACHINE_SIGMA_START
@@ -68,6 +74,11 @@ def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
     se = torch.sqrt(torch.diagonal(pooled_from_information(kept.info, log_s.exp())[0])).numpy()
     error = ((pooled(kept, b)[0] - kept.common).numpy()) / se
     exact_radius = mean_quantile(DEFAULT_CONFIDENCE, m)
+    # session 82's candidate rule: the first rejected candidate, not the line up to it
+    tail = 1 - bound_level(DEFAULT_CONFIDENCE)
+    step = calibrated_upper(profile, found.candidates, found.rise_tail, tail, interpolate=False)
+    step_radius = calibrated_radius(found.mean_tail, found.candidates, step, tail)
+    step_radius = np.full(3, exact_radius) if step_radius is None else step_radius
     return {
         "line": index,
         "seed": seed,
@@ -82,6 +93,10 @@ def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
         "exact_spread_miss": (exact_upper < truth).tolist(),
         "mean_miss": ((error > radius).astype(int) + (error < -radius)).tolist(),
         "exact_mean_miss": ((error > exact_radius).astype(int) + (error < -exact_radius)).tolist(),
+        "step_upper": step.tolist(),
+        "step_radius": step_radius.tolist(),
+        "step_spread_miss": (step < truth).tolist(),
+        "step_mean_miss": ((error > step_radius).astype(int) + (error < -step_radius)).tolist(),
     }
 
 
@@ -98,11 +113,13 @@ def summary(paths: list[Path], truth: np.ndarray | None = None, *, start: int = 
     se = math.sqrt(MISS * (1 - MISS) / n) if n else float("nan")
     print(f"{n} lines; each bound stands for {100 * MISS:.2f} % (binomial se {100 * se:.2f} %)")
     print(f"{'bound':28}" + "".join(f"{z:>9}" for z in Z_NAMES))
+    stepped = all("step_upper" in r for r in rows.values())  # session 82's rows on
     for key, per in (
         ("spread_miss", n),
         ("exact_spread_miss", n),
         ("mean_miss", 2 * n),
         ("exact_mean_miss", 2 * n),
+        *((("step_spread_miss", n), ("step_mean_miss", 2 * n)) if stepped else ()),
     ):
         rate = np.sum([r[key] for r in rows.values()], axis=0) / per
         print(f"{key:28}" + "".join(f"{100 * v:8.2f}%" for v in rate))
@@ -116,13 +133,16 @@ def summary(paths: list[Path], truth: np.ndarray | None = None, *, start: int = 
         errors = [np.asarray(r["error"]) for r in rows.values()]
         miss = [(e > q).astype(int) + (e < -q) for e, q in zip(errors, larger, strict=True)]
         print(f"{'larger mean radius':28}" + "".join(f"{50 * v:8.2f}%" for v in np.mean(miss, 0)))
-    for key in ("upper", "exact_upper"):
+    for key in ("upper", "exact_upper", *(("step_upper",) if stepped else ())):
         med = np.median([r[key] for r in rows.values()], axis=0)
         print(f"median {key:21}" + "".join(f"{v:9.4f}" for v in med))
     machines = next(iter(rows.values()))["machines"]
     radius = np.median([r["radius"] for r in rows.values()], axis=0)
     exact = mean_quantile(DEFAULT_CONFIDENCE, machines)
     print("median radius" + "".join(f"{v:9.3f}" for v in radius) + f" (exact {exact:.3f})")
+    if stepped:
+        step = np.median([r["step_radius"] for r in rows.values()], axis=0)
+        print("median step radius" + "".join(f"{v:9.3f}" for v in step))
     print(f"calibrated {sum(r['calibrated'] for r in rows.values())} of {n}")
 
 

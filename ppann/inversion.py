@@ -315,14 +315,22 @@ def _at_tail(table: np.ndarray, tail: float) -> np.ndarray | None:
 
 
 def calibrated_upper(
-    profile: np.ndarray, candidates: np.ndarray, rise_tail: np.ndarray, tail: float
+    profile: np.ndarray,
+    candidates: np.ndarray,
+    rise_tail: np.ndarray,
+    tail: float,
+    *,
+    interpolate: bool = True,
 ) -> np.ndarray | None:
     """Each spread's upper bound (3,) at upper tail `tail` by test inversion (module docstring):
     the largest spread not rejected -- the last candidate where the observed rise (`profile`
     read at the candidate) is at most the simulated rise's quantile, interpolated linearly to
-    the rejected one after it; PROFILE_GRID's end if the last is not rejected. Not the first
-    rejection: the accepted set need not be an interval (a rejection just above a small estimate
-    cut off truths that were not rejected: session 81). None: `tail` outside TAIL_GRID."""
+    the rejected one after it (not `interpolate`: the rejected one itself, since the spreads
+    between were not tested; session 82 measured the straight line putting 0.25-0.44 % of
+    bounds below a truth the test did not reject, bench/calibrated_coverage.md); PROFILE_GRID's
+    end if the last is not rejected. Not the first rejection: the accepted set need not be an
+    interval (a rejection just above a small estimate cut off truths that were not rejected:
+    session 81). None: `tail` outside TAIL_GRID."""
     critical = _at_tail(rise_tail, tail)
     if critical is None:
         return None
@@ -336,7 +344,7 @@ def calibrated_upper(
             upper[i] = PROFILE_GRID[-1]
             continue
         x0, x1, y0, y1 = candidates[i, j], candidates[i, j + 1], excess[j], excess[j + 1]
-        upper[i] = x0 + (x1 - x0) * (-y0) / (y1 - y0)
+        upper[i] = x0 + (x1 - x0) * (-y0) / (y1 - y0) if interpolate else x1
     return upper
 
 

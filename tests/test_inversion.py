@@ -119,6 +119,11 @@ def test_test_inversion_at_a_constant_level_is_the_likelihood_ratio_bound() -> N
     rise_tail[:, 0], rise_tail[:, 1] = 0.0, 1e-3
     upper = calibrated_upper(profile, candidates, rise_tail, TAIL)
     assert upper == pytest.approx(sigma_upper(np.full(3, estimate), profile, 2.3), rel=1e-12)
+    # not interpolated: the first candidate rejected after the last one not rejected, itself
+    step = calibrated_upper(profile, candidates, rise_tail, TAIL, interpolate=False)
+    observed = 30 * np.log(candidates[0] / estimate) ** 2
+    first = candidates[0, np.flatnonzero(observed > 2.3)[0]]
+    assert np.all(step == first) and np.all(step > upper)
 
 
 def test_mean_radius_is_the_largest_over_the_spreads_left_open() -> None:
