@@ -45,10 +45,16 @@ child. Session 82's 2- and 3-machine rows took 20261209, its second 3-machine ru
 (`--seed`)."""
 
 
+def drawn_line(kept, index: int, seed: int) -> tuple[np.random.Generator, torch.Tensor]:
+    """Line `index`'s own stream (the seed's child at that index) and its b (1, E, 3), the
+    stream's first draw (bench/calibration_size.py draws the rows' lines again by it)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(index + 1)[index])
+    return rng, simulate(kept, 1, rng)
+
+
 def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
     """Line `index` of the simulation: its bounds calibrated and exact, and whether each missed."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(index + 1)[index])
-    b = simulate(kept, 1, rng)
+    rng, b = drawn_line(kept, index, seed)
     log_s, c = adam_fit(kept, b)
     profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
     config = kept.config

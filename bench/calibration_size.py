@@ -22,12 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from bound_coverage import PICK_SEED, kept_machines, setup, simulate
-from calibrated_coverage import SEED
+from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, setup
+from calibrated_coverage import SEED, drawn_line
 
 from ppann import inversion
-from ppann.confidence import DEFAULT_CONFIDENCE, bound_level
-from ppann.train import MACHINE_SIGMA_START
 
 ORACLE_LINES = 20_000
 LAWS_KEY = 1_000_000
@@ -46,35 +44,21 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     kept = kept_machines(setup(args.model), args.machines, np.random.default_rng(PICK_SEED))
-    config = kept.config
-
-    def fit(b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return inversion.adam_fit(
-            kept.info,
-            b,
-            epochs=config.sigma_epochs,
-            lr=config.machine_lr,
-            start=MACHINE_SIGMA_START,
-        )
-
     rows = {}
     for text in args.rows.read_text().splitlines():
         row = json.loads(text)
         rows[row["line"]] = row
     index = sorted(rows)
-    lines = [
-        np.random.default_rng(np.random.SeedSequence(args.seed).spawn(i + 1)[i]) for i in index
-    ]
-    b = torch.stack([simulate(kept, 1, rng)[0] for rng in lines])
-    log_s, c = fit(b)
+    b = torch.cat([drawn_line(kept, i, args.seed)[1] for i in index])
+    log_s, c = adam_fit(kept, b)
     truth = kept.sigma.numpy()
     at_truth = kept.sigma[None].expand(len(index), 3)
     observed = inversion.one_sided_rises(kept.info, b, log_s, c, at_truth).clamp_min(0).numpy()
-    tail = 1 - bound_level(DEFAULT_CONFIDENCE)
+    tail = MISS
     rng = np.random.default_rng(np.random.SeedSequence(args.seed, spawn_key=(LAWS_KEY,)))
     many = kept.sigma[None].expand(ORACLE_LINES, 3)
     drawn = inversion.simulate(kept.info, many, kept.common[None].expand(ORACLE_LINES, 3), rng)
-    ls, cs = fit(drawn)
+    ls, cs = adam_fit(kept, drawn)
     rises = inversion.one_sided_rises(kept.info, drawn, ls, cs, many).clamp_min(0).numpy()
     oracle = np.quantile(rises, 1 - tail, axis=0)
     estimate = log_s.exp().numpy()
@@ -85,7 +69,7 @@ def main() -> None:
         spread = torch.from_numpy(np.repeat(np.array(laws), args.inner, axis=0))
         mean = torch.from_numpy(np.repeat(c.numpy()[part], 3 * args.inner, axis=0))
         drawn = inversion.simulate(kept.info, spread, mean, rng)
-        ls, cs = fit(drawn)
+        ls, cs = adam_fit(kept, drawn)
         rises = inversion.one_sided_rises(kept.info, drawn, ls, cs, spread).clamp_min(0).numpy()
         rises = rises.reshape(len(part), 3, args.inner, 3)
         for a, j in enumerate(part):
