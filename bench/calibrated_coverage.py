@@ -41,8 +41,8 @@ from ppann.train import MACHINE_SIGMA_START
 
 SEED = 20261208
 """The simulation's default seed (not a machine root: no twin is drawn); each line its own
-child. Session 82's 2- and 3-machine rows took 20261209, its second 3-machine run 20261210
-(`--seed`)."""
+child. Session 82's 2- and 3-machine rows took 20261209, its second 3-machine run 20261210,
+session 83's 5-machine run 20261211 (`--seed`)."""
 
 
 def drawn_line(kept, index: int, seed: int) -> tuple[np.random.Generator, torch.Tensor]:
