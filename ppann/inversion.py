@@ -57,6 +57,9 @@ CALIBRATION_LINES = 2000
 """Lines simulated at each candidate (TAIL_GRID's last, 0.005, leaves ten in the tail)."""
 CALIBRATION_CHUNK = 8192
 """Lines fitted at once."""
+SETS = len(RISE_GRID) + 3 * (len(RISE_GRID) - 1)
+"""The laws `calibrate` simulates: the mean's (every component at each candidate) and each
+component's spread (at each candidate above the estimate, the others at the estimate)."""
 CALIBRATED_MACHINES = 32
 """Lines of more machines than this keep the exact levels (module docstring)."""
 
@@ -221,11 +224,12 @@ def calibrate(
             for i in range(3)
         ]
     )
-    # the sets' truths: the mean's (every component at its k-th candidate), then the spread's
+    # the SETS truths: the mean's (every component at its k-th candidate), then the spread's
     # (one component at its k-th candidate, the others at the estimate), k from 1
     truths = [candidates[:, j] for j in range(k)] + [
         np.where(np.arange(3) == i, g, estimate) for i in range(3) for g in candidates[i, 1:]
     ]
+    assert len(truths) == SETS  # calibration_epochs counts them
     truth = torch.from_numpy(np.repeat(np.array(truths), lines, axis=0))
     mean = common.detach()[None].expand(len(truth), 3)
     rise = np.zeros((len(truth), 3))
@@ -254,8 +258,7 @@ def calibrate(
 
 def calibration_epochs(epochs: int, *, lines: int = CALIBRATION_LINES) -> int:
     """The Adam epochs of `calibrate` at `epochs` per chunk: its progress bar's length."""
-    sets = len(RISE_GRID) + 3 * (len(RISE_GRID) - 1)
-    return epochs * math.ceil(sets * lines / CALIBRATION_CHUNK)
+    return epochs * math.ceil(SETS * lines / CALIBRATION_CHUNK)
 
 
 def store_calibration(model: torch.nn.Module, found: Calibration) -> None:

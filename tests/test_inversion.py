@@ -16,6 +16,7 @@ from ppann.inversion import (
     calibrate,
     calibrated_radius,
     calibrated_upper,
+    calibration_epochs,
     line_bounds,
     line_nll,
     profile_rises,
@@ -74,10 +75,21 @@ def test_simulated_laws_are_the_exact_ones_for_machines_seen_directly() -> None:
     b = simulate(info, truth, torch.zeros((1, 3), dtype=torch.float64), rng)
     log_s, c = adam_fit(info, b, epochs=400, lr=0.02, start=0.05)
     profile = profile_rises(info, b, log_s, c)[0].numpy()
+    epochs: list[int] = []  # what `calibrate` reports, against its bar's length
     found = calibrate(
-        info, log_s[0].exp(), c[0], profile, epochs=400, lr=0.02, start=0.05, rng=rng, lines=600
+        info,
+        log_s[0].exp(),
+        c[0],
+        profile,
+        epochs=400,
+        lr=0.02,
+        start=0.05,
+        rng=rng,
+        lines=600,
+        on_epoch=lambda epoch, loss: epochs.append(epoch),
     )
     assert np.allclose(found.candidates[:, 0], log_s[0].exp().numpy())
+    assert epochs == list(range(calibration_epochs(400, lines=600)))
 
     def at_tail(table: np.ndarray) -> np.ndarray:  # read at TAIL, in log tail as line_bounds
         return np.apply_along_axis(
