@@ -107,15 +107,45 @@ def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
     }
 
 
-def summary(paths: list[Path], truth: np.ndarray | None = None, *, start: int = 0) -> None:
-    """The misses of every line in `paths`; `truth` (the model's spread) for rows written before
-    they carried it (the larger-bound rows need it); lines from `start` on."""
+def read_rows(paths: list[Path]) -> dict[int, dict]:
+    """The rows of `paths` by line (a rerun's line counts once)."""
     rows = {}
     for path in paths:
         for text in path.read_text().splitlines():
             row = json.loads(text)
-            if row["line"] >= start:
-                rows[row["line"]] = row  # a rerun's line counts once
+            rows[row["line"]] = row
+    return rows
+
+
+def at_estimate(kept, rows: dict[int, dict], seed: int) -> list[int]:
+    """The lines of `rows` whose calibrated spread bound sits at the line's own estimate in some
+    component. Before af45b37 (session 81) the critical rise at the estimate was taken as 0, so
+    a line whose first candidate was rejected got the estimate as its bound; the rule since
+    reads the estimate's simulated critical rise and moves only those lines' bounds (the
+    simulation's stream is the same: every other line comes back to the bit)."""
+    index = sorted(rows)
+    log_s, _ = adam_fit(kept, torch.cat([drawn_line(kept, i, seed)[1] for i in index]))
+    upper = np.array([rows[i]["upper"] for i in index])
+    same = np.isclose(upper, log_s.exp().numpy(), rtol=1e-9, atol=0).any(axis=1)
+    return [index[k] for k in np.flatnonzero(same)]
+
+
+def rows_parser(doc: str) -> argparse.ArgumentParser:
+    """The options of a bench that takes a file of these rows apart (its model, machines, rows,
+    their seed, `--inner` lines a law)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--model", type=Path, required=True)
+    parser.add_argument("--machines", type=int, required=True)
+    parser.add_argument("--rows", type=Path, nargs="+", required=True, help="a redone line last")
+    parser.add_argument("--seed", type=int, default=SEED, help="the rows' simulation seed")
+    parser.add_argument("--inner", type=int, default=500)
+    return parser
+
+
+def summary(paths: list[Path], truth: np.ndarray | None = None, *, start: int = 0) -> None:
+    """The misses of every line in `paths`; `truth` (the model's spread) for rows written before
+    they carried it (the larger-bound rows need it); lines from `start` on."""
+    rows = {i: row for i, row in read_rows(paths).items() if i >= start}
     n = len(rows)
     se = math.sqrt(MISS * (1 - MISS) / n) if n else float("nan")
     print(f"{n} lines; each bound stands for {100 * MISS:.2f} % (binomial se {100 * se:.2f} %)")
@@ -165,6 +195,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     parser.add_argument("--summary", type=Path, nargs="*")
     parser.add_argument("--from-line", type=int, default=0, help="summary: lines from this on")
+    parser.add_argument(
+        "--again", type=Path, help="rows whose lines at their estimate (at_estimate) to redo"
+    )
     args = parser.parse_args()
     kept = None
     if args.model:
@@ -175,6 +208,10 @@ def main() -> None:
     torch.set_num_threads(1)
     started = time.perf_counter()
     mine = range(args.worker, args.lines, args.workers)
+    if args.again:  # today's rule on an earlier file's lines: --summary both, the redone last
+        again = at_estimate(kept, read_rows([args.again]), args.seed)
+        print(f"{len(again)} lines at their estimate: {again}", flush=True)
+        mine = again[args.worker :: args.workers]
     for done, index in enumerate(mine, start=1):
         row = one_line(kept, index, args.inner, seed=args.seed)
         with args.out.open("a") as out:

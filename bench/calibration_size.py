@@ -15,15 +15,12 @@ Session 82: ~5 min for 800 lines of 2 or 3 machines on one core.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 from bound_coverage import MISS, PICK_SEED, adam_fit, kept_machines, setup
-from calibrated_coverage import SEED, drawn_line
+from calibrated_coverage import drawn_line, read_rows, rows_parser
 
 from ppann import inversion
 
@@ -35,19 +32,10 @@ CHUNK = 16
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", type=Path, required=True)
-    parser.add_argument("--machines", type=int, required=True)
-    parser.add_argument("--rows", type=Path, required=True)
-    parser.add_argument("--seed", type=int, default=SEED, help="the rows' simulation seed")
-    parser.add_argument("--inner", type=int, default=500)
-    args = parser.parse_args()
+    args = rows_parser(__doc__).parse_args()
     torch.set_num_threads(1)
     kept = kept_machines(setup(args.model), args.machines, np.random.default_rng(PICK_SEED))
-    rows = {}
-    for text in args.rows.read_text().splitlines():
-        row = json.loads(text)
-        rows[row["line"]] = row
+    rows = read_rows(args.rows)
     index = sorted(rows)
     b = torch.cat([drawn_line(kept, i, args.seed)[1] for i in index])
     log_s, c = adam_fit(kept, b)
