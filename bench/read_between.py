@@ -4,7 +4,9 @@ bound read three ways between the last candidate not rejected and the rejected o
 the product's straight line of the excess (`calibrated_upper`), the rejected candidate itself
 (`interpolate=False`), and the observed rise read on the profile's own grid between the two
 against the simulated quantile's straight line in log spread (`read_on_profile`: if the profile
-is convex there, the excess's chord crosses zero early).
+is convex there, the excess's chord crosses zero early), and one step of a law simulated at the
+straight line's bound itself (`simulated_between`: the simulated quantile's own straight line
+replaced there).
 
     python bench/read_between.py --model logs/<run>/model.pt --machines 5 \\
         --rows bench/calibrated_coverage_m5.jsonl --seed 20261211
@@ -26,10 +28,21 @@ from bound_coverage import PICK_SEED, adam_fit, kept_machines, setup
 from calibrated_coverage import drawn_line, read_rows, rows_parser
 
 from ppann.confidence import DEFAULT_CONFIDENCE, bound_level
-from ppann.inversion import _at_tail, calibrate, calibrated_upper, profile_rises
+from ppann.inversion import (
+    _at_tail,
+    calibrate,
+    calibrated_upper,
+    one_sided_rises,
+    profile_rises,
+    simulate,
+)
+from ppann.inversion import adam_fit as adam_line
 from ppann.machine import sigma_upper
 from ppann.model import PROFILE_GRID, RISE_GRID, TAIL_GRID, Z_NAMES
 from ppann.train import MACHINE_SIGMA_START
+
+BETWEEN = 2_000_000
+"""The between-laws' streams: the seed's child at (this key, the line), beyond any line's index."""
 
 
 def read_on_profile(
@@ -60,6 +73,55 @@ def read_on_profile(
     return upper
 
 
+def simulated_between(
+    kept,
+    fit: tuple[torch.Tensor, torch.Tensor],
+    profile: np.ndarray,
+    found,
+    tail: float,
+    *,
+    rng: np.random.Generator,
+    lines: int,
+) -> np.ndarray:
+    """The straight line's bound (3,), then, where it fell between two candidates, the law at
+    that bound itself simulated (`lines` lines, that component there, the others at the line's
+    estimate, as `calibrate`'s spread sets) and the bound read again on the straight line of the
+    half, estimate side or far side, that the test there leaves: one step of the sharper rule
+    (bench/calibrated_coverage.md, session 83)."""
+    log_s, c = fit
+    estimate = log_s[0].exp().numpy()
+    upper = calibrated_upper(profile, found.candidates, found.rise_tail, tail)
+    critical = _at_tail(found.rise_tail, tail)
+    config = kept.config
+    for i in range(3):
+        x = found.candidates[i]
+        observed = np.interp(np.log(x), np.log(PROFILE_GRID), profile[i]) - critical[i]
+        observed[0] = min(observed[0], 0.0)
+        j = int(np.flatnonzero(observed <= 0)[-1])
+        if j == len(x) - 1:
+            continue
+        truth = torch.from_numpy(
+            np.tile(np.where(np.arange(3) == i, upper[i], estimate), (lines, 1))
+        )
+        b = simulate(kept.info, truth, c[0].expand(lines, 3), rng)
+        fitted = adam_line(
+            kept.info,
+            b,
+            epochs=config.sigma_epochs,
+            lr=config.machine_lr,
+            start=MACHINE_SIGMA_START,
+        )
+        rise = one_sided_rises(kept.info, b, *fitted, truth).clamp_min(0.0).numpy()[:, i]
+        level = _at_tail(np.quantile(rise, 1 - TAIL_GRID)[None], tail)[0]
+        middle = float(np.interp(np.log(upper[i]), np.log(PROFILE_GRID), profile[i])) - level
+        if middle <= 0:  # not rejected: the far half
+            x0, x1, y0, y1 = upper[i], x[j + 1], middle, observed[j + 1]
+        else:
+            x0, x1, y0, y1 = x[j], upper[i], observed[j], middle
+        upper[i] = x0 + (x1 - x0) * (-y0) / (y1 - y0)
+    return upper
+
+
 def check_reading() -> None:
     """On a convex rise (30 (log(s / e))^2) with candidates four grid steps apart and one level at
     every candidate, `read_on_profile` is sigma_upper at the level (the test its tail would be)
@@ -86,7 +148,7 @@ def main() -> None:
     missed = sorted(i for i, r in rows.items() if any(r["spread_miss"]))
     print(f"{len(missed)} of {len(rows)} lines with a spread bound missed", flush=True)
     tail = 1 - bound_level(DEFAULT_CONFIDENCE)
-    counts = np.zeros((3, 3), dtype=int)  # rule x component
+    counts = np.zeros((4, 3), dtype=int)  # rule x component
     for index in missed:
         rng, b = drawn_line(kept, index, args.seed)  # the row's line and calibration, again
         log_s, c = adam_fit(kept, b)
@@ -105,19 +167,31 @@ def main() -> None:
         line = calibrated_upper(profile, found.candidates, found.rise_tail, tail)
         step = calibrated_upper(profile, found.candidates, found.rise_tail, tail, interpolate=False)
         read = read_on_profile(profile, found.candidates, found.rise_tail, tail)
+        between = simulated_between(
+            kept,
+            (log_s, c),
+            profile,
+            found,
+            tail,
+            rng=np.random.default_rng(
+                np.random.SeedSequence(args.seed, spawn_key=(BETWEEN, index))
+            ),
+            lines=args.inner,
+        )
         if line.tolist() != rows[index]["upper"]:
             sys.exit(f"line {index} does not come back to the bit: not the rows' model or code")
         truth = np.array(rows[index].get("truth", kept.sigma.numpy()))  # session 81: none
-        counts += np.stack([line < truth, step < truth, read < truth])
+        counts += np.stack([line < truth, step < truth, read < truth, between < truth])
         change = np.abs(read / line - 1).max()
         print(
             f"line {index}: missed {(line < truth).astype(int)}, read on the profile "
-            f"{(read < truth).astype(int)}, step {(step < truth).astype(int)}; "
+            f"{(read < truth).astype(int)}, step {(step < truth).astype(int)}, "
+            f"simulated between {(between < truth).astype(int)}; "
             f"largest change of the bound {100 * change:.2f} %",
             flush=True,
         )
     print(f"misses among these lines{'':8}" + "".join(f"{z:>8}" for z in Z_NAMES))
-    names = ("straight line", "first rejected", "read on the profile")
+    names = ("straight line", "first rejected", "read on the profile", "simulated between")
     for name, row in zip(names, counts, strict=True):
         print(f"{name:32}" + "".join(f"{v:8d}" for v in row))
 
