@@ -33,9 +33,9 @@ Two machines miss at most 1.97 %; three miss the damping's spread 2.60 % (809 li
 test did not reject: the straight line between candidates (bench/calibration_size.py); on a
 fresh draw of 800 lines three machines miss at most 1.38 %. Five machines (800 lines) miss at
 most 2.50 % (the damping's spread; the exact levels its mean 5.00 %); pooled over every mix
-(4149 lines) the damping's spread bound misses 2.12 %: neither the straight line between
-candidates nor the profile's chord is the cause (bench/read_between.py); most plausibly the
-bench's 500 lines a candidate (the product takes 2000).
+(4149 lines) the damping's spread bound misses 2.12 % at the bench's 500 lines a candidate,
+about 1.9 % at CALIBRATION_LINES (bench/inner_lines.py); neither the straight line between
+candidates nor the profile's chord is the cause (bench/read_between.py).
 
 Each statistic's quantiles are kept at TAIL_GRID's upper-tail probabilities (the OCP's
 confidence is chosen later, `ppann/confidence.py`: each bound's tail is (1 - c) / 3); a tail
