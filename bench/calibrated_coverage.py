@@ -52,8 +52,9 @@ def drawn_line(kept, index: int, seed: int) -> tuple[np.random.Generator, torch.
     return rng, simulate(kept, 1, rng)
 
 
-def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
-    """Line `index` of the simulation: its bounds calibrated and exact, and whether each missed."""
+def calibrated_line(kept, index: int, inner: int, seed: int):
+    """Line `index`'s b, its fit (log sigma, offset), profile and calibration (`inner` lines a
+    candidate, from the line's own stream), as training would calibrate it."""
     rng, b = drawn_line(kept, index, seed)
     log_s, c = adam_fit(kept, b)
     profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
@@ -69,6 +70,12 @@ def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
         rng=rng,
         lines=inner,
     )
+    return b, (log_s, c), profile, found
+
+
+def one_line(kept, index: int, inner: int, *, seed: int = SEED) -> dict:
+    """Line `index` of the simulation: its bounds calibrated and exact, and whether each missed."""
+    b, (log_s, _), profile, found = calibrated_line(kept, index, inner, seed)
     m = kept.info.shape[0]
     options = {"machine_sigma": log_s[0].exp().numpy(), "profile": profile, "machines": m}
     upper, radius, calibrated = line_bounds(

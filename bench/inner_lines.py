@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from bound_coverage import PICK_SEED, adam_fit, kept_machines, setup
-from calibrated_coverage import drawn_line, read_rows, rows_parser
+from bound_coverage import PICK_SEED, kept_machines, setup
+from calibrated_coverage import calibrated_line, read_rows, rows_parser
 
 from ppann.confidence import DEFAULT_CONFIDENCE, bound_level
-from ppann.inversion import CALIBRATION_LINES, calibrate, calibrated_upper, profile_rises
+from ppann.inversion import CALIBRATION_LINES, calibrated_upper
 from ppann.model import Z_NAMES
-from ppann.train import MACHINE_SIGMA_START
 
 
 def main() -> None:
@@ -42,20 +41,7 @@ def main() -> None:
     print(f"{len(read)} of {len(rows)} lines below {args.near} x the truth; {len(mine)} here")
     tail = 1 - bound_level(DEFAULT_CONFIDENCE)
     for index in mine:
-        rng, b = drawn_line(kept, index, args.seed)
-        log_s, c = adam_fit(kept, b)
-        profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
-        found = calibrate(
-            kept.info,
-            log_s[0].exp(),
-            c[0],
-            profile,
-            epochs=kept.config.sigma_epochs,
-            lr=kept.config.machine_lr,
-            start=MACHINE_SIGMA_START,
-            rng=rng,
-            lines=args.inner,
-        )
+        _, _, profile, found = calibrated_line(kept, index, args.inner, args.seed)
         upper = calibrated_upper(profile, found.candidates, found.rise_tail, tail)
         before = np.asarray(rows[index]["upper"])
         print(

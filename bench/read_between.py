@@ -24,16 +24,14 @@ import sys
 
 import numpy as np
 import torch
-from bound_coverage import PICK_SEED, adam_fit, kept_machines, setup
-from calibrated_coverage import drawn_line, read_rows, rows_parser
+from bound_coverage import PICK_SEED, kept_machines, setup
+from calibrated_coverage import calibrated_line, read_rows, rows_parser
 
 from ppann.confidence import DEFAULT_CONFIDENCE, bound_level
 from ppann.inversion import (
     _at_tail,
-    calibrate,
     calibrated_upper,
     one_sided_rises,
-    profile_rises,
     simulate,
 )
 from ppann.inversion import adam_fit as adam_line
@@ -150,20 +148,7 @@ def main() -> None:
     tail = 1 - bound_level(DEFAULT_CONFIDENCE)
     counts = np.zeros((4, 3), dtype=int)  # rule x component
     for index in missed:
-        rng, b = drawn_line(kept, index, args.seed)  # the row's line and calibration, again
-        log_s, c = adam_fit(kept, b)
-        profile = profile_rises(kept.info, b, log_s, c)[0].numpy()
-        found = calibrate(
-            kept.info,
-            log_s[0].exp(),
-            c[0],
-            profile,
-            epochs=kept.config.sigma_epochs,
-            lr=kept.config.machine_lr,
-            start=MACHINE_SIGMA_START,
-            rng=rng,
-            lines=args.inner,
-        )
+        _, (log_s, c), profile, found = calibrated_line(kept, index, args.inner, args.seed)
         line = calibrated_upper(profile, found.candidates, found.rise_tail, tail)
         step = calibrated_upper(profile, found.candidates, found.rise_tail, tail, interpolate=False)
         read = read_on_profile(profile, found.candidates, found.rise_tail, tail)
