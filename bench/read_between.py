@@ -1,6 +1,6 @@
 """Is the straight line between candidates what makes the calibrated spread bounds miss? The
 lines of a bench/calibrated_coverage.py file whose spread bound missed, calibrated again, their
-bound read three ways between the last candidate not rejected and the rejected one after it:
+bound read four ways between the last candidate not rejected and the rejected one after it:
 the product's straight line of the excess (`calibrated_upper`), the rejected candidate itself
 (`interpolate=False`), and the observed rise read on the profile's own grid between the two
 against the simulated quantile's straight line in log spread (`read_on_profile`: if the profile
