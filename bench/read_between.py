@@ -31,6 +31,7 @@ from ppann.confidence import DEFAULT_CONFIDENCE, bound_level
 from ppann.inversion import (
     _at_tail,
     calibrated_upper,
+    last_accepted,
     one_sided_rises,
     simulate,
 )
@@ -52,10 +53,7 @@ def read_on_profile(
     critical = _at_tail(rise_tail, tail)
     upper = np.empty(3)
     for i in range(3):
-        observed = np.interp(np.log(candidates[i]), np.log(PROFILE_GRID), profile[i])
-        excess = observed - critical[i]
-        excess[0] = min(excess[0], 0.0)
-        j = int(np.flatnonzero(excess <= 0)[-1])
+        excess, j = last_accepted(profile[i], candidates[i], critical[i])
         if j == len(excess) - 1:
             upper[i] = PROFILE_GRID[-1]
             continue
@@ -93,9 +91,7 @@ def simulated_between(
     config = kept.config
     for i in range(3):
         x = found.candidates[i]
-        observed = np.interp(np.log(x), np.log(PROFILE_GRID), profile[i]) - critical[i]
-        observed[0] = min(observed[0], 0.0)
-        j = int(np.flatnonzero(observed <= 0)[-1])
+        observed, j = last_accepted(profile[i], x, critical[i])
         if j == len(x) - 1:
             continue
         truth = torch.from_numpy(

@@ -323,6 +323,17 @@ def _at_tail(table: np.ndarray, tail: float) -> np.ndarray | None:
     return at.reshape(table.shape[:-1])
 
 
+def last_accepted(
+    profile: np.ndarray, candidates: np.ndarray, critical: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """One component's excess at each candidate (the observed rise, `profile` read at the
+    candidate, less its `critical` rise; at the estimate never above 0, its rise being 0) and
+    the last candidate not rejected (excess at most 0)."""
+    excess = np.interp(np.log(candidates), np.log(PROFILE_GRID), profile) - critical
+    excess[0] = min(excess[0], 0.0)
+    return excess, int(np.flatnonzero(excess <= 0)[-1])
+
+
 def calibrated_upper(
     profile: np.ndarray,
     candidates: np.ndarray,
@@ -345,10 +356,7 @@ def calibrated_upper(
         return None
     upper = np.empty(3)
     for i in range(3):
-        observed = np.interp(np.log(candidates[i]), np.log(PROFILE_GRID), profile[i])
-        excess = observed - critical[i]
-        excess[0] = min(excess[0], 0.0)  # the estimate is never rejected (its rise is 0)
-        j = int(np.flatnonzero(excess <= 0)[-1])
+        excess, j = last_accepted(profile[i], candidates[i], critical[i])
         if j == len(excess) - 1:
             upper[i] = PROFILE_GRID[-1]
             continue
