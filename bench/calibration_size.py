@@ -2,8 +2,9 @@
 misses of a file of its rows taken apart: the test at the truth itself (is the truth rejected?)
 under the calibration's law, whose other components sit at each line's estimates, and under
 the exact law (every component at the truth: the oracle, whose size is the tail by
-construction, so its rate on the same lines says how extreme those lines are); what is left,
-a bound below a truth that was not rejected, is the interpolation between candidates.
+construction, so its rate on the same lines says how extreme those lines are); what is left
+is a bound below a truth a fresh test did not reject (session 82 read it as the interpolation
+between candidates; session 83 found it mostly not: bench/read_between.py, inner_lines.py).
 
     python bench/calibration_size.py --model logs/<run>/model.pt --machines 3 \\
         --rows bench/calibrated_coverage_m3.jsonl [--seed 20261209] [--inner 500]
@@ -73,7 +74,7 @@ def main() -> None:
         ("bound missed (the rows)", missed.mean(0)),
         ("truth rejected, others at the line's estimate", rejected.mean(0)),
         ("truth rejected, all at the truth (oracle)", (observed > oracle).mean(0)),
-        ("missed, truth not rejected (interpolation)", (missed & ~rejected).mean(0)),
+        ("missed, truth not rejected", (missed & ~rejected).mean(0)),
         ("rejected, not missed", (rejected & ~missed).mean(0)),
     ):
         print(f"{name:44}" + "".join(f"{100 * v:7.2f}%" for v in rate))

@@ -29,13 +29,13 @@ bound misses 1.70 / 2.18 / 0.24 % (the stiffness' 1.94 % of session 81 was the r
 estimate's own critical rise) and the mean's 0.55 / 0.97 / 0.00 % against the 1.67 % each
 stands for, where the exact levels missed the damping 2.91 / 3.52 %. The default since then.
 Two machines miss at most 1.97 %; three miss the damping's spread 2.60 % (809 lines, the bar
-2.57 %; the exact levels miss its mean 3.40 %), of which 0.25 % is a bound below a truth the
-test did not reject: the straight line between candidates (bench/calibration_size.py); on a
-fresh draw of 800 lines three machines miss at most 1.38 %. Five machines (800 lines) miss at
-most 2.50 % (the damping's spread; the exact levels its mean 5.00 %); pooled over every mix
-(4149 lines) the damping's spread bound misses 2.12 % at the bench's 500 lines a candidate,
-about 1.9 % at CALIBRATION_LINES (bench/inner_lines.py); neither the straight line between
-candidates nor the profile's chord is the cause (bench/read_between.py).
+2.57 %; the exact levels miss its mean 3.40 %), of which 0.25 % is a bound below a truth a
+fresh test did not reject (bench/calibration_size.py); on a fresh draw of 800 lines three
+machines miss at most 1.38 %. Five machines (800 lines) miss at most 2.50 % (the damping's
+spread; the exact levels its mean 5.00 %); pooled over every mix (4149 lines) the damping's
+spread bound misses 2.12 % at the bench's 500 lines a candidate, about 1.9 % at
+CALIBRATION_LINES (bench/inner_lines.py); neither the straight line between candidates nor the
+profile's chord is the cause (bench/read_between.py).
 
 Each statistic's quantiles are kept at TAIL_GRID's upper-tail probabilities (the OCP's
 confidence is chosen later, `ppann/confidence.py`: each bound's tail is (1 - c) / 3); a tail
@@ -346,8 +346,8 @@ def calibrated_upper(
     the largest spread not rejected -- the last candidate where the observed rise (`profile`
     read at the candidate) is at most the simulated rise's quantile, interpolated linearly to
     the rejected one after it (not `interpolate`: the rejected one itself, since the spreads
-    between were not tested; session 82 measured the straight line putting 0.25-0.44 % of
-    bounds below a truth the test did not reject, bench/calibrated_coverage.md); PROFILE_GRID's
+    between were not tested; wider by 26-56 % for 0.25 % fewer misses: not the default,
+    bench/calibrated_coverage.md); PROFILE_GRID's
     end if the last is not rejected. Not the first rejection: the accepted set need not be an
     interval (a rejection just above a small estimate cut off truths that were not rejected:
     session 81). None: `tail` outside TAIL_GRID."""
