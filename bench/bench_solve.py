@@ -29,6 +29,11 @@ K_m, z_K = -0.9, z_sigma = 0.03, 0.05, 0.05), so it needs no training run; its n
 judged on a trained model (`crank run` writes logs/<run>/model.pt). The CasADi/IPOPT build
 (expanding the networks into SX, once per model) is printed apart: it is paid once per
 `crank solve`, not per solve.
+
+The host's pace is printed first and last (bench/suite_time.py's reference: microseconds per
+physics step of a bare one-thread rollout of the twin): the nominal solve and the loop's parts
+speed up unequally with it (session 85: the nominal solve 92 ms at 2.9 us where session 72's
+host gave 187 ms), so a ratio is read beside the pace it ran at.
 """
 
 from __future__ import annotations
@@ -37,6 +42,8 @@ import argparse
 import os
 import statistics
 import time
+
+from suite_time import reference_us  # the script's folder is on the path
 
 from common.errors import ConfigError
 from common.threads import rollout_threads, set_rollout_threads
@@ -104,6 +111,21 @@ def main() -> None:
         ),
         "default, NLP compiled to C (--compiled)": (OCPConfig(compiled=True), "robust"),
     }
+    print(f"host: {reference_us():.2f} us per physics step (bench/suite_time.py's reference)")
+    try:
+        run(model, source, configs, mc_seeds, args)
+    finally:
+        print(f"host after: {reference_us():.2f} us per physics step")
+
+
+def run(
+    model: PPANN,
+    source: str,
+    configs: dict[str, tuple[OCPConfig, str]],
+    mc_seeds: tuple[int, ...],
+    args: argparse.Namespace,
+) -> None:
+    """Every section of the bench (only the seeds' with --seeds-only) on `model`."""
     started = time.perf_counter()
     ocps = {False: NominalOCP(model, OCPConfig())}
     build = time.perf_counter() - started
