@@ -43,6 +43,7 @@ def main() -> None:
     rows = [row | {"line": label} for label, data in runs for row in data["rows"]]
     tasks = list(dict.fromkeys(row["task"] for row in rows))
     profiles = list(dict.fromkeys(row["profile"] for row in rows))
+    seeds = sorted({row["mc_seed"] for row in rows})
     machines = {data["runs"] for _, data in runs}
     roots = {data["heldout_seed"] for _, data in runs}
     if len(machines) != 1:
@@ -65,7 +66,7 @@ def main() -> None:
                 x0 = t - 0.4 + width * (m + 0.5)
                 returned = [r for r in mine if r["verdict"] == "robust"]
                 for r in mine:
-                    x = x0 + width * 0.6 * (r["mc_seed"] / 4 - 0.5)
+                    x = x0 + width * 0.6 * ((seeds.index(r["mc_seed"]) + 0.5) / len(seeds) - 0.5)
                     if r["verdict"] == "robust":
                         below = round(r["heldout_rate"] * n)
                         counts.plot(x, below, "o", color=color, ms=4)
@@ -94,7 +95,8 @@ def main() -> None:
         premiums.set_xticklabels([_label(t) for t in tasks], fontsize=8)
         premiums.legend(loc="upper left", fontsize=8)
     fig.suptitle(
-        f"the tubes in the loops they were sized for, Monte-Carlo seeds 0-4, on {n} held-out "
+        f"the tubes in the loops they were sized for, Monte-Carlo seeds "
+        f"{', '.join(map(str, seeds))}, on {n} held-out "
         f"machines of root {', '.join(map(str, sorted(roots)))} per torque",
         fontsize=11,
     )
