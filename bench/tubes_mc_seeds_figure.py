@@ -21,6 +21,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from common.figures import save_figure
+
 TARGET = 0.005
 """The held-out rate a robust torque is judged by."""
 
@@ -101,8 +103,7 @@ def main() -> None:
         fontsize=11,
     )
     fig.tight_layout()
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=110)
+    save_figure(fig, args.out)
     print(f"wrote {args.out}")
 
 
