@@ -93,6 +93,8 @@ def main() -> None:
         counts.set_title(f"{profile}: a dot per Monte-Carlo seed (x: refused)", fontsize=10)
         counts.set_ylabel(f"held-out machines below, of {n}")
         premiums.set_ylabel("cost premium, %\n(bar: least to most over the seeds)")
+        # a bar from its least premium read against zero, room above it for the legend
+        premiums.set_ylim(0, 1.2 * premiums.get_ylim()[1])
         premiums.set_xticks(range(len(tasks)))
         premiums.set_xticklabels([_label(t) for t in tasks], fontsize=8)
         premiums.legend(loc="upper left", fontsize=8)
