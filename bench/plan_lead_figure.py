@@ -12,8 +12,6 @@ white force, no held-out machine: plan_lead.py's `nominal_runs`); the ratios are
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import matplotlib
 
@@ -21,6 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from heldout_options import line_of
+from labelled import labelled_json  # the script's folder is on the path
 from matplotlib.lines import Line2D
 from plan_lead import nominal_runs
 
@@ -36,12 +35,7 @@ def main() -> None:
     parser.add_argument("--out", required=True)
     parser.add_argument("runs", nargs="+", help="LABEL=lead.json")
     args = parser.parse_args()
-    runs = []
-    for item in args.runs:
-        label, _, name = item.partition("=")
-        if not name:
-            raise SystemExit(f"plan_lead_figure: expected LABEL=FILE, got {item!r}")
-        runs.append((label, json.loads(Path(name).read_text())))
+    runs = [(label, data) for label, _, data in labelled_json(args.runs, script="plan_lead_figure")]
     physics = SliderCrank(load_model(MODEL_PATH)[0])
     fig, (left, right) = plt.subplots(1, 2, figsize=(13, 5), width_ratios=(1.4, 1))
     samples: list[str] = []

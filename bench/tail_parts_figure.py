@@ -10,13 +10,12 @@ interval) against the model's, before and after the move.
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from labelled import labelled_json  # the script's folder is on the path
 from scipy import stats as scistats
 
 from common.figures import save_figure
@@ -39,11 +38,8 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="LABEL=tail.json")
     args = parser.parse_args()
     runs = []
-    for item in args.runs:
-        label, _, name = item.partition("=")
-        if not name:
-            raise SystemExit(f"tail_parts_figure: expected LABEL=FILE, got {item!r}")
-        samples = json.loads(Path(name).read_text())["samples"]
+    for label, name, data in labelled_json(args.runs, script="tail_parts_figure"):
+        samples = data["samples"]
         k = args.sample or max((s for s in samples if s.isdigit()), key=int)
         if k not in samples:
             raise SystemExit(f"tail_parts_figure: {name} has no constraint sample {k}")

@@ -19,6 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from bench_tasks import TASKS
+from labelled import labelled_json  # the script's folder is on the path
 
 TARGET = 0.5
 """The held-out rate a robust torque is judged by, %."""
@@ -37,12 +38,7 @@ def main() -> None:
     parser.add_argument("--out", required=True)
     parser.add_argument("runs", nargs="+", help="LABEL=tasks.json")
     args = parser.parse_args()
-    runs = []
-    for item in args.runs:
-        label, _, name = item.partition("=")
-        if not name:
-            raise SystemExit(f"tasks_figure: expected LABEL=FILE, got {item!r}")
-        runs.append((label, Path(name), json.loads(Path(name).read_text())))
+    runs = labelled_json(args.runs, script="tasks_figure")
     tasks = list(dict.fromkeys(row["task"] for _, _, data in runs for row in data["rows"]))
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
     width = 0.7 / len(runs)

@@ -13,13 +13,12 @@ robust-fb,robust-pd, beside its model).
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from labelled import labelled_json  # the script's folder is on the path
 
 from common.figures import save_figure
 
@@ -36,18 +35,13 @@ def main() -> None:
     parser.add_argument("--out", required=True)
     parser.add_argument("runs", nargs="+", help="LABEL=tasks_mc.json")
     args = parser.parse_args()
-    runs = []
-    for item in args.runs:
-        label, _, name = item.partition("=")
-        if not name:
-            raise SystemExit(f"tubes_mc_seeds_figure: expected LABEL=FILE, got {item!r}")
-        runs.append((label, json.loads(Path(name).read_text())))
-    rows = [row | {"line": label} for label, data in runs for row in data["rows"]]
+    runs = labelled_json(args.runs, script="tubes_mc_seeds_figure")
+    rows = [row | {"line": label} for label, _, data in runs for row in data["rows"]]
     tasks = list(dict.fromkeys(row["task"] for row in rows))
     profiles = list(dict.fromkeys(row["profile"] for row in rows))
     seeds = sorted({row["mc_seed"] for row in rows})
-    machines = {data["runs"] for _, data in runs}
-    roots = {data["heldout_seed"] for _, data in runs}
+    machines = {data["runs"] for _, _, data in runs}
+    roots = {data["heldout_seed"] for _, _, data in runs}
     if len(machines) != 1:
         raise SystemExit(f"tubes_mc_seeds_figure: the files checked {sorted(machines)} machines")
     (n,) = machines
@@ -57,7 +51,7 @@ def main() -> None:
     width = 0.8 / len(runs)
     for p, profile in enumerate(profiles):
         counts, premiums = axes[0, p], axes[1, p]
-        for m, (label, _data) in enumerate(runs):
+        for m, (label, _, _) in enumerate(runs):
             color = f"C{m}"
             for t, task in enumerate(tasks):
                 mine = [
