@@ -71,7 +71,7 @@ bracket decides at once: IPOPT took 14 s to call that NLP infeasible on a line-1
 each aware solve is capped at MAX_IPOPT iterations for the same reason. The tubes (closed-loop
 profiles) keep the bracket: they settle in one draft and one full solve.
 
-Measured with bench/bench_aware.py (README, Benchmarks): the same margins to 0.1 mm and cost to
+Measured with bench/bench_aware.py (docs/history.md): the same margins to 0.1 mm and cost to
 0.25 % as the bracket on three trained models and four tasks, in 4-7 solves against 6-9, the
 loop 1.25-2x faster.
 """

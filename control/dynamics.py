@@ -19,7 +19,7 @@ networks to ~1e-13 and the step's Jacobian to ~1e-11 (tests/test_control_dynamic
 instead of a tanh layer in every function IPOPT calls. The nominal solve of the seed-0 model took
 176 ms with the networks and 136 ms with the splines in CasADi's virtual machine, 82 and 45 ms
 compiled (build 3.5 and 1.5 s, compiled 6.9 and 2.4 s), same iterations and torques to 6e-12
-(idle, median of 5; README, Benchmarks).
+(idle, median of 5; docs/benchmarks.md).
 `splines=False` keeps the networks: the reference the splines are tested against.
 """
 

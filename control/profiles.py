@@ -5,9 +5,9 @@ A robust torque exists where the tightening, allowances included, fits under the
 stroke a margin may take (control/robust.py STROKE_SHARE). The tightening is a Monte-Carlo
 estimate with a standard error se (control/tightening.py), so where it sits within a few se of
 that cap, whether a torque comes back depends on the draws. Measured on training seed 1 of the
-paper line, task horizon 200 / samples 70, 130 (README, *Early stopping on every machine*): a
-torque on three of five Monte-Carlo seeds at 1000 trajectories (18.5-18.9 mm asked against
-19.0, se ~0.55 mm), on all five at 4000 (se 0.26-0.29 mm). A verdict that close, a torque
+paper line, task horizon 200 / samples 70, 130 (docs/history.md, *Early stopping on every
+machine*): a torque on three of five Monte-Carlo seeds at 1000 trajectories (18.5-18.9 mm asked
+against 19.0, se ~0.55 mm), on all five at 4000 (se 0.26-0.29 mm). A verdict that close, a torque
 or a refusal, is therefore decided again with ESCALATION times the trajectories, at most
 MAX_ESCALATIONS times: the band where the draws decide narrows like 1/sqrt(n), and only the
 tasks inside it pay for the precision. It cannot vanish: a tightening exactly at the cap stays

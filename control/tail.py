@@ -3,8 +3,8 @@
 k sigma stands for Φ(−k) below the height at each constraint sample (0.135 % at k = 3) only
 where the slider's spread there is normal. Near top dead centre it is not: the slider is a
 concave function of the crank angle, and the angle's own spread is skewed, so the slider's lower
-tail is longer than k sigma says. Measured on session 27's five default models (README, *The
-torque's own tail, checked after its loop*): this check put 0.80-1.09 % of the centred torques'
+tail is longer than k sigma says. Measured on session 27's five default models (docs/history.md,
+*The torque's own tail, checked after its loop*): this check put 0.80-1.09 % of the centred torques'
 own trajectories below the height on the horizon-200 task (samples 70, 130), where such torques
 went below on up to 0.75 % of 4000 held-out machines; 0.41-0.66 % on the paper's task over
 Monte-Carlo seeds 0-4.
@@ -26,7 +26,7 @@ solved again (control/profiles.py, OCPConfig.tail_remedy):
   raise is sized for its need: on development solves (no machines drawn; session 27's seed-3
   model, the horizon-200 task, Monte-Carlo seeds 0-4) k 3.22-3.51, own rates 0.44-0.48 %,
   premiums 1.6-3.5 points above the centred torques' (23.6-24.8 %) in 5-8 s, where the quantile
-  tightening's cost 5.9-7.7 points and 8.8-79.5 s. On held-out machines (README, *The tail
+  tightening's cost 5.9-7.7 points and 8.8-79.5 s. On held-out machines (docs/history.md, *The tail
   check's remedy sized for its need*): 20 of 25 task-model pairs returned as with "quantile",
   at most 11 of 4000 below, 2.5-6.3 points of premium less.
 - "quantile" (session 30's): the quantile tightening at the configured k, whose own rate is at

@@ -148,8 +148,8 @@ def tightening(
               top dead centre x(theta) is concave, so the mean slider of the machines sits below
               the slider of the mean plan (by about |x''| var(theta) / 2); eq. 16 counts k·σ from
               the plan and so reads that offset as margin. Measured on a horizon-200 task
-              (README, *Warm machines and the centred tightening*): the Monte-Carlo's mean sat
-              1.5 mm below the plan at sample 130, the twin's on machines of the training
+              (docs/history.md, *Warm machines and the centred tightening*): the Monte-Carlo's mean
+              sat 1.5 mm below the plan at sample 130, the twin's on machines of the training
               population 1.7 mm below it.
               Standard error by the delta method on mean − k·s: sqrt((σ² + k² (μ₄ − σ⁴) / (4 σ²)
               − k μ₃ / σ) / n) (the mean and s of a skewed law are correlated: μ₃ / (2 σ n)).

@@ -6,7 +6,7 @@ drawing them in order.
 Why: the torque's own tail check (control/tail.py) draws 20 000 trajectories, four normals per
 trajectory and step; drawn by NumPy's generator (~10 ns a normal, 8 million at 100 steps) and
 handed to the kernel as arrays (copied per block), that was ~0.15-0.2 s of a ~0.5 s check,
-about four nominal solves (README, *Benchmarks*); generated here the check takes ~0.07 s.
+about four nominal solves (docs/history.md); generated here the check takes ~0.07 s.
 
 The generator: sample i has its own SplitMix64 stream, seeded with SplitMix64's output function
 on key + golden * (i + 1) (the sample's seed); at step k its outputs 2 k + 1 and 2 k + 2 (the
@@ -18,7 +18,7 @@ published (Java's SplittableRandom, NumPy's seeding; it passes BigCrush), and th
 seeds are SplitMix64 outputs of the key. tests/test_counter.py checks the published outputs,
 the normals' moments, tails and independence across samples, steps and pairs, and the sums
 over 100 steps; on a trained model's torque the check's rate over 30 seeds is NumPy's
-generator's to within its standard error (README, *Benchmarks*).
+generator's to within its standard error (docs/history.md).
 """
 
 from __future__ import annotations

@@ -7,9 +7,10 @@ pi). Eq. 9's white noise enters eq. 14 as factors on the inertia, damping and st
     r = J_m (1 + z_J) alpha + B_m (1 + z_B) omega + K_m (1 + z_K) theta_mod - tau,
 
 and none of them vanishes there: starting from rest at bottom dead centre J_m alpha is large,
-crawling over top dead centre K_m theta_mod is. Measured along seed 0's robust torque (README,
-session 19), the networks put 1.8x the twin's force variance on the start from rest and 6.3x on
-the crawl over top dead centre, and the predicted slider spread was 1.1-1.5x the machines'.
+crawling over top dead centre K_m theta_mod is. Measured along seed 0's robust torque
+(docs/history.md, session 19), the networks put 1.8x the twin's force variance on the start from
+rest and 6.3x on the crawl over top dead centre, and the predicted slider spread was 1.1-1.5x the
+machines'.
 
 This channel adds to the torque balance
 

@@ -3,7 +3,7 @@ validation report (JSON + PNGs) beside them.
 
 Outputs for `--out logs/model.pt`:
   model.pt, model.physics.pt, model.blackbox.pt   checkpoints (torch.load(weights_only=True))
-  model.report.json                              the report (keys in the README)
+  model.report.json                              the report (keys in docs/ppann.md)
   model.maps.png, model.validation.png, model.bands.png, model.calibration.png   figures
 """
 

@@ -72,8 +72,8 @@ class TrainConfig:
     """The PPANN's sigma network of z_K also sees theta_mod / 2 pi (`PPANNConfig.sigma_wrap`,
     beyond the paper; False is the paper's architecture): on paper seeds 0-9 it lowered the
     robust torque's predicted / observed slider σ at sample 100 on every seed (inside 0.8-1.25 on
-    9 of 10 against 4), every verdict kept (README, the calibration at sample 100). The default
-    since session 9."""
+    9 of 10 against 4), every verdict kept (docs/history.md, the calibration at sample 100). The
+    default since session 9."""
     sigma_lever: bool = True
     """The PPANN gets the slider force's channel (`PPANNConfig.sigma_lever`, ppann/lever.py;
     beyond the paper): a white force on the slider through x'(theta), fitted in phase 2 beside

@@ -4,8 +4,8 @@ The calibration ratio (predicted / observed σ of the slider, replay/heldout.py)
 0.8–1.25, but its denominator is itself an estimate from the machines drawn. Near top dead centre
 the slider's spread is left-skewed and heavy-tailed (skew −0.7 to −1.05 at sample 100 of the
 paper task), so 1000 machines measure its σ to several per cent, not the 2.2 % of a Gaussian:
-the same five torques read 0.06–0.09 apart at sample 100 on two sets of 1000 (README, *The plan
-round as a stage of the chain*). And a sweep checks every seed on the same machines, so that
+the same five torques read 0.06–0.09 apart at sample 100 on two sets of 1000 (docs/history.md, *The
+plan round as a stage of the chain*). And a sweep checks every seed on the same machines, so that
 error is common to all of its ratios. The interval here is a percentile bootstrap over the
 machines (resampled with replacement, BOOTSTRAP_DRAWS times), which follows the tails as they
 are.

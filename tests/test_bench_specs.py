@@ -1,4 +1,4 @@
-"""Every sweep spec in bench/ (the README's studies) still reads: a default flipped after a spec
+"""Every sweep spec in bench/ (the documented studies) still reads: a default flipped after a spec
 was written must not make two of its cases the same run (sessions 25 and 27 flipped two, and
 three specs were refused until they stated the defaults they compared)."""
 

@@ -62,7 +62,7 @@ def test_the_fit_refuses_too_few_samples_and_a_non_finite_residual(bad: str) -> 
 def _friction(theta: np.ndarray, omega: np.ndarray) -> np.ndarray:
     """A torque the model misses, the same on every machine: damping that varies with the angle
     and a ripple, ~2.5x the white noise's RMS; in the basis' span (what the basis can represent
-    of the twin's own error is measured on the twin, README)."""
+    of the twin's own error is measured on the twin, docs/ppann.md)."""
     return -0.03 * (omega / 30.0) * (1.0 + 0.5 * np.sin(theta)) + 0.02 * np.cos(2.0 * theta)
 
 

@@ -5,8 +5,8 @@ a fresh machine draw (friction, backlash, warm-up) that has been running U[0, ma
 (twin.OPERATING_SECONDS, the replays' range: the machines learnt from and the machines checked
 come from one population), from a state drawn uniformly over the whole stroke, under the slider
 disturbance throughout. Until session 17 every episode started cold: the model never saw a warm
-machine, while the held-out machines had run up to 60 s (README, *Warm machines*). `t` keeps
-running across episodes and every sample carries its episode index, so training windows never
+machine, while the held-out machines had run up to 60 s (docs/history.md, *Warm machines*). `t`
+keeps running across episodes and every sample carries its episode index, so training windows never
 cross a boundary.
 
 Random streams (common/streams.py): the named streams dataset_machines, dataset_states,
@@ -56,8 +56,8 @@ class GenerationConfig:
     left the predicted slider σ at 1.47 times the held-out machines' on one seed of five), and the
     mean model's error where a torque crawls over top dead centre shrinks as 1/sqrt(data): at 180 s
     its crank angle after the crawl was up to 0.19 rad off the machines' mean and the predicted
-    slider σ up to 1.54 times the observed, at 720 s within 0.07 rad and 1.30 (README, *Four
-    times the data*)."""
+    slider σ up to 1.54 times the observed, at 720 s within 0.07 rad and 1.30 (docs/history.md,
+    *Four times the data*)."""
 
     seconds: float = DATASET_SECONDS
     seed: int = 0

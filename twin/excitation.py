@@ -13,7 +13,7 @@ profiles make from few samples: on training seed 5 a torque impulse before that 
 model's crank angle after it 1.7-2.0x as much as the twin's, and its held-out horizon-200 torque
 went below on 9 of 1000 machines. At ±3.5 N·m (95th percentile 36 rad/s) that sensitivity is
 1.2-1.4x, and on ten training seeds x five tasks every returned robust torque held on 1000
-held-out machines (README, *Does the tightening keep its own promise?*).
+held-out machines (docs/history.md, *Does the tightening keep its own promise?*).
 """
 
 from __future__ import annotations

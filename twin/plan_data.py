@@ -6,7 +6,7 @@ returned torque on `episodes` machines of the dataset's line that no other stage
 `plan_machines` and `plan_noise`) — a lab's dataset: on its own machines again —, adds those
 episodes to the dataset, and trains and solves again. The excitation of the dataset rarely crawls
 over the dead centres the way a plan does; the machines' spread there is what the robust margin is
-made of (README, *The machine's factors on the motor's terms*, session 22).
+made of (docs/history.md, *The machine's factors on the motor's terms*, session 22).
 
 Each added episode is one machine drawn from the dataset's scenario — or, where the dataset's run
 record names machines (`machine_id`: a lab runs its few machines again, it has no others), the
