@@ -22,6 +22,8 @@ from crank.estimate import run_time
 from crank.study import run_rows
 from crank.sweep import run_sweep
 from crank.sweep_spec import leaves_of, node_key
+from replay.campaign import tracking_law
+from replay.config import ReplayConfig
 from tests.test_chain import SHORT
 from tests.test_sweep import SPEC as SWEEP_SPEC
 from twin.mcap_dataset import read_dataset, read_run
@@ -336,3 +338,45 @@ def test_data_too_short_for_the_rounds_training_says_it_was_the_round(tmp_path: 
     assert "966..966 (20 ranges of 1 to 2 samples; a window needs 11) hold no window of 10" in said
     assert said.endswith("(--plan-episodes 0 trains once, on the dataset alone)")
     assert not (tmp_path / stages.MODEL).exists()
+
+
+def test_plan_data_under_a_law_adds_it_to_the_same_draws(planned_run, tmp_path: Path) -> None:
+    """`feedback` (bench/closed_round.py): the round's episodes under a tracking law are the open
+    round's draws (machines, starts, dither, force) with the law's torque on top: where neither
+    torque is at the limit, closed minus open is the law on the measured θ, ω of that sample."""
+    run_dir, _, _ = planned_run
+    profile = read_ocp(run_dir / "round-0" / "ocp.json").profiles["robust"]
+    physics = SliderCrank()
+    law = tracking_law(physics, profile, ReplayConfig())
+    made = {}
+    for name, feedback in (("open", None), ("closed", law)):
+        plan_dataset_file(
+            run_dir / "dataset.mcap",
+            tmp_path / f"{name}.mcap",
+            tau=profile.tau[:-1],
+            theta0=float(profile.theta[0]),
+            omega0=float(profile.omega[0]),
+            config=PlanConfig(episodes=EPISODES),
+            seed=0,
+            physics=physics,
+            played={},
+            feedback=feedback,
+        )
+        made[name] = read_dataset(tmp_path / f"{name}.mcap")
+    np.testing.assert_array_equal(
+        made["open"].slider_position, read_dataset(run_dir / "plan.mcap").slider_position
+    )
+    n = len(profile.tau) - 1
+    added = EPISODES * n
+    closed, opened = made["closed"], made["open"]
+    for name in ("theta", "omega", "tau", "slider_position"):  # the dataset after them, as is
+        np.testing.assert_array_equal(getattr(closed, name)[added:], getattr(opened, name)[added:])
+    theta = closed.theta[:added].reshape(EPISODES, n)
+    omega = closed.omega[:added].reshape(EPISODES, n)
+    gains = np.stack([profile.gain_theta, profile.gain_omega], axis=-1)[:n]
+    expected = gains[:, 0] * (profile.theta[:n] - theta) + gains[:, 1] * (profile.omega[:n] - omega)
+    difference = (closed.tau[:added] - opened.tau[:added]).reshape(EPISODES, n)
+    free = (np.abs(closed.tau[:added]) < physics.torque_limit).reshape(EPISODES, n)
+    free &= (np.abs(opened.tau[:added]) < physics.torque_limit).reshape(EPISODES, n)
+    assert free.mean() > 0.9 and np.abs(expected).max() > 1e-3  # the law acted
+    np.testing.assert_allclose(difference[free], expected[free], rtol=0, atol=1e-9)

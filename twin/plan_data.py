@@ -19,6 +19,7 @@ force. The added episodes come first so that none lands in the validation tail o
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -81,12 +82,15 @@ def plan_dataset_file(
     seed: int,
     physics: SliderCrank,
     played: dict[str, Any],
+    feedback: Callable[[int, np.ndarray], np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Write `out`: the dataset of `dataset_path` after `config.episodes` episodes of the torque
     `tau` (one per sample) from (`theta0`, `omega0`) on machines of its scenario drawn with the
     root `seed`, or on the dataset's own machines in turn where it names them (`lab_machines`).
     `played` (which solve and profile the torque is) is recorded in the file's run record under
-    "plan_round". Returns the round's summary.
+    "plan_round". `feedback`: a closed-loop law (twin/stepping.py `simulate`'s) added to each
+    episode's torque before the limit, the same draws otherwise (bench/closed_round.py plays a
+    tube's law; the chain's round is open loop). Returns the round's summary.
 
     Raises:
       ConfigError: no episodes asked for, or a torque that is not a finite sequence of two or
@@ -126,6 +130,7 @@ def plan_dataset_file(
         tau=torques,
         disturbance=force,
         start_times=starts,
+        feedback=feedback,
     )
     sd = runs.sensordata.reshape(-1, runs.sensordata.shape[-1])
     added = measured_channels(physics, sd, runs.tau.reshape(-1))
@@ -154,7 +159,7 @@ def plan_dataset_file(
         "samples": len(episode),
         "played": played,
         "streams": streams.describe(seed, ("plan_machines", "plan_noise")),
-        "torque_clipped_fraction": float(np.mean(np.abs(torques) >= limit)),
+        "torque_clipped_fraction": float(np.mean(np.abs(runs.tau) >= limit)),
     }
     run |= {"episodes": first + later, "n_samples": len(episode), "plan_round": summary}
     write_dataset(out, merged, None, run=run, model_xml=read_model_xml(dataset_path))
