@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import pytest
 
 from common.errors import ConfigError
 from common.jsonio import without_wall_clock
-from control.ocp_file import read_ocp
+from control.ocp_file import Profile, read_ocp
 from control.records import RobustError
 from crank import stages
 from crank.chain import Hooks, RunConfig, run_chain
@@ -26,6 +27,7 @@ from replay.campaign import tracking_law
 from replay.config import ReplayConfig
 from tests.test_chain import SHORT
 from tests.test_sweep import SPEC as SWEEP_SPEC
+from twin.dataset import Dataset
 from twin.mcap_dataset import read_dataset, read_run
 from twin.physics import SliderCrank
 from twin.plan_config import PlanConfig
@@ -150,23 +152,36 @@ def test_plan_data_is_the_dataset_after_the_plan_episodes(planned_run) -> None:
     assert run["plan_round"]["streams"]["streams"].keys() == {"plan_machines", "plan_noise"}
 
 
+Law = Callable[[int, np.ndarray], np.ndarray]
+"""A closed-loop law as twin/stepping.py `simulate` takes it."""
+
+
+def _round_file(
+    run_dir: Path, profile: Profile, out: Path, *, seed: int, feedback: Law | None = None
+) -> Dataset:
+    """The plan round's file of `profile`'s torque on the run's dataset, read back."""
+    plan_dataset_file(
+        run_dir / "dataset.mcap",
+        out,
+        tau=profile.tau[:-1],
+        theta0=float(profile.theta[0]),
+        omega0=float(profile.omega[0]),
+        config=PlanConfig(episodes=EPISODES),
+        seed=seed,
+        physics=SliderCrank(),
+        played={},
+        feedback=feedback,
+    )
+    return read_dataset(out)
+
+
 def test_plan_data_is_reproducible_and_the_seed_changes_it(planned_run, tmp_path: Path) -> None:
     run_dir, _, _ = planned_run
     profile = read_ocp(run_dir / "round-0" / "ocp.json").profiles["robust"]
-    made = {}
-    for name, seed in (("a", 0), ("b", 0), ("c", 1)):
-        plan_dataset_file(
-            run_dir / "dataset.mcap",
-            tmp_path / f"{name}.mcap",
-            tau=profile.tau[:-1],
-            theta0=float(profile.theta[0]),
-            omega0=float(profile.omega[0]),
-            config=PlanConfig(episodes=EPISODES),
-            seed=seed,
-            physics=SliderCrank(),
-            played={},
-        )
-        made[name] = read_dataset(tmp_path / f"{name}.mcap")
+    made = {
+        name: _round_file(run_dir, profile, tmp_path / f"{name}.mcap", seed=seed)
+        for name, seed in (("a", 0), ("b", 0), ("c", 1))
+    }
     np.testing.assert_array_equal(made["a"].slider_position, made["b"].slider_position)
     np.testing.assert_array_equal(
         made["a"].slider_position, read_dataset(run_dir / "plan.mcap").slider_position
@@ -348,21 +363,10 @@ def test_plan_data_under_a_law_adds_it_to_the_same_draws(planned_run, tmp_path: 
     profile = read_ocp(run_dir / "round-0" / "ocp.json").profiles["robust"]
     physics = SliderCrank()
     law = tracking_law(physics, profile, ReplayConfig())
-    made = {}
-    for name, feedback in (("open", None), ("closed", law)):
-        plan_dataset_file(
-            run_dir / "dataset.mcap",
-            tmp_path / f"{name}.mcap",
-            tau=profile.tau[:-1],
-            theta0=float(profile.theta[0]),
-            omega0=float(profile.omega[0]),
-            config=PlanConfig(episodes=EPISODES),
-            seed=0,
-            physics=physics,
-            played={},
-            feedback=feedback,
-        )
-        made[name] = read_dataset(tmp_path / f"{name}.mcap")
+    made = {
+        name: _round_file(run_dir, profile, tmp_path / f"{name}.mcap", seed=0, feedback=feedback)
+        for name, feedback in (("open", None), ("closed", law))
+    }
     np.testing.assert_array_equal(
         made["open"].slider_position, read_dataset(run_dir / "plan.mcap").slider_position
     )
