@@ -25,45 +25,18 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-from transmission_load import CELLS, LEAST, Conditioned, load
+from transmission_load import CELLS, LEAST, Conditioned, load, samples, torque_through_gap
 
 from common import streams
 from control.ocp_file import read_ocp
 from ppann.checkpoint import load as load_checkpoint
 from ppann.heads import FusedHeads
 from ppann.montecarlo import Feedback, monte_carlo
-from ppann.transmission import SLOPE_SHARE, draw, transmission_angles
-from twin.mcap_dataset import read_dataset
+from ppann.transmission import draw
 from twin.physics import SAMPLE_RATE
 
 LAG = 5
 """Samples (10 ms) between the two loads (bench/transmission_load.md: the lag explaining most)."""
-
-
-def samples(path: Path) -> dict[str, np.ndarray]:
-    """δ from the measured slider, and τ, α, ω now and LAG samples before, on the samples
-    ppann/transmission.py fits on (away from the dead centres) that have LAG samples before
-    them in their episode (transmission_load.py's, without the truth channel a plan round's
-    file does not carry)."""
-    data = read_dataset(path)
-    geometry = data.geometry
-    parts: dict[str, list[np.ndarray]] = {}
-    for episode in np.unique(data.episode):
-        at = np.flatnonzero(data.episode == episode)
-        theta, omega = data.theta[at], data.omega[at]
-        alpha = np.gradient(omega, 1.0 / SAMPLE_RATE) if at.size > 1 else np.zeros(at.size)
-        usable = np.abs(geometry.slider_slope(theta)) >= SLOPE_SHARE * geometry.crank_length
-        index = np.flatnonzero(usable)
-        index = index[index >= LAG]
-        delta = transmission_angles(
-            theta[index], data.slider_position[at][index], geometry=geometry
-        )
-        parts.setdefault("delta", []).append(delta)
-        for lag in (0, LAG):
-            i = index - lag
-            for name, values in (("tau", data.tau[at]), ("alpha", alpha), ("omega", omega)):
-                parts.setdefault(f"{name}{lag}", []).append(values[i])
-    return {k: np.concatenate(v) for k, v in parts.items()}
 
 
 def fitted_coefficients(parts: dict[str, np.ndarray]) -> tuple[float, float, float]:
@@ -118,7 +91,7 @@ def main() -> None:
     parser.add_argument("--profiles", default="robust-fb,robust-pd")
     parser.add_argument("--draws", type=int, default=20000)
     args = parser.parse_args()
-    parts_of = [samples(path) for path in args.data]
+    parts_of = [samples(path, (LAG,), truth=False) for path in args.data]
     parts = {k: np.concatenate([p[k] for p in parts_of]) for k in parts_of[0]}
     coefficients = fitted_coefficients(parts)
     cells = CellDraw(parts["delta"], load(parts, coefficients), load(parts, coefficients, LAG))
@@ -132,7 +105,6 @@ def main() -> None:
     ocp = read_ocp(args.ocp)
     c = ocp.config
     index = np.array(c.constraint_samples) - 1
-    inertia, damping, friction = coefficients
     for name in args.profiles.split(","):
         planned = ocp.profiles[name]
         states = np.stack([planned.theta, planned.omega], axis=-1)
@@ -157,8 +129,7 @@ def main() -> None:
         )
         omega = x[:, :, 1]
         alpha = np.gradient(omega, 1.0 / SAMPLE_RATE, axis=1)[:, :steps]
-        u = applied - inertia * alpha - damping * omega[:, :steps]
-        u = u - friction * np.sign(omega[:, :steps])
+        u = torque_through_gap(applied, alpha, omega[:, :steps], coefficients)
         marginal = draw(
             heads.transmission,
             (args.draws,),

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from transmission_load import motor_coefficients, torque_through_gap
 
 from control.ocp_file import read_ocp
 from replay.campaign import Machines, draw_machines, play
@@ -54,15 +55,6 @@ class Shown:
     height: float
 
 
-def motor_joint(physics: SliderCrank) -> tuple[float, float, float]:
-    """Armature, damping and frictionloss of the twin's motor joint (the MJCF's nominal)."""
-    model = physics.model
-    dof = model.joint("motor").dofadr[0]
-    return tuple(
-        float(a[dof]) for a in (model.dof_armature, model.dof_damping, model.dof_frictionloss)
-    )  # type: ignore[return-value]
-
-
 def places(machines: Machines, line: Variability, indices: np.ndarray) -> dict[str, float]:
     """Each uncertain parameter's median place in its range over machines `indices`."""
     out = {}
@@ -86,13 +78,13 @@ def parts(
     machines = draw_machines(config, ocp.horizon, held_out=True)
     shuffled = np.random.default_rng(0).permutation(runs)
     height = ocp.config.height
-    inertia, damping, friction = motor_joint(physics)
+    coefficients = motor_coefficients(physics.model)
     shown = []
     print(f"{path}: {runs} machines of root {seed} ({config.variability.name})")
     for name in [n for n in ocp.names if not wanted or n in wanted]:
         run = play(physics, ocp, profile=name, mode="closed", machines=machines, config=config)
         alpha = np.gradient(run.omega, 1.0 / SAMPLE_RATE, axis=1)
-        load = run.tau - inertia * alpha - damping * run.omega - friction * np.sign(run.omega)
+        load = torque_through_gap(run.tau, alpha, run.omega, coefficients)
         for k in ocp.config.constraint_samples:
             i = k - 1
             theta, delta = run.theta[:, i], run.backlash_angle[:, i]
@@ -111,8 +103,8 @@ def parts(
                 f"θ alone {int(np.sum(alone < height))})"
             )
             basis = np.column_stack([np.ones(runs), load[:, i], load[:, i - LAG]])
-            coefficients, *_ = np.linalg.lstsq(basis, delta, rcond=None)
-            fit = basis @ coefficients
+            weights, *_ = np.linalg.lstsq(basis, delta, rcond=None)
+            fit = basis @ weights
             loaded = geometry.slider_position(theta + fit + (delta - fit)[shuffled])
             print(
                 f"      δ on u now and {LAG} samples before: R² "

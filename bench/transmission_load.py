@@ -44,10 +44,12 @@ LEAST = 30
 """Samples a cell needs to count (fewer: left out of the spread)."""
 
 
-def samples(path: Path, lags: tuple[int, ...]) -> dict[str, np.ndarray]:
+def samples(path: Path, lags: tuple[int, ...], *, truth: bool = True) -> dict[str, np.ndarray]:
     """delta from the measured slider and the load's parts (now and `lag` samples before), on
-    the samples delta is fitted on that have the longest lag inside their episode."""
-    data, truth = read_dataset(path), read_truth(path)
+    the samples delta is fitted on that have the longest lag inside their episode; with `truth`,
+    the truth channel's backlash angle beside it (a plan round's file carries none)."""
+    data = read_dataset(path)
+    backlash = read_truth(path).backlash_angle if truth else None
     geometry = data.geometry
     first = max(lags, default=0)
     parts: dict[str, list[np.ndarray]] = {}
@@ -64,7 +66,8 @@ def samples(path: Path, lags: tuple[int, ...]) -> dict[str, np.ndarray]:
         late = index >= first
         delta = transmission_angles(theta, data.slider_position[at], geometry=geometry)
         keep("delta", delta[late])
-        keep("truth", truth.backlash_angle[at][index[late]])
+        if backlash is not None:
+            keep("truth", backlash[at][index[late]])
         for lag in (0, *lags):
             i = index[late] - lag
             keep(f"tau{lag}", data.tau[at][i])
@@ -73,11 +76,19 @@ def samples(path: Path, lags: tuple[int, ...]) -> dict[str, np.ndarray]:
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
-def load(parts: dict[str, np.ndarray], coefficients: tuple, lag: int = 0) -> np.ndarray:
-    """u = tau - J alpha - b omega - f sign(omega), `lag` samples before."""
+def torque_through_gap(
+    tau: np.ndarray, alpha: np.ndarray, omega: np.ndarray, coefficients: tuple
+) -> np.ndarray:
+    """u = tau - J alpha - b omega - f sign(omega): the motor's torque less what its own rotor
+    takes, with (J, b, f) = `coefficients`."""
     inertia, damping, friction = coefficients
-    tau, alpha, omega = (parts[f"{k}{lag}"] for k in ("tau", "alpha", "omega"))
     return tau - inertia * alpha - damping * omega - friction * np.sign(omega)
+
+
+def load(parts: dict[str, np.ndarray], coefficients: tuple, lag: int = 0) -> np.ndarray:
+    """`torque_through_gap` of a dataset's samples (`samples`), `lag` samples before."""
+    tau, alpha, omega = (parts[f"{k}{lag}"] for k in ("tau", "alpha", "omega"))
+    return torque_through_gap(tau, alpha, omega, coefficients)
 
 
 def _edges(x: np.ndarray, bins: int) -> np.ndarray:
@@ -135,7 +146,11 @@ def mujoco_model(path: Path) -> Any:
 
 def motor_joint(path: Path) -> tuple[float, float, float]:
     """armature, damping and frictionloss of the MJCF's motor joint (the dataset's own MJCF)."""
-    model = mujoco_model(path)
+    return motor_coefficients(mujoco_model(path))
+
+
+def motor_coefficients(model: Any) -> tuple[float, float, float]:
+    """armature, damping and frictionloss of a compiled model's motor joint."""
     dof = model.joint("motor").dofadr[0]
     return (
         float(model.dof_armature[dof]),
@@ -232,8 +247,7 @@ def replayed(
         for mode in config.modes:
             run = play(physics, ocp, profile=name, mode=mode, machines=machines, config=config)
             alpha = np.gradient(run.omega, 1.0 / SAMPLE_RATE, axis=1)
-            u = run.tau - fitted[0] * alpha - fitted[1] * run.omega
-            u = u - fitted[2] * np.sign(run.omega)
+            u = torque_through_gap(run.tau, alpha, run.omega, fitted)
             for k in ocp.config.constraint_samples:
                 i = k - 1
                 drawn = [
