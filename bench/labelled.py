@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -20,3 +21,12 @@ def labelled_json(items: list[str], *, script: str) -> list[tuple[str, Path, Any
             raise SystemExit(f"{script}: expected LABEL=FILE, got {item!r}")
         runs.append((label, Path(name), json.loads(Path(name).read_text())))
     return runs
+
+
+def figure_parser(doc: str, *, inputs: str) -> argparse.ArgumentParser:
+    """The figure scripts' command line: `--out` (the PNG) and the `LABEL=FILE` arguments `runs`
+    (`inputs` names the file each label stands for, for the help); a script may add its own."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--out", required=True)
+    parser.add_argument("runs", nargs="+", help=f"LABEL={inputs}")
+    return parser

@@ -11,15 +11,13 @@ white force, no held-out machine: plan_lead.py's `nominal_runs`); the ratios are
 
 from __future__ import annotations
 
-import argparse
-
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from heldout_options import line_of
-from labelled import labelled_json  # the script's folder is on the path
+from labelled import figure_parser, labelled_json  # the script's folder is on the path
 from matplotlib.lines import Line2D
 from plan_lead import nominal_runs
 
@@ -31,9 +29,7 @@ from twin.physics import SliderCrank, load_model
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    parser.add_argument("runs", nargs="+", help="LABEL=lead.json")
+    parser = figure_parser(__doc__, inputs="lead.json")
     args = parser.parse_args()
     runs = [(label, data) for label, _, data in labelled_json(args.runs, script="plan_lead_figure")]
     physics = SliderCrank(load_model(MODEL_PATH)[0])

@@ -9,13 +9,11 @@ interval) against the model's, before and after the move.
 
 from __future__ import annotations
 
-import argparse
-
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from labelled import labelled_json  # the script's folder is on the path
+from labelled import figure_parser, labelled_json  # the script's folder is on the path
 from scipy import stats as scistats
 
 from common.figures import save_figure
@@ -32,10 +30,8 @@ def interval(below: int, n: int) -> tuple[float, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
+    parser = figure_parser(__doc__, inputs="tail.json")
     parser.add_argument("--sample", help="the constraint sample (default: the last)")
-    parser.add_argument("runs", nargs="+", help="LABEL=tail.json")
     args = parser.parse_args()
     runs = []
     for label, name, data in labelled_json(args.runs, script="tail_parts_figure"):

@@ -10,7 +10,6 @@ each torque is read from the task's ocp file beside it (tasks/task<i>-mc<seed>.j
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from bench_tasks import TASKS
-from labelled import labelled_json  # the script's folder is on the path
+from labelled import figure_parser, labelled_json  # the script's folder is on the path
 
 TARGET = 0.5
 """The held-out rate a robust torque is judged by, %."""
@@ -34,9 +33,7 @@ def _k(folder: Path, task_index: int, mc_seed: int, profile: str) -> float | Non
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    parser.add_argument("runs", nargs="+", help="LABEL=tasks.json")
+    parser = figure_parser(__doc__, inputs="tasks.json")
     args = parser.parse_args()
     runs = labelled_json(args.runs, script="tasks_figure")
     tasks = list(dict.fromkeys(row["task"] for _, _, data in runs for row in data["rows"]))

@@ -12,13 +12,11 @@ robust-fb,robust-pd, beside its model).
 
 from __future__ import annotations
 
-import argparse
-
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from labelled import labelled_json  # the script's folder is on the path
+from labelled import figure_parser, labelled_json  # the script's folder is on the path
 
 from common.figures import save_figure
 
@@ -31,9 +29,7 @@ def _label(task: str) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    parser.add_argument("runs", nargs="+", help="LABEL=tasks_mc.json")
+    parser = figure_parser(__doc__, inputs="tasks_mc.json")
     args = parser.parse_args()
     runs = labelled_json(args.runs, script="tubes_mc_seeds_figure")
     rows = [row | {"line": label} for label, _, data in runs for row in data["rows"]]
