@@ -3,7 +3,8 @@
 `CasadiPPANN(model)` reads the weights once and builds:
   z_mean(theta, omega) -> (3,)   the mean networks, J, B, K
   z_sigma(theta, omega) -> (3,)  the sigma networks (softplus + floor)
-  step(x, tau) -> x_next          forward Euler of eq. 14 with the mean z (eq. 10b)
+  step(x, tau) -> x_next          forward Euler of eq. 14 with the mean z (eq. 10b), the angle
+                                  by PPANNConfig.angle_update
   step_on_turn(x, tau, turn) -> x_next
                                   the same with theta_mod = theta - 2 pi turn, a given turn
 as `casadi.Function`s, equal to the torch model to 1e-9 (tests/test_control_dynamics.py).
@@ -138,6 +139,12 @@ class CasadiPPANN:
 
         alpha = alpha_at(wrapped, mean)
         alpha_turn = alpha_at(theta - 2 * math.pi * turn, mean_turn)
+        half = c.half_step  # the trapezoid angle update's dt^2 / 2 (PPANNConfig.angle_update)
+
+        def ahead(acceleration: ca.SX) -> ca.SX:
+            moved = theta + self.dt * omega
+            return moved + half * acceleration if half else moved
+
         x = ca.vertcat(theta, omega)
         self._rollouts: dict[int, ca.Function] = {}
         self.z_mean = ca.Function("z_mean", [theta, omega], [mean], ["theta", "omega"], ["z"])
@@ -146,14 +153,14 @@ class CasadiPPANN:
         self.step = ca.Function(
             "step",
             [x, tau],
-            [ca.vertcat(theta + self.dt * omega, omega + self.dt * alpha)],
+            [ca.vertcat(ahead(alpha), omega + self.dt * alpha)],
             ["x", "tau"],
             ["x_next"],
         )
         self.step_on_turn = ca.Function(
             "step_on_turn",
             [x, tau, turn],
-            [ca.vertcat(theta + self.dt * omega, omega + self.dt * alpha_turn)],
+            [ca.vertcat(ahead(alpha_turn), omega + self.dt * alpha_turn)],
             ["x", "tau", "turn"],
             ["x_next"],
         )

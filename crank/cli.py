@@ -218,6 +218,13 @@ def train_command(
             "linear (to first order about the mean: zero-mean)."
         ),
     ] = TrainConfig.white_inertia,
+    angle_update: Annotated[
+        str,
+        typer.Option(
+            help="How a step moves the angle: euler (eq. 4) or trapezoid (by the mean of the "
+            "speeds before and after the step)."
+        ),
+    ] = TrainConfig.angle_update,
     bound_lines: Annotated[
         int,
         typer.Option(
@@ -244,6 +251,7 @@ def train_command(
         coulomb=coulomb,
         mean_wrap=mean_wrap,
         white_inertia=white_inertia,
+        angle_update=angle_update,
         bound_lines=bound_lines,
         seed=seed,
     )

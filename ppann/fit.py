@@ -133,6 +133,8 @@ def new_model(
         ppann_config = replace(ppann_config or PPANNConfig(), machine_terms=config.machine_terms)
     if kind == "ppann" and config.white_inertia != PPANNConfig.white_inertia:
         ppann_config = replace(ppann_config or PPANNConfig(), white_inertia=config.white_inertia)
+    if kind == "ppann" and config.angle_update != PPANNConfig.angle_update:
+        ppann_config = replace(ppann_config or PPANNConfig(), angle_update=config.angle_update)
     model = spec.new(ppann_config if kind == "ppann" else None)
     if hasattr(model, "geometry"):
         model.geometry = dataset.geometry

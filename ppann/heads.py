@@ -53,6 +53,7 @@ class FusedHeads:
         self.coulomb = [float(v) for v in model.coulomb.detach()] if c.coulomb else None
         self.coulomb_speed = c.coulomb_speed
         self.dt = c.dt
+        self.half_step = c.half_step  # the trapezoid angle update's dt^2 / 2, or 0
         self.machine_sigma = model.machine_sigma.detach().numpy().copy()
         self.common_covariance = model.common_covariance.detach().numpy().copy()
         self.machine_profile = model.machine_profile.detach().numpy().copy()

@@ -189,6 +189,7 @@ def rollout(
                 heads.geometry.crank_length,
                 heads.geometry.rod_length,
                 float(heads.linear_inertia),
+                heads.half_step,
             ]
         )
     )

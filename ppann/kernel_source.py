@@ -61,7 +61,7 @@ int crank_rollout(
     const double *plan, const double *gains, double limit,
     const double *prm, /* dt, j, b, k, omega_scale, sigma_floor, inertia_floor, cell, use_nets,
                           machine_prior, coulomb motor, coulomb load, coulomb_speed, l1, l2,
-                          linear_inertia */
+                          linear_inertia, half_step */
     const double *table, int table_rows, int n_angle, const int *angle_out,
     const float *w_in, int hidden, int n_speed, const int *speed_out, const int *row_start,
     const int *row_end, const float *w_out, const double *b_out,
@@ -77,6 +77,7 @@ int crank_rollout(
     const double cmotor = prm[10], cload = prm[11], cspeed = prm[12], l1 = prm[13], l2 = prm[14];
     const int coulomb = cmotor != 0.0 || cload != 0.0;
     const int linear = prm[15] != 0.0;  /* z_J's white draw to first order (PPANNConfig) */
+    const double half = prm[16];  /* the trapezoid angle update's dt^2 / 2, or 0 */
     const double two_pi = 6.283185307179586;
     const int np = (n + LANES - 1) / LANES * LANES;
     double *th = malloc(sizeof(double) * np * 3), *om = th + np, *ang = th + 2 * np;
@@ -221,6 +222,7 @@ int crank_rollout(
             double next = th[s] + dt * om[s];
             double alpha = (u - damping - stiffness) / inertia;
             if (linear) alpha *= 1 - d0 / floored;  /* about the mean: zero-mean in eps */
+            if (half != 0.0) next = next + half * alpha;
             om[s] = om[s] + dt * alpha;
             th[s] = next;
         }

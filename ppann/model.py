@@ -13,7 +13,8 @@ with z_J(sin, cos), z_B(sin, cos, omega / omega_scale), z_K(sin, cos) (with
 Each z is a normal variable whose mean comes from a network of one hidden layer (100 tanh
 neurons, linear output) and whose standard deviation comes from a network of 10 tanh neurons
 with a softplus output plus a floor.
-Forward Euler at dt (eq. 4) with theta' = omega exactly (eq. 12).
+Forward Euler at dt (eq. 4) with theta' = omega exactly (eq. 12); with
+`PPANNConfig.angle_update` "trapezoid" the angle moves by dt (omega_k + omega_{k+1}) / 2.
 """
 
 from __future__ import annotations
@@ -196,13 +197,17 @@ class PPANN(nn.Module):
     def step(
         self, x: torch.Tensor, tau: torch.Tensor, z: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """One forward-Euler step (eq. 4) of x (..., 2) under tau (...); z defaults to the mean."""
+        """One forward-Euler step (eq. 4) of x (..., 2) under tau (...), the angle's by the
+        config's `angle_update`; z defaults to the mean."""
         theta, omega = x[..., 0], x[..., 1]
         if z is None:
             z = self.z_mean(theta, omega)
         alpha = self.acceleration(theta, omega, tau, z)
-        dt = self.config.dt
-        return torch.stack([theta + dt * omega, omega + dt * alpha], dim=-1)
+        dt, half = self.config.dt, self.config.half_step
+        ahead = theta + dt * omega
+        if half:
+            ahead = ahead + half * alpha
+        return torch.stack([ahead, omega + dt * alpha], dim=-1)
 
 
 def constant_ppann(

@@ -10,6 +10,8 @@ from common.errors import CrankError
 
 MACHINE_TERMS = ("augmented", "prior")
 """What the machine-level log-factors scale (`PPANNConfig.machine_terms`)."""
+ANGLE_UPDATES = ("euler", "trapezoid")
+"""How a step moves the angle (`PPANNConfig.angle_update`)."""
 WHITE_INERTIA = ("quotient", "linear")
 """How a Monte-Carlo draw of z_J's white noise enters the acceleration
 (`PPANNConfig.white_inertia`)."""
@@ -98,6 +100,13 @@ class PPANNConfig:
     eq. 9 fitted (its residual is linear in z at the observed acceleration). A checkpoint
     without this key is "quotient"."""
 
+    angle_update: str = "euler"
+    """How a step moves the angle. "euler", the paper's forward Euler (eq. 4): theta_{k+1} =
+    theta_k + dt omega_k, which from rest leaves the angle dt (omega_k - omega_1) / 2 behind the
+    motion (bench/mean_offset.md: 23 mrad at sample 10). "trapezoid" (beyond the paper): theta_{k+1}
+    = theta_k + dt (omega_k + omega_{k+1}) / 2 = theta_k + dt omega_k + dt^2 alpha_k / 2, with
+    omega_{k+1} = omega_k + dt alpha_k as in eq. 4. A checkpoint without this key is "euler"."""
+
     def __post_init__(self) -> None:
         positive = ("j_m", "b_m", "omega_scale", "dt", "sigma_floor")
         positive += ("coulomb_m", "coulomb_load", "coulomb_speed")
@@ -109,8 +118,15 @@ class PPANNConfig:
                 raise ModelConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
         check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=ModelConfigError)
         check_choice("white_inertia", self.white_inertia, WHITE_INERTIA, error=ModelConfigError)
+        check_choice("angle_update", self.angle_update, ANGLE_UPDATES, error=ModelConfigError)
         if self.sigma_wrap and self.sigma_speed:
             raise ModelConfigError("sigma_wrap and sigma_speed cannot be combined")
+
+    @property
+    def half_step(self) -> float:
+        """dt^2 / 2 with the trapezoid angle update, else 0: theta_{k+1} = theta_k + dt omega_k
+        + half_step alpha_k (added only when nonzero, so Euler's numbers stay to the bit)."""
+        return 0.5 * self.dt * self.dt if self.angle_update == "trapezoid" else 0.0
 
     def as_dict(self) -> dict:
         return asdict(self)

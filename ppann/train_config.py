@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 from common.checks import check_choice, check_count, check_finite, check_seed
 from common.errors import CrankError
-from ppann.model_config import MACHINE_TERMS, WHITE_INERTIA
+from ppann.model_config import ANGLE_UPDATES, MACHINE_TERMS, WHITE_INERTIA
 
 CALIBRATION_RUNS = 100
 """Fresh machines the model report replays the validation torque on (its observed σ, against
@@ -119,6 +119,12 @@ class TrainConfig:
     the ten σ ratios lower (1.055-1.225 against 1.074-1.229), 0-1 below per seed either way;
     seeds 5-14 at most 1 of 1000; every task torque returned as before and at most 2 of 1000."""
 
+    angle_update: str = "euler"
+    """How the PPANN's step moves the angle (`PPANNConfig.angle_update`): "euler", the paper's
+    eq. 4; "trapezoid", by the mean of the speeds before and after the step (beyond the paper;
+    bench/mean_offset.md). Unlike `white_inertia` it changes training: phase 1's predictions
+    step by it."""
+
     def __post_init__(self) -> None:
         for name in (
             "horizon",
@@ -145,6 +151,7 @@ class TrainConfig:
         check_choice("early_stopping", self.early_stopping, EARLY_STOPPING, error=TrainConfigError)
         check_choice("machine_terms", self.machine_terms, MACHINE_TERMS, error=TrainConfigError)
         check_choice("white_inertia", self.white_inertia, WHITE_INERTIA, error=TrainConfigError)
+        check_choice("angle_update", self.angle_update, ANGLE_UPDATES, error=TrainConfigError)
         if not 0 < self.validation_fraction < 1:
             raise TrainConfigError(
                 f"validation_fraction must be in (0, 1), got {self.validation_fraction!r}"

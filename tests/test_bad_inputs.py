@@ -226,6 +226,7 @@ CASES: list[tuple[str, str]] = [
     ("train --data {ds.mcap} --out o/m.pt --early-stopping best", "early_stopping must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --machine-terms motor", "machine_terms must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --white-inertia exact", "white_inertia must be one of"),
+    ("train --data {ds.mcap} --out o/m.pt --angle-update midpoint", "angle_update must be one of"),
     ("train --data {ds.mcap} --out o/m.pt --sigma-block -3", "sigma_block must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --epoch-windows 0", "epoch_windows must be an integer"),
     ("train --data {ds.mcap} --out o/m.pt --epochs 0", "epochs must be"),

@@ -34,6 +34,7 @@ def _trained_like(seed: int, **config) -> PPANN:
         {"sigma_wrap": True},
         {"coulomb": True},
         {"mean_wrap": True, "sigma_wrap": True},
+        {"angle_update": "trapezoid", "mean_wrap": True},
     ],
 )
 def test_networks_and_dynamics_equal_torch(config: dict, splines: bool) -> None:

@@ -40,6 +40,7 @@ CASES = {
     "mean_wrap": PPANNConfig(mean_wrap=True, sigma_wrap=True),
     "linear_inertia": PPANNConfig(white_inertia="linear", sigma_wrap=True),
     "linear_inertia_prior": PPANNConfig(white_inertia="linear", machine_terms="prior"),
+    "trapezoid": PPANNConfig(angle_update="trapezoid", mean_wrap=True, white_inertia="linear"),
 }
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from control.dynamics import CasadiPPANN
@@ -49,12 +50,13 @@ def test_phase_1_carries_a_load_continuous_across_the_wrap() -> None:
     assert errors[True] < 0.01 and errors[False] > 0.05, errors
 
 
-def test_the_step_on_a_turn_equals_the_step_within_that_turn() -> None:
+@pytest.mark.parametrize("angle_update", ["euler", "trapezoid"])
+def test_the_step_on_a_turn_equals_the_step_within_that_turn(angle_update: str) -> None:
     """With z_K jumping at the wrap, the OCP's step on a fixed turn (control/dynamics.py) sees
     the angle tables at theta on that turn: for theta inside it, the step itself, on both
-    sides of the wrap."""
+    sides of the wrap; the angle moves by the model's update with the turn's acceleration."""
     torch.manual_seed(3)
-    model = PPANN(PPANNConfig(mean_wrap=True))
+    model = PPANN(PPANNConfig(mean_wrap=True, angle_update=angle_update))
     with torch.no_grad():
         for net in model.mean_nets.values():
             net[2].weight.mul_(3.0)
@@ -74,6 +76,8 @@ def test_the_step_on_a_turn_equals_the_step_within_that_turn() -> None:
         alpha = (0.2 - b * (1 + z[1]) * 0.3 - k * (1 + z_k[0, 2]) * local) / (j * (1 + z[0]))
     away = dynamics.step_on_turn([6.0, 0.3], 0.2, 1).full().ravel()
     np.testing.assert_allclose(away[1], 0.3 + model.config.dt * float(alpha), rtol=1e-12)
+    moved = 6.0 + model.config.dt * 0.3 + model.config.half_step * float(alpha)
+    np.testing.assert_allclose(away[0], moved, rtol=1e-12)
     # just below the wrap the two sides differ: the tables do jump there
     below = dynamics.z_mean(2 * math.pi - 1e-6, 0.0).full().ravel()
     above = dynamics.z_mean(2 * math.pi + 1e-6, 0.0).full().ravel()
