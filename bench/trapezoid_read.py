@@ -6,7 +6,7 @@ by side, per seed and profile, and the pre-registered rule.
 Reads each finished `seed-<s>/` (a study still running is read as far as both lanes got): the
 study's own rows (crank/study.py `seed_rows`) and, from `heldout.json`, the model's own rate at
 each constraint sample beside the twin's and the model's mean motor angle less the twin's there
-(the Monte-Carlo's mode, in the profile's loop).
+and its mean slider less the twin's (the Monte-Carlo's mode, in the profile's loop).
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ def lane(folder: Path) -> dict[tuple[int, str], dict[str, Any]]:
                     "model_rate": played["model_rate"]["samples"][sample],
                     "theta_offset_mrad": 1e3
                     * (entry["theta"]["predicted"][mode]["mean"] - entry["theta"]["observed_mean"]),
+                    "slider_offset_mm": 1e3 * (entry["predicted"][mode]["mean"] - entry["mean"]),
                 }
                 for sample, entry in played["samples"].items()
             }
@@ -57,7 +58,7 @@ def show(name: str, rows: dict[tuple[int, str], dict[str, Any]], seeds: list[int
     print(f"\n{name}")
     print(
         "seed profile   below/runs  bound   model  campaign nominal premium  ratio 50/100"
-        "   own rate 50/100 vs twin       theta offset 50/100 mrad  phase1"
+        "   own rate 50/100 vs twin       theta offset 50/100 mrad  slider mm  phase1"
     )
     for seed in seeds:
         for profile in PROFILES:
@@ -74,6 +75,7 @@ def show(name: str, rows: dict[tuple[int, str], dict[str, Any]], seeds: list[int
                 f"  {100 * s50['model_rate']:.3f}/{100 * s100['model_rate']:.3f}% vs"
                 f" {100 * s50['below'] / n:.3f}/{100 * s100['below'] / n:.3f}%"
                 f"  {s50['theta_offset_mrad']:+6.1f}/{s100['theta_offset_mrad']:+6.1f}"
+                f"  {s50['slider_offset_mm']:+.2f}/{s100['slider_offset_mm']:+.2f}"
                 f"  {'stopped' if r['phase1_converged'] else 'CAP'} {r['phase1_epochs']}"
             )
 
