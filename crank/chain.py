@@ -178,6 +178,7 @@ class RunConfig:
             train = dict(values["train"])
             train.setdefault("early_stopping", "tail")  # runs of before the stop on every machine
             train.setdefault("mean_wrap", False)  # runs of before the setting
+            train.setdefault("angle_update", "euler")  # runs of before the trapezoid
             return cls(
                 generation=GenerationConfig(**gen),
                 train=TrainConfig(**train),

@@ -119,11 +119,14 @@ class TrainConfig:
     the ten σ ratios lower (1.055-1.225 against 1.074-1.229), 0-1 below per seed either way;
     seeds 5-14 at most 1 of 1000; every task torque returned as before and at most 2 of 1000."""
 
-    angle_update: str = "euler"
+    angle_update: str = "trapezoid"
     """How the PPANN's step moves the angle (`PPANNConfig.angle_update`): "euler", the paper's
     eq. 4; "trapezoid", by the mean of the speeds before and after the step (beyond the paper;
     bench/mean_offset.md). Unlike `white_inertia` it changes training: phase 1's predictions
-    step by it."""
+    step by it. The default since session 88 by bench/trapezoid.md's pre-registered rule (paper
+    task, seeds 0-4, 4000 machines each of root 20261260): robust-pd's machines below 26 -> 1 of
+    20 000, robust 7 -> 5, robust-fb 0 -> 0, as many sigma ratios inside 0.8-1.25; open loop the
+    ratio at sample 100 0.05-0.07 higher and the premium 0.6-0.9 points. "euler": the paper's."""
 
     def __post_init__(self) -> None:
         for name in (

@@ -85,7 +85,8 @@ def test_the_checkpoint_and_the_training_config_carry_it(tmp_path) -> None:
     data = synthetic(seconds=1.0)
     model = new_model(data, kind="ppann", config=TrainConfig(angle_update="trapezoid"))
     assert model.config.angle_update == "trapezoid"
-    assert new_model(data, kind="ppann", config=TrainConfig()).config.angle_update == "euler"
+    euler = TrainConfig(angle_update="euler")
+    assert new_model(data, kind="ppann", config=euler).config.angle_update == "euler"
     save(tmp_path / "m.pt", model, kind="ppann", extra={"history": {}})
     assert load(tmp_path / "m.pt")[0].config.angle_update == "trapezoid"
     old = torch.load(tmp_path / "m.pt", weights_only=True)

@@ -145,6 +145,16 @@ def test_a_config_json_from_before_the_pair_reads_as_it_ran() -> None:
     )
 
 
+def test_a_config_json_from_before_the_trapezoid_reads_as_it_ran() -> None:
+    """One from before the trapezoid angle update was the default (session 88) stepped by eq. 4's
+    forward Euler: read without the key, it does so again."""
+    default = RunConfig().as_dict()
+    assert default["train"]["angle_update"] == "trapezoid"
+    del default["train"]["angle_update"]
+    before = RunConfig.from_dict(default)
+    assert before == replace(RunConfig(), train=replace(RunConfig().train, angle_update="euler"))
+
+
 def test_in_process_run_writes_every_artifact(two_runs) -> None:
     a, _, report = two_runs
     for name in (
