@@ -326,8 +326,7 @@ def twin_parts(model: PPANN, ocp_path: str, variability: Variability, runs: int)
     for k in range(n):
         mean, _ = heads(theta, omega)
         alpha = heads.acceleration(theta, omega, plan.tau[k] - extra * omega, mean)
-        ahead = theta + heads.dt * omega + heads.half_step * alpha  # the model's angle update
-        theta, omega = ahead, omega + heads.dt * alpha
+        theta, omega = heads.advance(theta, omega, alpha)
         model_x.append(theta.copy())
     slider = model.geometry.slider_position(np.array(model_x))
     print(

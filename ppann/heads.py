@@ -145,6 +145,17 @@ class FusedHeads:
         mean = out[:3].T if self.use_networks else np.zeros((n, 3))
         return mean, out[3:].T
 
+    def advance(
+        self, theta: np.ndarray, omega: np.ndarray, alpha: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One step of the state under the acceleration alpha, as `PPANN.step`: eq. 4's forward
+        Euler, the angle's by `PPANNConfig.angle_update` (dt^2 / 2 alpha more with the trapezoid,
+        added only then, so Euler's numbers stay to the bit)."""
+        ahead = theta + self.dt * omega
+        if self.half_step:
+            ahead = ahead + self.half_step * alpha
+        return ahead, omega + self.dt * alpha
+
     def acceleration(
         self,
         theta: np.ndarray,

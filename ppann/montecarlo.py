@@ -249,7 +249,6 @@ def rollout(
     theta = np.full(n_samples, float(np.asarray(x0)[0]))
     omega = np.full(n_samples, float(np.asarray(x0)[1]))
     samples[:, 0, 0], samples[:, 0, 1] = theta, omega
-    dt, half = heads.dt, heads.half_step
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(steps):
             mean, sigma = heads(theta, omega)
@@ -267,9 +266,6 @@ def rollout(
                 force = lever_eps[k if per_step else 0]
                 u = u + lever_torque_sigma(heads.lever_table, heads.cell, theta) * force
             alpha = heads.acceleration(theta, omega, u, z, factors=factors, inertia_noise=noise)
-            ahead = theta + dt * omega
-            if half:  # the trapezoid angle update
-                ahead = ahead + half * alpha
-            theta, omega = ahead, omega + dt * alpha
+            theta, omega = heads.advance(theta, omega, alpha)
             samples[:, k + 1, 0], samples[:, k + 1, 1] = theta, omega
     return samples if at is None else samples[:, at]
