@@ -43,6 +43,12 @@ def offsets(args: argparse.Namespace) -> dict[str, tuple[np.ndarray, np.ndarray]
     ocp = read_ocp(args.ocp)
     planned = ocp.profiles[args.profile]
     model, _ = load(args.model)
+    if args.half_step and model.config.angle_update != "euler":
+        raise SystemExit(
+            f"mean_offset.py: --half-step moves the plan by forward Euler's lag; {args.model} "
+            f"steps its angle by {model.config.angle_update!r} (expected 'euler'), whose plan "
+            "has none"
+        )
     heads = FusedHeads(model)
     physics = SliderCrank(load_model(args.mjcf)[0])
     config = ReplayConfig(
