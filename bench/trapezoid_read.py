@@ -125,12 +125,10 @@ def rule(
             for k in (50, 100)
         )
 
-    third = inside(trapezoid) >= inside(euler)
     total = 2 * len(PROFILES) * len(seeds)
-    print(
-        f"3. σ ratios inside 0.8-1.25: Euler {inside(euler)}, trapezoid {inside(trapezoid)}", end=""
-    )
-    print(f" of {total}")
+    e, t = inside(euler), inside(trapezoid)
+    print(f"3. σ ratios inside 0.8-1.25: Euler {e}, trapezoid {t} of {total}")
+    third = t >= e
     verdict = first and second and third
     print(f"\nthe trapezoid becomes the default: {'yes' if verdict else 'no'} (seeds {seeds})")
     return verdict
