@@ -18,16 +18,19 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from bench_tasks import TASKS as BENCH_TASKS  # the script's folder is on the path
 
 from common.figures import save_figure
+from control.config import OCPConfig
 from replay.rates import rate_upper
 
 BENCH = Path(__file__).resolve().parent
-TASKS = {  # the sweep's case name -> its constraint samples
-    "height 0.085": (50, 100),
-    "samples 60, 90": (60, 90),
-    "horizon 200, samples 70, 130": (70, 130),
-    "height 0.075, samples 40, 120": (40, 120),
+# the sweep's case name (bench_tasks' task name) -> its constraint samples; the paper task (no
+# options) is not a case of the tasks' sweep
+TASKS = {
+    name: OCPConfig(**options).constraint_samples
+    for name, options in BENCH_TASKS.items()
+    if options
 }
 
 
