@@ -225,6 +225,10 @@ def train_command(
             "speeds before and after the step)."
         ),
     ] = TrainConfig.angle_update,
+    plan_fit: Annotated[
+        bool,
+        typer.Option(help="Go on with phase 1 over the plan round's episodes whole, if any."),
+    ] = TrainConfig.plan_fit,
     bound_lines: Annotated[
         int,
         typer.Option(
@@ -252,6 +256,7 @@ def train_command(
         mean_wrap=mean_wrap,
         white_inertia=white_inertia,
         angle_update=angle_update,
+        plan_fit=plan_fit,
         bound_lines=bound_lines,
         seed=seed,
     )

@@ -266,8 +266,7 @@ HELDOUT_RUNS = 1000
 
 
 class EpochBars:
-    """One progress bar per model and phase, showing the latest loss; models that train side by
-    side (ppann/fit.py `fit_all`) have a bar each."""
+    """A progress bar per model and phase with its latest loss (side by side: ppann/fit.py)."""
 
     def __init__(self, epochs: dict[str, int]) -> None:
         self.epochs = epochs
@@ -278,9 +277,11 @@ class EpochBars:
     def of(cls, config: TrainConfig) -> EpochBars:
         """The bars of training under `config`: phase 1, phase 2 and the bounds' calibration."""
         from ppann.inversion import calibration_epochs  # torch: not for `crank --help`
+        from ppann.plan_fit import EPOCHS as PLAN
 
         bounds = calibration_epochs(config.sigma_epochs, lines=config.bound_lines)
-        return cls({"mean": config.max_epochs, "sigma": config.phase2_epochs, "bounds": bounds})
+        phases = {"mean": config.max_epochs, "plan": PLAN, "sigma": config.phase2_epochs}
+        return cls(phases | {"bounds": bounds})
 
     def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:
         if kind not in self.bars or self.bars[kind][0] != phase:

@@ -7,13 +7,14 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import torch
 
 from common.streams import torch_seed
 from ppann.kinds import model_kind
 from ppann.model import PPANNConfig
+from ppann.plan_fit import fit_plan_episodes, plan_episodes
 from ppann.train import History, Splits, make_splits, train_mean, train_sigma
 from ppann.train_config import TrainConfig
 from ppann.transmission import fit_quantiles
@@ -162,6 +163,21 @@ def train_model(
         history=history,
         on_epoch=None if on_epoch is None else (lambda e, t, v: on_epoch("mean", e, v)),
     )
+    if kind == "ppann" and config.plan_fit:
+        episodes = plan_episodes(dataset, splits.split)
+        if episodes is not None:
+            done = fit_plan_episodes(
+                model,
+                episodes,
+                splits.train,
+                splits.scale,
+                lr=config.lr,
+                epoch_windows=config.epoch_windows,
+                batch_size=config.batch_size,
+                seed=config.seed,
+                on_epoch=None if on_epoch is None else (lambda e, loss: on_epoch("plan", e, loss)),
+            )
+            history.plan_fit = asdict(done)
     if spec.sigma_phase:
         stop = splits.split
         with torch.no_grad():

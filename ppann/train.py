@@ -69,6 +69,7 @@ class History:
     """The slider force's standard deviation, N (ppann/lever.py); None: no such channel."""
     spread_data: dict[str, int] = field(default_factory=dict)
     """Phase 2's data: its `machines` and `episodes` (a machine may have played several)."""
+    plan_fit: dict | None = None  # ppann/plan_fit.py's PlanFit; None: not run
     residual_mean_share: float | None = None
     """The share of phase 2's block residual power (the machines' offsets out) that the
     residual's mean took (ppann/residual_mean.py); None: not fitted (option off)."""

@@ -128,6 +128,12 @@ class TrainConfig:
     20 000, robust 7 -> 5, robust-fb 0 -> 0, as many sigma ratios inside 0.8-1.25; open loop the
     ratio at sample 100 0.05-0.07 higher and the premium 0.6-0.9 points. "euler": the paper's."""
 
+    plan_fit: bool = False
+    """Phase 1 goes on over the plan round's episodes whole, from their first state under their
+    own torque, beside its N-step windows (ppann/plan_fit.py, beyond the paper): the mean model's
+    drift over a plan's 150-200 steps, which 10-step windows leave, fitted where the plan runs.
+    Nothing changes on data without the round's episodes (a first round, a rig's data)."""
+
     def __post_init__(self) -> None:
         for name in (
             "horizon",
