@@ -160,6 +160,8 @@ def train_and_report(
                 entry["lever_sigma"] = f.history.lever_sigma
             if f.history.residual_mean_share is not None:  # ppann/residual_mean.py
                 entry["residual_mean_share"] = f.history.residual_mean_share
+            if f.history.plan_fit is not None:  # phase 1 over the plan episodes whole
+                entry["plan_fit"] = f.history.plan_fit
             # What the training machines leave open about the line (ppann/machine.py): the
             # bounds the robust OCP allows for at its default confidence 0.95, from as many
             # machines as phase 2 saw (ppann/confidence.py; one machine bounds nothing).
