@@ -20,6 +20,12 @@ out of the fit and decides early stopping (patience PATIENCE, at most EPOCHS epo
 size); the best weights are kept, the starting ones if no epoch improved on them. Phase 2 then
 fits the spread around the continued mean as it would around phase 1's. A dataset without plan
 episodes (a first round, a rig's data) leaves the model as phase 1 left it, bit for bit.
+
+Measured (bench/plan_fit.md, pre-registered, session 91): on the four tasks nobody tuned, seeds
+0-1, it did not meet its rule (7 of 16 000 held-out machines below against 2, the lead smaller on
+5 of 8 torques), so it stays off. The episodes carry the lead, but this loss is nearly all their
+spread and moved their mean bias by tens of mrad either way; a fit of their mean trajectory
+(bench/plan_fit_mean_probe.py) is the design to measure next.
 """
 
 from __future__ import annotations
@@ -52,7 +58,9 @@ def plan_episodes(dataset: Dataset, stop: int) -> Windows | None:
     first sample over the shortest such episode's length; None if the data holds fewer than
     STOP_EVERY of them (none to stop on)."""
     records = dataset.run.get("episodes") or []
-    marked = [i for i, record in enumerate(records) if record.get("plan_episode")]
+    marked = [
+        record.get("index", i) for i, record in enumerate(records) if record.get("plan_episode")
+    ]
     firsts, lengths = [], []
     for episode in marked:
         samples = np.flatnonzero(dataset.episode == episode)

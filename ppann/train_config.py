@@ -132,7 +132,8 @@ class TrainConfig:
     """Phase 1 goes on over the plan round's episodes whole, from their first state under their
     own torque, beside its N-step windows (ppann/plan_fit.py, beyond the paper): the mean model's
     drift over a plan's 150-200 steps, which 10-step windows leave, fitted where the plan runs.
-    Nothing changes on data without the round's episodes (a first round, a rig's data)."""
+    Nothing changes on data without the round's episodes (a first round, a rig's data). Off: it
+    did not meet bench/plan_fit.md's pre-registered rule (session 91)."""
 
     def __post_init__(self) -> None:
         for name in (
