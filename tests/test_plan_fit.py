@@ -15,7 +15,7 @@ import torch
 from ppann.data import Windows
 from ppann.fit import fit
 from ppann.model import PPANN, rollout
-from ppann.plan_fit import PATIENCE, STOP_EVERY, fit_plan_episodes, plan_episodes
+from ppann.plan_fit import PATIENCE, STOP_EVERY, PlanFit, fit_plan_episodes, plan_episodes
 from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
 
@@ -87,6 +87,21 @@ def _truth() -> PPANN:
     return PPANN().double()
 
 
+def _fit(model: PPANN, episodes: Windows) -> PlanFit:
+    """The continuation on `episodes` and 10-step windows of them, one batch an epoch."""
+    scale = torch.tensor([1e-3, 0.1], dtype=torch.float64)
+    return fit_plan_episodes(
+        model,
+        episodes,
+        _windows(episodes),
+        scale,
+        lr=5e-3,
+        epoch_windows=4096,
+        batch_size=4096,
+        seed=0,
+    )
+
+
 def test_a_biased_mean_is_pulled_to_the_episodes() -> None:
     truth = _truth()
     episodes = _episodes(truth, count=24, steps=120)
@@ -101,16 +116,7 @@ def test_a_biased_mean_is_pulled_to_the_episodes() -> None:
         return float((end - episodes.target[held, -1, 0]).abs().max())
 
     before = end_error()
-    done = fit_plan_episodes(
-        model,
-        episodes,
-        _windows(episodes),
-        torch.tensor([1e-3, 0.1], dtype=torch.float64),
-        lr=5e-3,
-        epoch_windows=4096,
-        batch_size=4096,
-        seed=0,
-    )
+    done = _fit(model, episodes)
     assert before > 0.05  # rad: the bias shows over 120 steps
     assert end_error() < before / 5
     assert done.kept < done.start / 10 and done.best_epoch >= 0
@@ -121,16 +127,7 @@ def test_an_exact_mean_is_left_bit_for_bit() -> None:
     model = _truth()
     episodes = _episodes(model, count=12, steps=40)
     before = copy.deepcopy(model.state_dict())
-    done = fit_plan_episodes(
-        model,
-        episodes,
-        _windows(episodes),
-        torch.tensor([1e-3, 0.1], dtype=torch.float64),
-        lr=5e-3,
-        epoch_windows=4096,
-        batch_size=4096,
-        seed=0,
-    )
+    done = _fit(model, episodes)
     assert done.start < 1e-20 and done.weight == 0.0  # rounding: a batch of 2 against 10
     assert (done.best_epoch, done.epochs) == (-1, PATIENCE)
     for name, value in model.state_dict().items():
