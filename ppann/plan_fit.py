@@ -41,6 +41,7 @@ from common.streams import torch_seed
 from ppann.data import Windows
 from ppann.losses import n_step_mse
 from ppann.model import n_step_prediction
+from ppann.train import evaluate
 from twin.dataset import Dataset
 
 EPOCHS = 40
@@ -84,6 +85,7 @@ def _part(windows: Windows, keep: torch.Tensor) -> Windows:
 
 
 def _loss(model: torch.nn.Module, windows: Windows, scale: torch.Tensor) -> torch.Tensor:
+    """`ppann.train.evaluate`'s loss, with its gradient."""
     return n_step_mse(n_step_prediction(model, windows.x0, windows.tau), windows.target, scale)
 
 
@@ -125,11 +127,11 @@ def fit_plan_episodes(
     `on_epoch(epoch, held-out episode loss)` reports progress."""
     held = torch.arange(len(episodes)) % STOP_EVERY == STOP_EVERY - 1
     fitted, stopping = _part(episodes, ~held), _part(episodes, held)
-    with torch.no_grad():
-        sample = torch.arange(min(len(train), epoch_windows))
-        window_start = float(_loss(model, _part(train, sample), scale))
-        episode_start = float(_loss(model, fitted, scale))
-        best = start = float(_loss(model, stopping, scale))
+    window_start = evaluate(
+        model, _part(train, torch.arange(min(len(train), epoch_windows))), scale
+    )
+    episode_start = evaluate(model, fitted, scale)
+    best = start = evaluate(model, stopping, scale)
     weight = window_start / episode_start if episode_start > 0 else 0.0  # 0: nothing to fit
     generator = torch.Generator().manual_seed(torch_seed(seed, "training") + 2)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -142,8 +144,7 @@ def fit_plan_episodes(
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-        with torch.no_grad():
-            held_loss = float(_loss(model, stopping, scale))
+        held_loss = evaluate(model, stopping, scale)
         if on_epoch is not None:
             on_epoch(epoch, held_loss)
         if held_loss < best:
