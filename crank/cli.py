@@ -227,7 +227,7 @@ def train_command(
     ] = TrainConfig.angle_update,
     plan_fit: Annotated[
         bool,
-        typer.Option(help="Go on with phase 1 over the plan round's episodes whole, if any."),
+        typer.Option(help="Go on with phase 1 to the plan round's episodes' mean, if any."),
     ] = TrainConfig.plan_fit,
     bound_lines: Annotated[
         int,

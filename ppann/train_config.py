@@ -129,11 +129,12 @@ class TrainConfig:
     ratio at sample 100 0.05-0.07 higher and the premium 0.6-0.9 points. "euler": the paper's."""
 
     plan_fit: bool = False
-    """Phase 1 goes on over the plan round's episodes whole, from their first state under their
-    own torque, beside its N-step windows (ppann/plan_fit.py, beyond the paper): the mean model's
-    drift over a plan's 150-200 steps, which 10-step windows leave, fitted where the plan runs.
-    Nothing changes on data without the round's episodes (a first round, a rig's data). Off: it
-    did not meet bench/plan_fit.md's pre-registered rule (session 91)."""
+    """Phase 1 goes on with the plan round's episodes' mean trajectory (each rolled out whole from
+    its first state under its own torque) beside its N-step windows (ppann/plan_fit.py, beyond the
+    paper): the mean model's drift over a plan's 150-200 steps, which 10-step windows leave, fitted
+    where the plan runs. Nothing changes on data without the round's episodes. Off: its
+    whole-episode form did not meet bench/plan_fit.md's rule (session 91); this one is measured
+    by bench/plan_fit_mean.md."""
 
     def __post_init__(self) -> None:
         for name in (

@@ -1,6 +1,6 @@
-"""Phase 1 continued on the plan round's episodes whole (ppann/plan_fit.py, `[train] plan_fit`):
+"""Phase 1 continued on the plan episodes' mean trajectory (ppann/plan_fit.py, `[train] plan_fit`):
 the episodes are the ones the run record marks, a biased mean model is pulled to the episodes'
-trajectories, an exact one is left bit for bit, and data without plan episodes trains as before."""
+mean, an exact one is left bit for bit, and data without plan episodes trains as before."""
 
 from __future__ import annotations
 
@@ -15,7 +15,14 @@ import torch
 from ppann.data import Windows
 from ppann.fit import fit
 from ppann.model import PPANN, rollout
-from ppann.plan_fit import PATIENCE, STOP_EVERY, PlanFit, fit_plan_episodes, plan_episodes
+from ppann.plan_fit import (
+    EPOCHS,
+    MIN_EPISODES,
+    PlanFit,
+    fit_plan_episodes,
+    mean_gap,
+    plan_episodes,
+)
 from ppann.train_config import TrainConfig
 from twin.dataset import Dataset
 
@@ -55,14 +62,14 @@ def test_plan_episodes_are_the_marked_ones_before_the_split() -> None:
     np.testing.assert_array_equal(got.target[2, :, 1].numpy(), 10 * (firsts[2] + 1 + np.arange(24)))
     cut = plan_episodes(data, stop=int(firsts[6]) + 10)  # the last marked one crosses the split
     assert len(cut) == 6
-    assert plan_episodes(data, stop=int(firsts[5]) + 10) is None  # fewer than STOP_EVERY
+    assert plan_episodes(data, stop=int(firsts[5]) + 10) is None  # fewer than MIN_EPISODES
     assert plan_episodes(_dataset(lengths, marked=set()), stop=len(data)) is None
-    assert STOP_EVERY == 6
+    assert MIN_EPISODES == 6
 
 
-def _episodes(model: PPANN, *, count: int, steps: int) -> Windows:
+def _episodes(model: PPANN, *, count: int, steps: int, seed: int = 3) -> Windows:
     """Noise-free episodes of `model` from rest at theta = pi under scaled smooth torques."""
-    gen = torch.Generator().manual_seed(3)
+    gen = torch.Generator().manual_seed(seed)
     shape = torch.sin(torch.linspace(0, 2 * math.pi, steps, dtype=torch.float64))
     scale = 2.0 + torch.rand(count, 1, generator=gen, dtype=torch.float64)
     tau = scale * shape[None, :]
@@ -88,7 +95,7 @@ def _truth() -> PPANN:
 
 
 def _fit(model: PPANN, episodes: Windows) -> PlanFit:
-    """The continuation on `episodes` and 10-step windows of them, one batch an epoch."""
+    """The continuation on `episodes` and 10-step windows of them, 64 to a batch."""
     scale = torch.tensor([1e-3, 0.1], dtype=torch.float64)
     return fit_plan_episodes(
         model,
@@ -97,7 +104,7 @@ def _fit(model: PPANN, episodes: Windows) -> PlanFit:
         scale,
         lr=5e-3,
         epoch_windows=4096,
-        batch_size=4096,
+        batch_size=64,
         seed=0,
     )
 
@@ -108,19 +115,23 @@ def test_a_biased_mean_is_pulled_to_the_episodes() -> None:
     model = copy.deepcopy(truth)
     with torch.no_grad():
         model.mean_nets["B"][-1].bias += 0.3  # 30 % more damping than the episodes had
-    held = torch.arange(24) % STOP_EVERY == STOP_EVERY - 1
+    fresh = _episodes(truth, count=8, steps=120, seed=4)  # torques the fit never saw
 
     def end_error() -> float:
         with torch.no_grad():
-            end = rollout(model, episodes.x0[held], episodes.tau[held])[:, -1, 0]
-        return float((end - episodes.target[held, -1, 0]).abs().max())
+            end = rollout(model, fresh.x0, fresh.tau)[:, -1, 0]
+        return float((end - fresh.target[:, -1, 0]).abs().max())
 
     before = end_error()
     done = _fit(model, episodes)
     assert before > 0.05  # rad: the bias shows over 120 steps
     assert end_error() < before / 5
-    assert done.kept < done.start / 10 and done.best_epoch >= 0
-    assert (done.episodes, done.held, done.steps) == (20, 4, 120)
+    assert done.fitted and done.kept < done.start / 10
+    with torch.no_grad():
+        bias = float(mean_gap(model, episodes)[:, 0].abs().max())
+    assert done.theta_bias_kept == pytest.approx(bias, rel=1e-12)
+    assert done.theta_bias_kept < done.theta_bias_start / 5
+    assert (done.episodes, done.steps, done.epochs) == (24, 120, EPOCHS)
 
 
 def test_an_exact_mean_is_left_bit_for_bit() -> None:
@@ -128,8 +139,8 @@ def test_an_exact_mean_is_left_bit_for_bit() -> None:
     episodes = _episodes(model, count=12, steps=40)
     before = copy.deepcopy(model.state_dict())
     done = _fit(model, episodes)
-    assert done.start < 1e-20 and done.weight == 0.0  # rounding: a batch of 2 against 10
-    assert (done.best_epoch, done.epochs) == (-1, PATIENCE)
+    assert done.start < 1e-20  # rounding: the same model, batched differently
+    assert not done.fitted and done.kept == done.start
     for name, value in model.state_dict().items():
         assert torch.equal(value, before[name]), name
 
@@ -159,7 +170,7 @@ def test_training_fits_the_plan_episodes_only_when_asked_and_present(
 ) -> None:
     fitted = fit(with_plan_episodes, kind="ppann", config=replace(TINY, plan_fit=True))
     record = fitted.history.plan_fit
-    assert (record["episodes"], record["held"], record["steps"]) == (5, 1, 79)
+    assert (record["episodes"], record["steps"], record["epochs"]) == (6, 79, EPOCHS)
     assert record["kept"] <= record["start"]
     off = fit(with_plan_episodes, kind="ppann", config=TINY)
     assert off.history.plan_fit is None
