@@ -25,9 +25,11 @@ held-out sixth (commit 51e6e0c). It did not meet bench/plan_fit.md's pre-registe
 loss is nearly all the episodes' spread (160-230 mrad at the later samples against a mean bias of
 tens) and it moved their mean bias by tens of mrad either way. The mean trajectory (a development
 probe, bench/plan_fit_mean_probe.py at 51e6e0c, root 999) took the fitted bias within 3 mrad and
-the twin's later lead within +-15 mrad on four leaves; bench/plan_fit_mean.md registers it. Off
-by default.
-"""
+the twin's later lead within +-15 mrad on four leaves. Registered in bench/plan_fit_mean.md
+(session 92, eight task torques, 2000 machines each): the later lead 45 -> 12 mrad (median), every
+slider sigma ratio inside 0.8-1.25, the premium 1.5 points lower, but 18 of 16 000 machines below
+against 7 (the torques on their tightening's level, no longer below it by the lead): not met, so
+it stays off."""
 
 from __future__ import annotations
 

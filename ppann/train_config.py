@@ -133,8 +133,8 @@ class TrainConfig:
     its first state under its own torque) beside its N-step windows (ppann/plan_fit.py, beyond the
     paper): the mean model's drift over a plan's 150-200 steps, which 10-step windows leave, fitted
     where the plan runs. Nothing changes on data without the round's episodes. Off: its
-    whole-episode form did not meet bench/plan_fit.md's rule (session 91); this one is measured
-    by bench/plan_fit_mean.md."""
+    whole-episode form did not meet bench/plan_fit.md's rule (session 91), this one not
+    bench/plan_fit_mean.md's safety item (session 92: the lead, sigma and premium met)."""
 
     def __post_init__(self) -> None:
         for name in (
