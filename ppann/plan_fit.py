@@ -92,8 +92,8 @@ def mean_gap(model: torch.nn.Module, episodes: Windows) -> torch.Tensor:
     return prediction.mean(0) - episodes.target.mean(0)
 
 
-def _mean_loss(model: torch.nn.Module, target: Windows, scale: torch.Tensor) -> torch.Tensor:
-    return ((mean_gap(model, target) / scale) ** 2).mean()
+def _mean_loss(model: torch.nn.Module, episodes: Windows, scale: torch.Tensor) -> torch.Tensor:
+    return ((mean_gap(model, episodes) / scale) ** 2).mean()
 
 
 @dataclass(frozen=True)
