@@ -1,7 +1,8 @@
 """The table and rule of bench/plan_fit_mean.md (and the quantile lines beside it), from the lanes'
 outputs: per leaf A (its own heldout.json and lead.json under a/) and B (under b/).
 
-    python bench/plan_fit_table.py /tmp/s92/run1 [--leaves /tmp/s89/tasks/solve]
+    python bench/plan_fit_table.py /tmp/s92/run1 [--leaves /tmp/s89/tasks/solve] \
+        [--figure bench/plan_fit_mean.png]
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import json
 import statistics
 from pathlib import Path
 
-from scipy.stats import beta
+from matplotlib.figure import Figure
+from scipy.stats import beta, norm
 
 NAMES = {
     (0.085, (50, 100)): "height 0.085",
@@ -62,6 +64,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path)
     parser.add_argument("--leaves", type=Path, default=Path("/tmp/s89/tasks/solve"))
+    parser.add_argument("--figure", type=Path, default=None, help="draw the pairs into this PNG")
     args = parser.parse_args()
     rows = []
     for leaf in args.run.iterdir():
@@ -121,6 +124,67 @@ def main() -> None:
         print(f"  {key}: |B| {abs(b['lead1']):.1f} against |A| + 2 s.e. {limit:.1f}")
     ratios = [b[f"ratio{i}"] for _, _, b in full for i in (0, 1)]
     print(f"B's slider σ ratios {min(ratios):.3f}–{max(ratios):.3f}")
+    if args.figure is not None:
+        draw(full, args.figure)
+
+
+def draw(full: list, out: Path) -> None:
+    """Left: each torque's later lead and slider σ ratio, A to B; right: its machines below."""
+    fig = Figure(figsize=(12, 4.8), layout="constrained")
+    lead, below = fig.subplots(1, 2, width_ratios=[1.2, 1])
+    lead.axhspan(0.8, 1.25, color="tab:green", alpha=0.08, label="0.8–1.25")
+    for (task, seed), a, b in full:
+        lead.annotate(
+            "",
+            xy=(b["lead1"], b["ratio1"]),
+            xytext=(a["lead1"], a["ratio1"]),
+            arrowprops={"arrowstyle": "->", "color": "0.5"},
+        )
+        lead.plot(a["lead1"], a["ratio1"], "o", color="tab:red")
+        lead.plot(b["lead1"], b["ratio1"], "o", color="tab:blue")
+        lead.annotate(
+            f"{task}, {seed}",
+            (a["lead1"], a["ratio1"]),
+            fontsize=7,
+            xytext=(4, 4),
+            textcoords="offset points",
+        )
+    lead.plot([], [], "o", color="tab:red", label="A: today's default")
+    lead.plot([], [], "o", color="tab:blue", label="B: plan_fit (mean)")
+    lead.axvline(0, color="0.7", lw=0.8)
+    lead.set(
+        xlabel="plan's lead over the twin at the later sample, mrad",
+        ylabel="slider σ, predicted / observed",
+        title="The lead and the σ it makes",
+    )
+    lead.legend(fontsize=8, loc="upper left")
+    names = [f"{task.replace(' ', chr(10), 1)}\nseed {seed}" for (task, seed), _, _ in full]
+    x = range(len(full))
+    below.bar(
+        [i - 0.2 for i in x], [a["below"] for _, a, _ in full], 0.4, color="tab:red", label="A"
+    )
+    below.bar(
+        [i + 0.2 for i in x], [b["below"] for _, _, b in full], 0.4, color="tab:blue", label="B"
+    )
+    below.axhline(
+        2000 * norm.cdf(-3), color="k", ls="--", lw=1, label="a tightening exactly at Φ(−3): 2.7"
+    )
+    below.axhline(
+        4.5,
+        color="tab:orange",
+        ls=":",
+        lw=1.5,
+        label="more than 4 of 2000: not confirmed within 0.5 %",
+    )
+    below.set_xticks(list(x), names, fontsize=7)
+    below.set(ylabel="machines below the height, of 2000", title="Held-out machines below")
+    below.set_ylim(0, 7.5)
+    below.legend(fontsize=8, loc="upper left")
+    fig.suptitle(
+        "plan_fit to the plan episodes' mean on the eight task torques "
+        "(bench/plan_fit_mean.md, root 20261273)"
+    )
+    fig.savefig(out, dpi=110)
 
 
 if __name__ == "__main__":
