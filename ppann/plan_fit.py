@@ -92,8 +92,9 @@ def mean_gap(model: torch.nn.Module, episodes: Windows) -> torch.Tensor:
     return prediction.mean(0) - episodes.target.mean(0)
 
 
-def _mean_loss(model: torch.nn.Module, episodes: Windows, scale: torch.Tensor) -> torch.Tensor:
-    return ((mean_gap(model, episodes) / scale) ** 2).mean()
+def _gap_loss(gap: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """The mean-trajectory term: the gap's squares on phase 1's state scale, averaged."""
+    return ((gap / scale) ** 2).mean()
 
 
 @dataclass(frozen=True)
@@ -138,7 +139,7 @@ def fit_plan_episodes(
     def measured() -> tuple[float, float]:
         with torch.no_grad():
             gap = mean_gap(model, episodes)
-            return float(((gap / scale) ** 2).mean()), float(gap[:, 0].abs().max())
+            return float(_gap_loss(gap, scale)), float(gap[:, 0].abs().max())
 
     start, bias_start = measured()
     phase1 = copy.deepcopy(model.state_dict())
@@ -152,7 +153,7 @@ def fit_plan_episodes(
             part = _part(train, batch)
             loss = n_step_mse(
                 n_step_prediction(model, part.x0, part.tau), part.target, scale
-            ) + WEIGHT * _mean_loss(model, episodes, scale)
+            ) + WEIGHT * _gap_loss(mean_gap(model, episodes), scale)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
