@@ -7,18 +7,18 @@ slider positions include the model's transmission error (ppann/transmission.py),
 tightening does.
 
 100 campaign replays cannot tell 0.1 % from 2 % (P(0 of 100 | 2 %) = 13 %); this check plays each
-profile on `runs` (default 1000) machines and reports the violation rate with its exact
-(Clopper-Pearson) 95 % upper bound. Beside it, calibration under the OCP's own torque: the slider's
-observed σ, k·σ and one-sided quantile at each constraint sample against the PPANN's prediction
-in every Monte-Carlo mode (same torque, same start state), and the same for θ at each constraint
-sample and at the last one. Near top dead centre the slider is a flat function of θ, so its σ
-there magnifies an error in θ's: θ's ratio says which of the two the model gets wrong.
+profile on `runs` machines: the violation rate with its exact 95 % upper bound (a second stage
+where those cannot decide: replay/heldout_stages.py). Beside it, calibration under the OCP's own
+torque: the slider's observed σ, k·σ and one-sided quantile at each constraint sample against
+the PPANN's prediction in every Monte-Carlo mode (same torque, same start state), and the same
+for θ at each constraint sample and at the last one. Near top dead centre the slider is a flat
+function of θ, so its σ there magnifies an error in θ's: θ's ratio says which is wrong.
 
 `heldout.json` keys (stable):
 
-  format, version        "crank-heldout", 7 (3: samples.<k>.theta; 4: model_rate; 5: the
+  format, version        "crank-heldout", 8 (3: samples.<k>.theta; 4: model_rate; 5: the
                          intervals; 6: 10 000 trajectories, sigma_se, ratio_ci95 with both;
-                         7: violating_placements)
+                         7: violating_placements; 8: staged)
   runs, seed, streams    machines per profile and mode, root seed, and the stream tree
   modes                  the loops every profile was played in: open, closed, mpc
   feedback               closed loop: lqr (each profile's own gains) or pd (the fixed PD)
@@ -53,11 +53,11 @@ there magnifies an error in θ's: θ's ratio says which of the two the model get
                          Φ(−k) (0.135 % at k = 3) at each sample; near top dead centre the
                          slider's spread is skewed and k sigma of it can stand for much more
   holds                  {profile: rate <= target_rate} per robust profile, in the loop it was
-                         tightened for (open, or closed under the gains its tube was sized
-                         with), if that loop was played
-  verdicts               {profile: holds | unconfirmed | fails} for the same (replay/rates.py):
-                         unconfirmed where the rate is within the target but its 95 % bound is
-                         not (too few machines to confirm it)
+                         tightened for (open, or closed under its tube's gains), if played
+  verdicts               {profile: holds | unconfirmed | fails} for the same (replay/rates.py;
+                         unconfirmed: the rate within the target, its 95 % bound not)
+  staged                 with a second stage (replay/heldout_stages.py), which then decides
+                         holds and verdicts on all the machines played
   timing                 {simulate_s, monte_carlo_s}
 """
 
@@ -86,6 +86,7 @@ from ppann.model import PPANN
 from ppann.montecarlo import Bands, Feedback
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig, check_campaign_memory
+from replay.heldout_stages import check_extension, extend, settle
 from replay.laws import played_gains, plays_own_law, predicted_bands
 from replay.model_rate import model_rate
 from replay.placement import placements
@@ -97,7 +98,7 @@ from twin.physics import MODEL_PATH, SliderCrank, load_model
 from twin.variability import Variability
 
 FORMAT = "crank-heldout"
-VERSION = 7
+VERSION = 8
 LISTED_MACHINES = 50
 """A profile's machines below the height are listed by index up to this many (a robust
 profile's few; a nominal plan's hundreds are counted only)."""
@@ -160,18 +161,22 @@ def heldout_check(
     batch: int = MACHINES_PER_BATCH,
     on_machines: Callable[[str, str, int], None] | None = None,
     on_start: Callable[[OCPFile, tuple[str, ...]], None] | None = None,
+    extend_to: int = 0,
+    on_extend: Callable[[str, str, int], None] | None = None,
 ) -> dict[str, Any]:
     """Play every profile in each of `modes` on the same `runs` held-out machines; return
     heldout.json's content. Closed loop is each profile's own law (its gains in ocp.json), or
-    with `feedback` "pd" the fixed PD `kp`, `kd`, and the prediction is the
-    closed-loop Monte-Carlo under that law. In mpc mode each machine runs the online MPC on
-    `model` (settings `mpc`), and the prediction beside it is the closed loop's under the LQR
-    the MPC is while no bound is active (its weights' gains along the plan, whatever law the
-    profile was tightened for). `on_played(profile,
-    mode, entry)` sees each entry as soon as it is done (progress: the MPC on 1000 machines
-    takes about a minute a profile), `on_machines(profile, mode, machines just played)` after
-    each `batch` of them open or closed loop (the same result as one batch, bit for bit), and
-    `on_start(ocp file, modes)` once every input has been checked, before the first play.
+    with `feedback` "pd" the fixed PD `kp`, `kd`, and the prediction is the closed-loop
+    Monte-Carlo under that law. In mpc mode each machine runs the online MPC on `model`
+    (settings `mpc`), and the prediction beside it is the closed loop's under the LQR the MPC
+    is while no bound is active (its weights' gains along the plan, whatever law the profile
+    was tightened for). `on_played(profile, mode, entry)` sees each entry as soon as it is
+    done (progress: the MPC on 1000 machines takes about a minute a profile), `on_machines(
+    profile, mode, machines just played)` after each `batch` of them open or closed loop (the
+    same result as one batch, bit for bit), and `on_start(ocp file, modes)` once every input has
+    been checked, before the first play.
+    With `extend_to` > `runs`, a robust profile the first `runs` machines cannot judge is
+    judged in two stages (replay/heldout_stages.py; `on_extend(profile, loop, machines)`).
 
     Raises:
       GeometryError: the plan, the model and the twin are not all of one mechanism.
@@ -311,6 +316,18 @@ def heldout_check(
     }
     out["holds"] = {name: e["rate"] <= TARGET_RATE for name, e in judged.items()}
     out["verdicts"] = {name: verdict(e["violating_runs"], runs) for name, e in judged.items()}
+    if extend_to:
+        out["staged"] = extend(
+            physics,
+            ocp,
+            judged={n: (ocp.profiles[n].loop, e["violating_runs"]) for n, e in judged.items()},
+            config=config,
+            extend_to=extend_to,
+            batch=batch,
+            on_extend=on_extend,
+            on_machines=on_machines,
+        )
+        settle(out)
     out["timing"] = {"simulate_s": simulate_s, "monte_carlo_s": mc_s}
     return out
 
@@ -335,11 +352,14 @@ def heldout_file(
     on_played: Callable[[str, str, dict[str, Any]], None] | None = None,
     on_machines: Callable[[str, str, int], None] | None = None,
     on_start: Callable[[OCPFile, tuple[str, ...]], None] | None = None,
+    extend_to: int = 0,
+    on_extend: Callable[[str, str, int], None] | None = None,
 ) -> dict[str, Any]:
     """`heldout_check` on the twin of `model_path`, written to `out` (heldout.json), in `modes`
     or (None) the loops of the file's robust profiles, a fallback's too ("open" if none); its
     model's own rate from TAIL_DRAWS per CALIBRATION_TRAJECTORIES of `mc_samples` trajectories."""
     check_trajectories("trajectories", mc_samples)
+    check_extension(runs, extend_to)
     tail_draws = TAIL_DRAWS * mc_samples // CALIBRATION_TRAJECTORIES
     check_writable(out)
     solved = read_ocp(ocp_path)
@@ -372,6 +392,8 @@ def heldout_file(
         on_played=on_played,
         on_machines=on_machines,
         on_start=on_start,
+        extend_to=extend_to,
+        on_extend=on_extend,
     )
     result["ocp"] = recorded_path(ocp_path, artifact=out)  # relative inside the run folder
     write_json(out, result)

@@ -31,10 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as scistats
 
+from common.errors import CrankError
 from replay.rates import CONFIDENCE, TARGET_RATE, rate_upper
 
 
-class StagedError(ValueError):
+class StagedError(CrankError, ValueError):
     """Stages or counts a staged check cannot use."""
 
 
