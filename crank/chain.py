@@ -63,6 +63,9 @@ class RunConfig:
     """Machines of the held-out check (every profile, in `heldout_modes`); 0 skips it."""
     heldout_seed: int = 0
     """Root seed of the held-out machines (streams heldout_machines / heldout_noise)."""
+    heldout_second_stage: int = 0
+    """Machines a robust torque is played on beyond `heldout_runs` where those cannot decide its
+    verdict (replay/heldout_stages.py); 0: one look."""
     heldout_trajectories: int = CALIBRATION_TRAJECTORIES
     """Monte-Carlo trajectories of each predicted σ of the held-out check (its model's own
     rate takes twice as many); fewer give wider ratio intervals in heldout.json."""
@@ -80,6 +83,7 @@ class RunConfig:
         check_seed("seed", self.seed)
         check_seed("heldout_seed", self.heldout_seed)
         check_count("heldout_runs", self.heldout_runs, low=0, high=100_000)
+        check_count("heldout_second_stage", self.heldout_second_stage, low=0, high=100_000)
         check_trajectories("heldout_trajectories", self.heldout_trajectories)
         check_count("calibration_runs", self.calibration_runs, low=2, high=100_000)
         seeds = {
@@ -172,6 +176,7 @@ class RunConfig:
             options["heldout_trajectories"] = values.get(
                 "heldout_trajectories", CALIBRATION_TRAJECTORIES
             )
+            options["heldout_second_stage"] = values.get("heldout_second_stage", 0)
             options |= {k: values[k] for k in ("model_path", "baselines")}
             options["figures"] = values.get("figures", True)  # runs of before the setting
             options["calibration_runs"] = values.get("calibration_runs", CALIBRATION_RUNS)
@@ -221,6 +226,8 @@ class Hooks:
     profiles and loops, once its inputs are checked."""
     on_runs: Callable[[str, int], None] | None = None
     """(stage, runs or machines just played) as the stage plays them."""
+    on_more: Callable[[str, int], None] | None = None
+    """(stage, machines): more to play than its total said (a held-out check's second stage)."""
     on_estimate: Callable[[dict[str, Span]], None] | None = None
     """The estimated time of each stage (and "total"), once the inputs are checked."""
 

@@ -48,6 +48,7 @@ def chain_progress(config: RunConfig, *, prefix: str = "") -> Iterator[Hooks]:
                 on_iteration=show_iteration,
                 on_total=lambda stage, total: played[stage].start(total),
                 on_runs=lambda stage, n: played[stage].update(n),
+                on_more=lambda stage, n: played[stage].more(n),
             )
         except BaseException:
             bars.close(stopped=True)  # where each model's training stopped, not "done"

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from common.atomic import check_output
+from common.checks import check_count
 from control.mpc_config import MPCConfig, MPCConfigError
 from crank.console import (
     HELDOUT_SEED,
@@ -23,8 +24,8 @@ from crank.console import (
     print_replay,
 )
 from crank.progress import Progress
-from replay.config import ReplayConfig, played_line
-from replay.rates import TARGET_RATE, machines_to_confirm
+from replay.config import MAX_RUNS, ReplayConfig, played_line
+from replay.rates import SECOND_STAGE, TARGET_RATE, machines_to_confirm, second_stage_end
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import MODEL_PATH, __version__
 from twin.variability import Variability
@@ -217,6 +218,13 @@ def heldout_command(
         ),
     ] = 1000,
     seed: Annotated[int, typer.Option(help="Root seed of the held-out machines.")] = (HELDOUT_SEED),
+    second_stage: Annotated[
+        int,
+        typer.Option(
+            help="Machines a robust torque is played on beyond --runs where those cannot decide "
+            "its verdict (judged on all, the risk of a wrong 'holds' within 5 %); 0: one look."
+        ),
+    ] = SECOND_STAGE,
     trajectories: Annotated[
         int,
         typer.Option(
@@ -273,6 +281,7 @@ def heldout_command(
     loops = None if modes is None else _modes(modes)  # None: the file's (heldout_file)
     checked = ("open",) if loops is None else loops
     ReplayConfig(runs=runs, seed=seed, modes=checked, feedback=feedback, kp=kp, kd=kd)
+    check_count("second_stage", second_stage, low=0, high=MAX_RUNS)
     chosen = ocp_variability(ocp) if variability is None else Variability.resolve(variability)
     # its total once the file is read; "done" after the last profile's line, not before it
     bar = Progress(0, "held-out", unit="machine", close_when_full=False)
@@ -291,6 +300,10 @@ def heldout_command(
             f"machines of root {seed}; about {span} on an idle 2-core machine",
             err=True,
         )
+
+    def on_extend(name: str, loop: str, more: int) -> None:
+        bar.echo(f"  {name} {loop}: not decided on {runs} machines; {more} more of the draw")
+        bar.more(more)
 
     with bar:
         result = heldout_file(
@@ -312,6 +325,8 @@ def heldout_command(
             ),
             on_machines=lambda _name, _mode, machines: bar.update(machines),
             on_start=on_start,
+            extend_to=second_stage_end(runs, second_stage),
+            on_extend=on_extend,
         )
     print_heldout(result)
     typer.echo(f"wrote {out}")

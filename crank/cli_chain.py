@@ -42,7 +42,7 @@ from crank.console import (
     transcript,
 )
 from replay.config import ReplayConfig
-from replay.rates import TARGET_RATE, machines_to_confirm
+from replay.rates import SECOND_STAGE, TARGET_RATE, machines_to_confirm
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import DATASET_SECONDS, EPISODE_SECONDS, MODEL_PATH
 from twin.dataset import GenerationConfig
@@ -79,6 +79,13 @@ HeldoutRuns = Annotated[
     ),
 ]
 HeldoutSeed = Annotated[int, typer.Option(help="Root seed of the held-out machines.")]
+SecondStage = Annotated[
+    int,
+    typer.Option(
+        help="Held-out machines a robust torque is played on beyond the first where those cannot "
+        "decide its verdict (judged on all, the risk of a wrong 'holds' within 5 %); 0: one look."
+    ),
+]
 
 
 @app.command("run", short_help="The whole chain into logs/<run>/ (the main job).")
@@ -104,6 +111,7 @@ def run_command(
     ),
     heldout_runs: HeldoutRuns = HELDOUT_RUNS,
     heldout_seed: HeldoutSeed = HELDOUT_SEED,
+    heldout_second_stage: SecondStage = SECOND_STAGE,
     heldout_trajectories: Annotated[
         int,
         typer.Option(
@@ -183,6 +191,7 @@ FLAG_KEYS = {
     "runs": ("replay", "runs"),
     "heldout_runs": ("heldout_runs",),
     "heldout_seed": ("heldout_seed",),
+    "heldout_second_stage": ("heldout_second_stage",),
     "heldout_trajectories": ("heldout_trajectories",),
     "model": ("model",),
     "plan_episodes": ("plan", "episodes"),
@@ -193,9 +202,10 @@ FLAG_KEYS = {
 }
 """Where each flag of `crank run` and `crank study` sits in the config file
 (crank/config_file.py)."""
-STUDY_SETTINGS = {"baselines": False}
+STUDY_SETTINGS = {"baselines": False, "heldout_second_stage": 0}
 """Where `crank study` differs from `crank run` if neither its file nor a flag says: no
-baselines (a seed's row needs the PPANN's torques alone)."""
+baselines (a seed's row needs the PPANN's torques alone), one look on the held-out machines
+(its table compares seeds on the same machine count)."""
 RESUME_FLAGS = (
     "profiles",
     "fallback",
@@ -204,6 +214,7 @@ RESUME_FLAGS = (
     "runs",
     "heldout_runs",
     "heldout_seed",
+    "heldout_second_stage",
     "heldout_trajectories",
     "model",
 )

@@ -1,8 +1,8 @@
 """One file for the whole chain: `crank run --config crank.toml`, and `crank config --show`.
 
 The file is TOML with the shape of `defaults()` (print it with `crank config --show`): top-level
-`seed`, `heldout_runs`, `heldout_seed`, `heldout_trajectories`, `calibration_runs`, `model`,
-`baselines`, `figures`, and one table per stage —
+`seed`, `heldout_runs`, `heldout_seed`, `heldout_second_stage`, `heldout_trajectories`,
+`calibration_runs`, `model`, `baselines`, `figures`, and one table per stage —
 `[generation]` (with `variability`, a scenario name or a range file, `drift`, and
 `[generation.excitation]`), `[train]`, `[ocp]` (any constraint samples, the robust loop's
 settings), `[replay]` and `[plan]` (the plan round, twin/plan_data.py). Every key is optional;
@@ -26,6 +26,7 @@ from control.mpc_config import MPCConfig
 from crank.console import HELDOUT_RUNS, HELDOUT_SEED
 from ppann.train_config import CALIBRATION_RUNS, TrainConfig
 from replay.config import ReplayConfig
+from replay.rates import SECOND_STAGE
 from replay.spread_interval import CALIBRATION_TRAJECTORIES
 from twin import MODEL_PATH
 from twin.dataset import GenerationConfig
@@ -55,6 +56,7 @@ def defaults() -> dict[str, Any]:
         "seed": 0,
         "heldout_runs": HELDOUT_RUNS,
         "heldout_seed": HELDOUT_SEED,
+        "heldout_second_stage": SECOND_STAGE,
         "heldout_trajectories": CALIBRATION_TRAJECTORIES,
         "calibration_runs": CALIBRATION_RUNS,
         "model": str(MODEL_PATH),
@@ -194,6 +196,7 @@ def build(values: dict[str, Any], *, source: str = "config") -> RunConfig:
             plan=values["plan"],
             heldout_runs=values["heldout_runs"],
             heldout_seed=values["heldout_seed"],
+            heldout_second_stage=values["heldout_second_stage"],
             heldout_trajectories=values["heldout_trajectories"],
             calibration_runs=values["calibration_runs"],
             model_path=values["model"],

@@ -311,10 +311,9 @@ def _predicted(entry: dict[str, Any]) -> str:
 
 
 def print_heldout(heldout: dict[str, Any]) -> None:
-    from control.config import loop_of
     from replay.config import loop_label
     from replay.placement import in_words, named
-    from replay.rates import verdict_text
+    from replay.rates import heldout_verdict_text
 
     typer.echo(f"held-out check ({heldout['runs']} machines per profile and loop):")
     for profile, played in heldout["profiles"].items():
@@ -328,9 +327,7 @@ def print_heldout(heldout: dict[str, Any]) -> None:
             for machine, where in named(entry):  # where they sit in the line
                 typer.echo(f"    machine {machine}: {in_words(where)}")
     for profile in heldout["holds"]:
-        below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
-        said = verdict_text(below, heldout["runs"], target=heldout["target_rate"])
-        typer.echo(f"  {profile} in its loop {said}")
+        typer.echo(f"  {profile} in its loop {heldout_verdict_text(heldout, profile)}")
 
 
 def _which(entry: dict[str, Any]) -> str:

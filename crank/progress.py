@@ -107,6 +107,19 @@ class Progress:
         if self.close_when_full and self.bar.n >= self.total:
             self.bar.close()
 
+    def more(self, n: int) -> None:
+        """`n` more to do than the total said (a held-out check's second stage): a bar of its
+        own where this one closed when full, else this one's total raised."""
+        if self.bar is not None and self.close_when_full and self.bar.n >= self.total:
+            self.bar, self.total = None, n
+            self.update(0)
+            return
+        self.total += n
+        if self.bar is not None:
+            self.bar.total = self.total
+            if isinstance(self.bar, tqdm):
+                self.bar.refresh()
+
     def echo(self, text: str) -> None:
         """A line on stderr that leaves the bar whole (tqdm's `write` while one is drawn)."""
         if isinstance(self.bar, tqdm) and not self.bar.disable:

@@ -58,10 +58,24 @@ def own_rate(entry: dict[str, Any]) -> str:
     )
 
 
-def verdict_words(entry: dict[str, Any], heldout: dict[str, Any]) -> str:
-    """A profile's held-out verdict in a sentence's words (replay/rates.py)."""
+def verdict_words(
+    entry: dict[str, Any], heldout: dict[str, Any], *, profile: str | None = None
+) -> str:
+    """A profile's held-out verdict in a sentence's words (replay/rates.py); `profile`'s in
+    its own loop judged on all its machines where the check had a second stage for it."""
     from replay.rates import machines_to_confirm, verdict
 
+    staged = (heldout.get("staged") or {}).get("profiles", {}).get(profile)
+    if staged is not None and len(staged["counts"]) > 1:
+        (first, total), (n1, n2) = staged["counts"], staged["machines"]
+        word = {"holds": "**holds**", "fails": "**does not hold**"}
+        return (
+            f"{word.get(staged['verdict'], '**is not confirmed**')} on all {n2} machines "
+            f"played: {total} below ({100 * total / n2:.2f} %; the first {n1} had {first}, too "
+            f"few machines to decide, so it was played on {n2 - n1} more of the same draw, "
+            f"judged by a staged design whose risk of a wrong verdict of holding is "
+            f"{100 * heldout['staged']['error']:.1f} %)."
+        )
     target = heldout["target_rate"]
     said = verdict(entry["violating_runs"], heldout["runs"], target=target)
     if said == "fails":
@@ -89,9 +103,9 @@ def heldout_lines(heldout: dict[str, Any] | None) -> list[str]:
     for name in list(profiles)[1:]:
         for loop in heldout["modes"]:
             robust, nominal = profiles[name][loop], profiles["nominal"][loop]
-            word = verdict_words(robust, heldout)
             pd = loop == "closed" and heldout.get("feedback") == "pd"
             sized = loop_of(name) == loop and name in heldout.get("holds", {})
+            word = verdict_words(robust, heldout, profile=name if sized else None)
             own = " (the loop it was tightened for)" if sized else ""
             words = "closed loop under the fixed PD" if pd else loop_words(loop, name)
             lines.append(

@@ -38,6 +38,7 @@ CHANGEABLE = {
     "replay": ("replay", "replayed its profiles"),
     "heldout_runs": ("heldout", "made its held-out check"),
     "heldout_seed": ("heldout", "made its held-out check"),
+    "heldout_second_stage": ("heldout", "made its held-out check"),
     "heldout_trajectories": ("heldout", "made its held-out check"),
 }
 """The RunConfig fields a resume may change, each with the first stage that uses it (and what

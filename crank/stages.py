@@ -22,6 +22,7 @@ from ppann.data import DataError
 from ppann.pipeline import train_and_report
 from replay.files import output_paths, replay_file
 from replay.heldout import heldout_file
+from replay.rates import second_stage_end
 from replay.statistics import summary_rows
 from twin.generation import generate_file
 from twin.physics import SliderCrank, load_model
@@ -219,8 +220,20 @@ def heldout(
     config: RunConfig, ocp: Path, model: Path, out: Path, *, hooks: Hooks
 ) -> dict[str, Any]:
     """Every profile of `ocp` on `config.heldout_runs` held-out machines, in the loops its
-    robust profiles (a fallback's included) were tightened for: `out`/heldout.json."""
+    robust profiles (a fallback's included) were tightened for, and a robust one those cannot
+    judge on `config.heldout_second_stage` more: `out`/heldout.json."""
     played, total = _counted(hooks.on_runs, "heldout"), _counted(hooks.on_total, "heldout")
+    runs, second = config.heldout_runs, config.heldout_second_stage
+
+    def on_extend(profile: str, loop: str, more: int) -> None:
+        if hooks.on_stage is not None:
+            hooks.on_stage(
+                f"held-out: {profile} ({loop} loop) not decided on {runs} machines; "
+                f"{more} more of the same draw"
+            )
+        if hooks.on_more is not None:
+            hooks.on_more("heldout", more)
+
     return heldout_file(
         ocp,
         out / HELDOUT,
@@ -237,6 +250,8 @@ def heldout(
         on_start=None
         if total is None
         else lambda solved, loops: total(config.heldout_runs * len(solved.names) * len(loops)),
+        extend_to=second_stage_end(runs, second),
+        on_extend=on_extend,
     )
 
 

@@ -130,7 +130,8 @@ def leaves_of(spec: dict[str, Any], *, source: str) -> list[Leaf]:
     for axis, values in grid.items():
         if not isinstance(values, list) or not values:
             raise ConfigError(f"{source}: empty grid: [grid] {axis} must be a non-empty list")
-    values = merge(defaults(), base, source=f"{source} [base]")
+    # one look on the held-out machines unless [base] says: leaves compared on one machine count
+    values = merge({**defaults(), "heldout_second_stage": 0}, base, source=f"{source} [base]")
     named = [dict(c) for c in cases] or [{}]
     names = [str(c.pop("name", f"case-{i}")) for i, c in enumerate(named)]
     if len(set(names)) != len(names):
@@ -200,6 +201,8 @@ def node_key(kind: str, config: RunConfig) -> str:
         parts |= {k: values[k] for k in ("replay", "heldout_runs", "heldout_seed")}
         if config.heldout_trajectories != CALIBRATION_TRAJECTORIES:  # keys stay as before it
             parts["heldout_trajectories"] = config.heldout_trajectories
+        if config.heldout_second_stage:  # keys stay as before the setting
+            parts["heldout_second_stage"] = config.heldout_second_stage
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 

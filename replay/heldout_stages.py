@@ -33,7 +33,7 @@ import numpy as np
 from control.ocp_file import OCPFile
 from replay.campaign import Machines, draw_machines, play
 from replay.config import ReplayConfig
-from replay.rates import TARGET_RATE, verdict_text
+from replay.rates import TARGET_RATE
 from replay.staged import StagedError, decide, design
 from twin.physics import SliderCrank
 
@@ -123,28 +123,3 @@ def settle(heldout: dict[str, Any]) -> None:
     for name, s in heldout["staged"]["profiles"].items():
         heldout["holds"][name] = s["counts"][-1] / s["machines"][-1] <= heldout["target_rate"]
         heldout["verdicts"][name] = s["verdict"]
-
-
-def staged_text(heldout: dict[str, Any], profile: str) -> str:
-    """A robust profile's held-out verdict in words: the staged one where the check had a
-    second stage (heldout.json version 8), else one look's (replay/rates.py)."""
-    staged = (heldout.get("staged") or {}).get("profiles", {}).get(profile)
-    if staged is None:
-        from control.config import loop_of
-
-        below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
-        return verdict_text(below, heldout["runs"], target=heldout["target_rate"])
-    counts, machines = staged["counts"], staged["machines"]
-    if len(counts) == 1:
-        return verdict_text(counts[0], machines[0], target=heldout["target_rate"])
-    pct = f"{100 * heldout['staged']['target_rate']:.1f} %"
-    said = {
-        "holds": f"holds at <= {pct}",
-        "fails": f"does NOT hold ({100 * counts[-1] / machines[-1]:.2f} % > {pct})",
-        "unconfirmed": f"is within {pct} but not confirmed",
-    }[staged["verdict"]]
-    return (
-        f"{said}: {counts[-1]} of {machines[-1]} machines below (the first {machines[0]}: "
-        f"{counts[0]}, too few to decide; a staged check, its risk of a wrong 'holds' "
-        f"{100 * heldout['staged']['error']:.1f} %)"
-    )

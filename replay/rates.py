@@ -10,11 +10,24 @@ would, with none below); above the target, it does not hold.
 from __future__ import annotations
 
 import math
+from typing import Any
 
-from control.config import TARGET_RATE
+from control.config import TARGET_RATE, loop_of
+from replay.config import MAX_RUNS
 
 CONFIDENCE = 0.95
 """The one-sided confidence of the rate's upper bound."""
+SECOND_STAGE = 9000
+"""Machines `crank run` and `crank heldout` play a robust torque on beyond the first 1000 where
+those cannot decide its verdict (replay/heldout_stages.py): 10 000 in all confirm a torque on its
+3σ level, Φ(−3), 99.7 % of the time (1000 alone: 61 %)."""
+
+
+def second_stage_end(runs: int, more: int) -> int:
+    """Where a second stage of `more` machines after the first `runs` ends, within MAX_RUNS in
+    all (replay/config.py); 0 where there is none (`more` 0, or no room left)."""
+    end = min(runs + more, MAX_RUNS) if more else 0
+    return end if end > runs else 0
 
 
 def rate_upper(violations: int, runs: int, *, confidence: float = CONFIDENCE) -> float:
@@ -55,4 +68,27 @@ def verdict_text(
         f"is within {pct} on these {runs} {of} but not confirmed: the 95 % bound is "
         f"{100 * upper:.2f} % (none below on {machines_to_confirm(target)} {of} would "
         f"confirm it)"
+    )
+
+
+def heldout_verdict_text(heldout: dict[str, Any], profile: str) -> str:
+    """A robust profile's held-out verdict in words: the staged one where the check had a
+    second stage (heldout.json version 8, replay/heldout_stages.py), else one look's."""
+    staged = (heldout.get("staged") or {}).get("profiles", {}).get(profile)
+    if staged is None:
+        below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
+        return verdict_text(below, heldout["runs"], target=heldout["target_rate"])
+    counts, machines = staged["counts"], staged["machines"]
+    if len(counts) == 1:
+        return verdict_text(counts[0], machines[0], target=heldout["target_rate"])
+    pct = f"{100 * heldout['staged']['target_rate']:.1f} %"
+    said = {
+        "holds": f"holds at <= {pct}",
+        "fails": f"does NOT hold ({100 * counts[-1] / machines[-1]:.2f} % > {pct})",
+        "unconfirmed": f"is within {pct} but not confirmed",
+    }[staged["verdict"]]
+    return (
+        f"{said}: {counts[-1]} of {machines[-1]} machines below (the first {machines[0]}: "
+        f"{counts[0]}, too few to decide; a staged check, its risk of a wrong 'holds' "
+        f"{100 * heldout['staged']['error']:.1f} %)"
     )

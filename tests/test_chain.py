@@ -155,6 +155,18 @@ def test_a_config_json_from_before_the_trapezoid_reads_as_it_ran() -> None:
     assert before == replace(RunConfig(), train=replace(RunConfig().train, angle_update="euler"))
 
 
+def test_a_config_json_from_before_the_second_stage_reads_as_it_ran() -> None:
+    """One from before the held-out check's second stage (session 93) looked once: read without
+    the key, it does so again; crank run's defaults play 9000 more where 1000 cannot decide."""
+    from crank.config_file import build, defaults
+
+    assert build(defaults(), source="defaults").heldout_second_stage == 9000
+    given = replace(RunConfig(), heldout_runs=1000, heldout_second_stage=9000).as_dict()
+    del given["heldout_second_stage"]
+    assert RunConfig.from_dict(given) == replace(RunConfig(), heldout_runs=1000)
+    assert RunConfig().heldout_second_stage == 0
+
+
 def test_in_process_run_writes_every_artifact(two_runs) -> None:
     a, _, report = two_runs
     for name in (

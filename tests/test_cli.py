@@ -342,6 +342,23 @@ def test_a_full_progress_bar_closes_at_once_or_when_its_step_ends() -> None:
         assert late.bar.total == 2 and late.bar.n == 0 and not late.bar.closed
 
 
+def test_a_bar_told_of_more_goes_on_with_it() -> None:
+    """A held-out check's second stage: a bar that closed when full opens a bar of its own for
+    the machines to come; one kept open until its step ends raises its total."""
+    with Progress(4, "held-out", unit="machine") as bar:
+        bar.update(4)
+        first = bar.bar
+        assert first.closed
+        bar.more(9)
+        assert bar.bar is not first and bar.bar.total == 9 and bar.bar.n == 0
+        bar.update(9)
+        assert bar.bar.closed
+    with Progress(4, "held-out", unit="machine", close_when_full=False) as held:
+        held.update(4)
+        held.more(9)
+        assert held.bar.total == 13 and held.bar.n == 4 and not held.bar.closed
+
+
 def test_the_command_line_loads_without_the_heavy_engines() -> None:
     """`crank --help` and `--version` need only the option defaults: importing the CLI pulls in
     neither torch, CasADi, SciPy, Rerun nor matplotlib (it took 3.5 s idle, 12-15 s under load,
@@ -424,7 +441,8 @@ def test_a_study_takes_a_config_file_as_crank_run_does(
 ) -> None:
     """`crank study --config FILE`: the file's settings over the defaults, its seed replaced by
     each of --seeds, the flags given over the file; without a file the study is `crank run`'s
-    defaults but for the baselines, which a study leaves out unless its file or flag asks."""
+    defaults but for the baselines, which a study leaves out unless its file or flag asks, and
+    the held-out check's second stage (its table compares seeds on one machine count)."""
     import crank.study
     from crank.cli import main
     from crank.config_file import build, defaults
@@ -455,7 +473,9 @@ def test_a_study_takes_a_config_file_as_crank_run_does(
     assert base.ocp.confidence == 0.9 and base.replay.runs == 50  # the flags over the file
     study("--seeds", "3")
     base, seeds = studied[-1]
-    assert base == replace(build({**defaults(), "seed": 3}), baselines=False)
+    assert base == replace(
+        build({**defaults(), "seed": 3}), baselines=False, heldout_second_stage=0
+    )
 
 
 def test_an_interrupted_study_says_how_to_continue_it(

@@ -14,13 +14,18 @@ from crank.chain import RunConfig
 from crank.cli_chain import FLAG_KEYS, STUDY_SETTINGS, flag_values, run_command, study_command
 from crank.config_file import build, defaults, merge, read_values, to_toml
 from crank.console import HELDOUT_RUNS, HELDOUT_SEED, fallback_list, profiles_list
+from replay.rates import SECOND_STAGE
 from twin import MODEL_PATH
 
 
 def test_the_defaults_are_what_crank_run_does_and_round_trip() -> None:
     values = defaults()
     assert build(values) == RunConfig.for_seed(
-        0, heldout_runs=HELDOUT_RUNS, heldout_seed=HELDOUT_SEED, model_path=str(MODEL_PATH)
+        0,
+        heldout_runs=HELDOUT_RUNS,
+        heldout_seed=HELDOUT_SEED,
+        heldout_second_stage=SECOND_STAGE,
+        model_path=str(MODEL_PATH),
     )
     text = to_toml(values, header="a header\nof two lines")
     assert text.startswith("# a header\n# of two lines\n")

@@ -14,7 +14,8 @@ from ppann.model import constant_ppann
 from replay.campaign import draw_machines, play
 from replay.config import ReplayConfig
 from replay.heldout import heldout_check, heldout_file
-from replay.heldout_stages import extend, staged_text
+from replay.heldout_stages import extend
+from replay.rates import heldout_verdict_text
 from replay.staged import StagedError, decide, design
 from twin.physics import SliderCrank
 from twin.variability import Variability
@@ -123,11 +124,45 @@ def test_the_check_with_a_second_stage_judges_on_all_its_machines(
     entry = staged["staged"]["profiles"]["robust"]
     assert entry["counts"] == [0, 0] and entry["machines"] == [8, 20]
     assert staged["verdicts"] == {"robust": "unconfirmed"} and staged["holds"] == {"robust": True}
-    assert "0 of 20 machines below (the first 8: 0" in staged_text(staged, "robust")
+    assert "0 of 20 machines below (the first 8: 0" in heldout_verdict_text(staged, "robust")
     for result in (one, staged):
         del result["timing"]
     del staged["staged"]
     assert json.dumps(staged, sort_keys=True) == json.dumps(one, sort_keys=True)
+
+
+def test_the_report_and_terminal_say_the_staged_verdict() -> None:
+    """The words of a torque judged in two stages name both counts and the design's risk; one
+    decided by its first stage reads as one look."""
+    from crank.report_heldout import verdict_words
+
+    plan = design((1000, 10_000))
+    entry = {"violating_runs": 2, "rate": 0.002}
+    heldout = {
+        "runs": 1000,
+        "target_rate": 0.005,
+        "profiles": {"robust": {"open": entry}},
+        "staged": {
+            **plan.as_dict(),
+            "profiles": {
+                "robust": {
+                    "loop": "open",
+                    "machines": [1000, 10_000],
+                    "counts": [2, 18],
+                    "verdict": decide(plan, [2, 18]),
+                    "violating_machines": None,
+                }
+            },
+        },
+    }
+    words = verdict_words(entry, heldout, profile="robust")
+    assert words.startswith("**holds** on all 10000 machines played: 18 below (0.18 %;")
+    assert "the first 1000 had 2" in words and "4.8 %" in words
+    assert verdict_words(entry, heldout).startswith("**is not confirmed**")  # another loop's
+    text = heldout_verdict_text(heldout, "robust")
+    assert text.startswith("holds at <= 0.5 %: 18 of 10000 machines below (the first 1000: 2")
+    heldout["staged"]["profiles"]["robust"] |= {"machines": [1000], "counts": [1]}
+    assert heldout_verdict_text(heldout, "robust").startswith("holds at <= 0.5 % (95 % bound")
 
 
 @pytest.mark.parametrize("extend_to", [8, 5, -1, 2.5, True])

@@ -153,6 +153,16 @@ def test_bad_counts(counts):
         decide(design((1000, 10_000)), counts)
 
 
+def test_the_second_stage_ends_within_the_most_machines():
+    from replay.config import MAX_RUNS
+    from replay.rates import second_stage_end
+
+    assert second_stage_end(1000, 9000) == 10_000
+    assert second_stage_end(1000, 0) == 0
+    assert second_stage_end(MAX_RUNS - 5000, 9000) == MAX_RUNS
+    assert second_stage_end(MAX_RUNS, 9000) == 0
+
+
 def test_bad_rate():
     with pytest.raises(StagedError, match="rate"):
         holds_probability(design((1000,)), 1.5)
