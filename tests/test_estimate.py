@@ -120,6 +120,17 @@ def test_the_heldout_check_scales_with_machines_profiles_loops_and_the_mpc() -> 
     assert mpc.low - 2 * one.low == pytest.approx((fixed + per * 20) * 1000 * 2 * 150)
 
 
+def test_the_heldout_second_stage_is_the_high_end_only() -> None:
+    """A second stage plays only a robust torque its first machines cannot judge: the check's
+    low end is one look's, its high end adds the robust profiles' 9000 more, open loop."""
+    one = run_time(RunConfig.for_seed(0, heldout_runs=1000))["heldout"]
+    staged = run_time(RunConfig.for_seed(0, heldout_runs=1000, heldout_second_stage=9000))
+    more = heldout_time(runs=9000, horizon=150, profiles=1)
+    assert staged["heldout"].low == one.low
+    assert staged["heldout"].high == pytest.approx(one.high + more.high)
+    assert more.high == pytest.approx(4.5 * one.high)  # 9000 machines of one profile, 1000 of 2
+
+
 def test_training_range_runs_from_early_stopping_to_the_epoch_cap() -> None:
     config = RunConfig.for_seed(0, train={"sigma_epochs": 1}, baselines=False)
     span = train_time(config.train, config.generation, baselines=False)
