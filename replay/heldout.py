@@ -100,8 +100,7 @@ from twin.variability import Variability
 FORMAT = "crank-heldout"
 VERSION = 8
 LISTED_MACHINES = 50
-"""A profile's machines below the height are listed by index up to this many (a robust
-profile's few; a nominal plan's hundreds are counted only)."""
+"""A profile's machines below the height listed by index up to this many (beyond: counted)."""
 MACHINES_PER_BATCH = 1000
 """Machines played at a time, open and closed loop (the same result as one batch): `crank
 heldout`'s progress moves after each, so a long check (10 000 machines: ~2 min a profile on 2
@@ -324,6 +323,7 @@ def heldout_check(
             config=config,
             extend_to=extend_to,
             batch=batch,
+            listed_most=LISTED_MACHINES,
             on_extend=on_extend,
             on_machines=on_machines,
         )

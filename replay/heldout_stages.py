@@ -19,7 +19,7 @@ heldout.json's `staged` (version 8):
   profiles.<name>        {loop, machines [per stage played], counts [below, cumulative],
                           verdict (holds | unconfirmed | fails), violating_machines (the second
                           stage's machines below, by index in the whole draw, or null beyond
-                          LISTED of them)}
+                          replay/heldout.py's LISTED_MACHINES of them)}
 """
 
 from __future__ import annotations
@@ -36,9 +36,6 @@ from replay.config import ReplayConfig
 from replay.rates import TARGET_RATE
 from replay.staged import StagedError, decide, design
 from twin.physics import SliderCrank
-
-LISTED = 50
-"""The second stage's machines below are listed by index up to this many."""
 
 
 def check_extension(runs: int, extend_to: int) -> None:
@@ -68,13 +65,15 @@ def extend(
     config: ReplayConfig,
     extend_to: int,
     batch: int,
+    listed_most: int,
     target: float = TARGET_RATE,
     on_extend: Callable[[str, str, int], None] | None = None,
     on_machines: Callable[[str, str, int], None] | None = None,
 ) -> dict[str, Any]:
     """heldout.json's `staged`: each of `judged` ({profile: (its loop, machines below of the
     first config.runs)}) judged against `target` by a two-stage design (config.runs,
-    extend_to), played on the second stage's machines where the first did not decide;
+    extend_to), played on the second stage's machines where the first did not decide (those
+    below listed by index up to `listed_most` of them);
     `on_extend(profile, loop, machines)` before a second stage, `on_machines(profile, loop, n)`
     after each batch of it."""
     runs = config.runs
@@ -106,7 +105,7 @@ def extend(
                 if on_machines is not None:
                     on_machines(name, loop, stop - start)
             counts.append(below + int(more.sum()))
-            if counts[-1] - below <= LISTED:
+            if counts[-1] - below <= listed_most:
                 listed = [runs + int(i) for i in np.flatnonzero(more)]
         out["profiles"][name] = {
             "loop": loop,

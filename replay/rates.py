@@ -71,10 +71,16 @@ def verdict_text(
     )
 
 
+def staged_entry(heldout: dict[str, Any], profile: str | None) -> dict[str, Any] | None:
+    """heldout.json's `staged` entry of a robust profile (version 8, replay/heldout_stages.py),
+    or None: a check without a second stage, or a profile it did not judge."""
+    return (heldout.get("staged") or {}).get("profiles", {}).get(profile)
+
+
 def heldout_verdict_text(heldout: dict[str, Any], profile: str) -> str:
     """A robust profile's held-out verdict in words: the staged one where the check had a
     second stage (heldout.json version 8, replay/heldout_stages.py), else one look's."""
-    staged = (heldout.get("staged") or {}).get("profiles", {}).get(profile)
+    staged = staged_entry(heldout, profile)
     if staged is None:
         below = heldout["profiles"][profile][loop_of(profile)]["violating_runs"]
         return verdict_text(below, heldout["runs"], target=heldout["target_rate"])

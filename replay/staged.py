@@ -114,20 +114,19 @@ def design(
     1 − confidence over all stages."""
     sizes = _check_stages(stages, target, confidence)
     alpha = 1.0 - confidence
-    first = one_look_threshold(sizes[0], target=target, confidence=confidence)
-    thresholds = [first]
-    mass = _carry(np.ones(1), sizes[0], target, most_within(sizes[0], target))
-    spent = float(mass[: first + 1].sum())
-    mass[: first + 1] = 0.0
-    for before, n in itertools.pairwise(sizes):
-        most = most_within(n, target)
-        mass = _carry(mass, n - before, target, most)
+    mass, before, spent, thresholds = np.ones(1), 0, 0.0, []
+    for n in sizes:
+        mass = _carry(mass, n - before, target, most_within(n, target))
         held = np.cumsum(mass)
-        a = int(np.searchsorted(held, alpha - spent, side="right")) - 1
+        if thresholds:
+            a = int(np.searchsorted(held, alpha - spent, side="right")) - 1
+        else:
+            a = one_look_threshold(n, target=target, confidence=confidence)
         thresholds.append(a)
         if a >= 0:
             spent += float(held[a])
             mass[: a + 1] = 0.0
+        before = n
     return StagedDesign(
         stages=sizes,
         thresholds=tuple(thresholds),

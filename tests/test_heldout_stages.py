@@ -64,6 +64,7 @@ def test_the_second_stage_counts_what_one_pass_over_all_machines_counts(
         config=ReplayConfig(runs=20, seed=SEED, modes=("open",)),
         extend_to=60,
         batch=batch,
+        listed_most=50,
         target=target,
         on_extend=lambda *a: calls.append(("extend", *a)),
         on_machines=lambda *a: calls.append(("played", *a)),
@@ -91,6 +92,7 @@ def test_a_decided_first_stage_plays_nothing_more(physics: SliderCrank, ocp: OCP
         config=ReplayConfig(runs=20, seed=SEED, modes=("open",)),
         extend_to=60,
         batch=10,
+        listed_most=50,
         on_extend=lambda *a: calls.append(a),
         on_machines=lambda *a: calls.append(a),
     )
