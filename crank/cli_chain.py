@@ -378,8 +378,9 @@ def study_command(
         elif "robust_heldout_rate" in row:
             typer.echo(
                 f"seed {row['seed']}: {name} {row['robust_100']}/{row['campaign_runs']} "
-                f"{row['loop']} loop, held-out {100 * row['robust_heldout_rate']:.2f} % "
-                f"(95 % bound {100 * row['robust_heldout_upper_95']:.2f} %), "
+                f"{row['loop']} loop, held-out {100 * row['robust_heldout_rate']:.2f} % of "
+                f"{row['heldout_runs']} (95 % bound {100 * row['robust_heldout_upper_95']:.2f} %, "
+                f"{row['robust_heldout_verdict']}), "
                 f"premium {100 * row['premium']:.1f} %"
             )
 

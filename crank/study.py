@@ -36,6 +36,7 @@ from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
 from crank.study_figure import figure
 from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
+from replay.rates import rate_upper, staged_entry, verdict
 
 MAX_SEEDS = 1000
 
@@ -126,11 +127,13 @@ def _profile_row(
             "heldout_runs": heldout["runs"],
             "robust_heldout_rate": robust["rate"],
             "robust_heldout_upper_95": robust["rate_upper_95"],
+            "robust_heldout_verdict": heldout.get("verdicts", {}).get(name)
+            or verdict(robust["violating_runs"], heldout["runs"], target=heldout["target_rate"]),
             "nominal_heldout_rate": nominal["rate"],
             "robust_heldout_lowest_mm": 1e3 * min(s["lowest"] for s in robust["samples"].values()),
             # by index in the held-out draw: the same root gives every seed the same machines
             "robust_heldout_machines": robust.get("violating_machines"),
-        }
+        } | _second_stage(staged_entry(heldout, name), robust)
         if "model_rate" in robust:  # heldout.json version 4
             row["robust_model_rate"] = robust["model_rate"]["rate"]
         for sample, entry in robust["samples"].items():
@@ -143,6 +146,34 @@ def _profile_row(
             if "theta" in entry:  # heldout.json version 3
                 row[f"theta_ratio_{sample}"] = entry["theta"]["predicted"][mode]["ratio"]
     return row
+
+
+def _second_stage(staged: dict[str, Any] | None, first: dict[str, Any]) -> dict[str, Any]:
+    """A row's held-out figures over every machine its torque was played on where the check
+    went to a second stage (heldout.json version 8, replay/heldout_stages.py): the rate, its
+    one-look 95 % bound and the machines below of all of them, and the first stage's count
+    beside; none where the first stage decided (its figures are the row's already)."""
+    if staged is None or len(staged["counts"]) < 2:
+        return {}
+    below, machines = staged["counts"][-1], staged["machines"][-1]
+    listed = first.get("violating_machines")
+    more = staged["violating_machines"]
+    return {
+        "heldout_runs": machines,
+        "heldout_first_runs": staged["machines"][0],
+        "robust_heldout_first_below": staged["counts"][0],
+        "robust_heldout_rate": below / machines,
+        "robust_heldout_upper_95": rate_upper(below, machines),
+        "robust_heldout_machines": None if listed is None or more is None else listed + more,
+    }
+
+
+def confirmed(row: dict[str, Any]) -> bool:
+    """Whether a row's held-out check confirms its torque within the target: its verdict (the
+    staged one where the check had a second stage), or for a row without one its 95 % bound."""
+    if "robust_heldout_verdict" in row:
+        return row["robust_heldout_verdict"] == "holds"
+    return row["robust_heldout_upper_95"] <= TARGET_HELDOUT_RATE
 
 
 @writes("out", all_or_nothing=False)
@@ -300,12 +331,12 @@ def markdown(study: dict[str, Any]) -> str:
             f"(target <= {100 * study['target_heldout_rate']:.1f} %): "
             f"**{'met' if holds and every else 'NOT met'}**"
         )
-        unsure = [r for r in good if r["robust_heldout_upper_95"] > study["target_heldout_rate"]]
+        unsure = [r for r in good if not confirmed(r)]
         if unsure:
             lines.append(
-                f"  - on {len(unsure)} seed(s) the 95 % bound is above the target (worst "
-                f"{100 * max(r['robust_heldout_upper_95'] for r in unsure):.2f} %): too few "
-                "held-out machines to confirm it"
+                f"  - on {len(unsure)} seed(s) the held-out verdict does not confirm it (worst "
+                f"95 % bound {100 * max(r['robust_heldout_upper_95'] for r in unsure):.2f} %): "
+                "too few held-out machines to decide"
             )
         lines.append(
             f"- {name} {loop} loop 0/{runs} campaign runs on every seed: "

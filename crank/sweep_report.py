@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 from common.atomic import atomic_path
 from common.figures import save_figure
 from crank import stages
-from crank.study import TARGET_HELDOUT_RATE, run_rows, write_csv
+from crank.study import TARGET_HELDOUT_RATE, confirmed, run_rows, write_csv
 from crank.study_figure import calibration_frame, calibration_marks, solved_rows
 from crank.sweep_spec import KINDS, Leaf
 
@@ -93,12 +93,12 @@ def markdown(sweep: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             f"held-out machines: worst {_pct(worst['robust_heldout_rate'])} ({_named(worst)}), "
             f"target <= {_pct(TARGET_HELDOUT_RATE, 1)}: **{'met' if holds else 'NOT met'}**"
         )
-        unsure = [r for r in ok if r["robust_heldout_upper_95"] > TARGET_HELDOUT_RATE]
+        unsure = [r for r in ok if not confirmed(r)]
         if unsure:
             lines.append(
-                f"- {len(unsure)} of them with a 95 % bound above the target (worst "
-                f"{_pct(max(r['robust_heldout_upper_95'] for r in unsure))}): their held-out "
-                "machines are too few to confirm it"
+                f"- {len(unsure)} of them not confirmed by their held-out verdict (worst 95 % "
+                f"bound {_pct(max(r['robust_heldout_upper_95'] for r in unsure))}): their "
+                "held-out machines are too few to decide"
             )
     unchecked = [r for r in solved_rows(rows) if "robust_heldout_rate" not in r]
     if unchecked:

@@ -32,7 +32,7 @@ def test_the_verdict_judges_the_returned_torques_and_names_unconfirmed_bounds() 
     # two profiles of one leaf are two rows, one leaf
     assert markdown(sweep, [one, one | {"profile": "robust-fb"}]).startswith("# Sweep: 1 leaves")
     assert "worst 0.30 % (seed=1, robust), target <= 0.5 %: **met**" in text
-    assert "- 1 of them with a 95 % bound above the target (worst 0.77 %)" in text
+    assert "- 1 of them not confirmed by their held-out verdict (worst 95 % bound 0.77 %)" in text
     assert "seed=2: solve step: no robust profile" in text
     text = markdown(sweep, [row(0, 0.006, 0.011)])
     assert "worst 0.60 % (seed=0, robust), target <= 0.5 %: **NOT met**" in text
