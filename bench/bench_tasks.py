@@ -3,12 +3,15 @@ Monte-Carlo seeds and every returned robust torque checked on held-out machines.
 
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
         [--mc-samples 1000] [--only "horizon 200"] [--profiles robust-fb,robust-pd]
-        [--heldout-seed S] [--out tasks.json] [--tail-sampling plain|lines]
+        [--heldout-seed S] [--second-stage 9000] [--out tasks.json] [--tail-sampling plain|lines]
 
 Per task, Monte-Carlo seed and robust profile (default the open-loop `robust`; the tubes
 `robust-fb`, `robust-pd` are checked closed loop under their own gains): the verdict (a robust
 torque, or the one-line reason there is none), the margins and their standard errors, the cost
-premium, and the held-out violation rate in the profile's loop with its exact 95 % bound. A
+premium, and the held-out violation rate in the profile's loop with its exact 95 % bound; with
+`--second-stage M` (session 94; 0 by default, as every run before it) a torque the first `--runs`
+machines cannot judge is played on M more of the same draw and the row's rate, bound and verdict
+are the staged check's over all of them (replay/heldout_stages.py), as `crank run` judges. A
 task's verdict must not depend on the Monte-Carlo seed. Writes `tasks.json` beside the model
 and prints a table.
 """
@@ -27,6 +30,7 @@ from crank.console import HELDOUT_SEED
 from crank.study import parse_seeds
 from replay.files import ocp_variability
 from replay.heldout import heldout_file
+from replay.rates import rate_upper, second_stage_end, staged_entry
 
 TASKS: dict[str, dict] = {
     "paper (0.08 m at 50, 100; N 150)": {},
@@ -49,6 +53,9 @@ def main() -> None:
     parser.add_argument("--mc-seeds", default="0-4")
     parser.add_argument("--mc-samples", type=int, default=OCPConfig().mc_samples)
     parser.add_argument("--heldout-seed", type=int, default=HELDOUT_SEED)
+    parser.add_argument(
+        "--second-stage", type=int, default=0, help="machines of a second stage; 0: one look"
+    )
     parser.add_argument("--only", default="", help="run the tasks whose name contains this")
     parser.add_argument("--out", default="tasks.json", help="file name beside the model")
     parser.add_argument("--profiles", default="robust", help="robust profiles, comma-separated")
@@ -63,6 +70,8 @@ def main() -> None:
         mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
     except ConfigError as exc:
         raise SystemExit(f"bench_tasks: {exc}") from None
+    if args.second_stage < 0:
+        raise SystemExit(f"bench_tasks: --second-stage must be >= 0, got {args.second_stage}")
     profiles = tuple(p.strip() for p in args.profiles.split(","))
     model = Path(args.model)
     work = model.parent / "tasks"
@@ -98,6 +107,7 @@ def main() -> None:
                 seed=args.heldout_seed,
                 variability=ocp_variability(ocp_path),
                 modes=loops_of(loops),
+                extend_to=second_stage_end(args.runs, args.second_stage),
             )
             for name in profiles:
                 row = {"task": task, "mc_seed": mc_seed, "profile": name}
@@ -117,16 +127,28 @@ def main() -> None:
                     "premium": solved[name]["cost"] / nominal_cost - 1,
                     "heldout_rate": held["rate"],
                     "heldout_upper_95": held["rate_upper_95"],
+                    "heldout_runs": args.runs,
+                    "heldout_verdict": heldout["verdicts"][name],
                     "nominal_heldout_rate": heldout["profiles"]["nominal"][loop]["rate"],
                     "seconds": time.perf_counter() - started,
                 }
+                staged = staged_entry(heldout, name)
+                if staged is not None and len(staged["counts"]) > 1:  # all machines played
+                    below, runs = staged["counts"][-1], staged["machines"][-1]
+                    row |= {
+                        "heldout_first_below": staged["counts"][0],
+                        "heldout_runs": runs,
+                        "heldout_rate": below / runs,
+                        "heldout_upper_95": rate_upper(below, runs),
+                    }
                 rows.append(row)
                 print(
                     f"{task:<34} mc {mc_seed} {name}: margins "
                     + ", ".join(f"{m:.2f}" for m in row["margins_mm"])
                     + f" mm, premium {100 * row['premium']:.1f} %, held-out {loop} "
                     f"{100 * row['heldout_rate']:.2f} % (bound "
-                    f"{100 * row['heldout_upper_95']:.2f} %), nominal "
+                    f"{100 * row['heldout_upper_95']:.2f} %) of {row['heldout_runs']}: "
+                    f"{row['heldout_verdict']}, nominal "
                     f"{100 * row['nominal_heldout_rate']:.1f} %",
                     flush=True,
                 )
