@@ -1,0 +1,126 @@
+"""bench/plan_fit_rows.md's tables and rules from its sweep folders, read with the product's own
+rows (crank/sweep_report.py `rows_of`, which count every machine a second stage played).
+
+python bench/plan_fit_rows_table.py /tmp/s94/pf      (tasks_a/, tasks_b/, lines/ inside)
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+from crank.sweep import leaf_results
+from crank.sweep_report import rows_of
+from crank.sweep_spec import read_spec
+
+TODAY = Path(__file__).with_name("trapezoid_rest_tasks.csv")
+"""Today's default on the same seeds and tasks (session 90, root 20261268, other machines)."""
+
+
+def sweep_rows(folder: Path) -> list[dict]:
+    """The rows of every leaf of a sweep folder (a leaf not run: its error "not run")."""
+    if not (folder / "sweep.toml").exists():
+        return []
+    _, leaves = read_spec(folder / "sweep.toml")
+    return rows_of(leaf_results(leaves, folder), folder)
+
+
+def plan_fit_of(folder: Path, row: dict) -> str:
+    """Whether the plan round's training kept plan_fit's weights, with its largest mean-angle
+    gap before and after."""
+    report = folder / "solve" / row["solve_key"] / "model.report.json"
+    fit = json.loads(report.read_text())["models"]["ppann"].get("plan_fit")
+    if not fit:
+        return "none"
+    gap = f"{1e3 * fit['theta_bias_start']:.0f} → {1e3 * fit['theta_bias_kept']:.0f} mrad"
+    return f"{'yes' if fit['fitted'] else 'no'}, {gap}"
+
+
+def ratios(row: dict) -> list[tuple[str, float]]:
+    keys = sorted(
+        (k for k in row if k.startswith("ratio_") and k.count("_") == 1), key=lambda k: int(k[6:])
+    )
+    return [(k[6:], row[k]) for k in keys]
+
+
+def below(row: dict) -> str:
+    """Machines below: of all played, and the first stage's where a second stage ran."""
+    runs = row["heldout_runs"]
+    count = round(row["robust_heldout_rate"] * runs)
+    first = row.get("robust_heldout_first_below")
+    return f"{first} → **{count} of {runs}**" if first is not None else f"{count} of {runs}"
+
+
+def tasks(out: Path) -> None:
+    today = {}
+    with TODAY.open() as f:
+        for r in csv.DictReader(f):
+            today[(int(r["seed"]), r["case"])] = r
+    print(
+        "| task | seed | campaign | nominal /100 | below (stage 1 → all) | verdict "
+        "| machines below | σ ratios at the task's samples | premium "
+        "| today's default (session 90): below / 1000, premium, σ ratios | plan_fit kept |"
+    )
+    print("|---" * 11 + "|")
+    met = {1: True, 2: True, 3: True}
+    finished = 0
+    for name in ("tasks_a", "tasks_b"):
+        for row in sweep_rows(out / name):
+            task, seed = row["case"], row["seed"]
+            if row.get("error"):
+                print(f"| {task} | {seed} | {row['error']} |" + " |" * 8)
+                met[1] &= row["error"] == "not run"  # a refusal fails item 1
+                continue
+            finished += 1
+            a = today[(seed, task)]
+            a_ratios = " / ".join(
+                f"{float(v):.3f}"
+                for k, v in a.items()
+                if k.startswith("ratio_") and k.count("_") == 1 and v
+            )
+            mine = ratios(row)
+            print(
+                f"| {task} | {seed} | {row['robust_100']}/{row['campaign_runs']} | "
+                f"{row['nominal_100']} | {below(row)} | {row['robust_heldout_verdict']} | "
+                f"{row['robust_heldout_machines']} | "
+                + " / ".join(f"{v:.3f} @{s}" for s, v in mine)
+                + f" | {100 * row['premium']:.1f} % | "
+                f"{round(1000 * float(a['robust_heldout_rate']))}, "
+                f"{100 * float(a['premium']):.1f} %, {a_ratios} | {plan_fit_of(out / name, row)} |"
+            )
+            met[1] &= row["robust_heldout_verdict"] == "holds"
+            met[2] &= row["robust_100"] == 0
+            met[3] &= all(0.8 <= v <= 1.25 for _, v in mine)
+    print(f"\nrun 1: {finished} of 12 torques finished; rule items met: {met}\n")
+
+
+def lines(out: Path) -> None:
+    print(
+        "| line | profile | campaign | nominal /100 | below (stage 1 → all) | verdict "
+        "| σ ratios @50 / @100 | premium | or refused: why |"
+    )
+    print("|---" * 9 + "|")
+    for row in sweep_rows(out / "lines"):
+        line = row["generation.variability"]
+        if row.get("error"):
+            print(f"| {line} | {row.get('profile')} | | | | | | | {row['error']} |")
+            continue
+        mine = ratios(row)
+        print(
+            f"| {line} | {row['profile']} | {row['robust_100']}/{row['campaign_runs']} | "
+            f"{row['nominal_100']} | {below(row)} | {row['robust_heldout_verdict']} | "
+            + " / ".join(f"{v:.3f}" for _, v in mine)
+            + f" | {100 * row['premium']:.1f} % | |"
+        )
+
+
+def main() -> None:
+    out = Path(sys.argv[1])
+    tasks(out)
+    lines(out)
+
+
+if __name__ == "__main__":
+    main()
