@@ -1,7 +1,8 @@
 """bench/plan_fit_rows.md's tables and rules from its sweep folders, read with the product's own
 rows (crank/sweep_report.py `rows_of`, which count every machine a second stage played).
 
-python bench/plan_fit_rows_table.py /tmp/s94/pf      (tasks_a/, tasks_b/, lines/ inside)
+python bench/plan_fit_rows_table.py /tmp/s94/pf [/tmp/s94/mc]
+    (tasks_a/, tasks_b/, lines/ inside; run 3's <task>/mc_seeds.json inside the second)
 """
 
 from __future__ import annotations
@@ -116,10 +117,54 @@ def lines(out: Path) -> None:
         )
 
 
+def mc_seeds(out: Path) -> None:
+    """Run 3: per model, each Monte-Carlo seed's verdict, machines below (stage 1 → all),
+    margins and premium (bench/bench_tasks.py's rows)."""
+    print(
+        "| task (model) | verdict over seeds 0-4 | below per seed (stage 1 → all) "
+        "| staged verdicts | premium | margins' spread over the seeds |"
+    )
+    print("|---" * 6 + "|")
+    for path in sorted(out.glob("*/mc_seeds.json")):
+        rows = json.loads(path.read_text())["rows"]
+        kinds = {r["verdict"] for r in rows}
+        got = [r for r in rows if r["verdict"] == "robust"]
+        counts = []
+        for r in got:
+            count = round(r["heldout_rate"] * r["heldout_runs"])
+            first = r.get("heldout_first_below")
+            counts.append(
+                f"{first} → {count}/{r['heldout_runs']}"
+                if first is not None
+                else f"{count}/{r['heldout_runs']}"
+            )
+        premiums = [100 * r["premium"] for r in got]
+        spread = (
+            [
+                max(m[i] for m in (r["margins_mm"] for r in got))
+                - min(m[i] for m in (r["margins_mm"] for r in got))
+                for i in range(len(got[0]["margins_mm"]))
+            ]
+            if got
+            else []
+        )
+        print(
+            f"| {rows[0]['task']} ({path.parent.name}) | "
+            f"{'/'.join(sorted(kinds))} on {len(rows)} | "
+            f"{', '.join(counts)} | {', '.join(sorted({r['heldout_verdict'] for r in got}))} | "
+            f"{min(premiums):.1f}-{max(premiums):.1f} % | "
+            + ", ".join(f"{v:.2f}" for v in spread)
+            + " mm |"
+        )
+
+
 def main() -> None:
     out = Path(sys.argv[1])
     tasks(out)
     lines(out)
+    if len(sys.argv) > 2:
+        print()
+        mc_seeds(Path(sys.argv[2]))
 
 
 if __name__ == "__main__":
