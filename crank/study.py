@@ -152,7 +152,9 @@ def _second_stage(staged: dict[str, Any] | None, first: dict[str, Any]) -> dict[
     """A row's held-out figures over every machine its torque was played on where the check
     went to a second stage (heldout.json version 8, replay/heldout_stages.py): the rate, its
     one-look 95 % bound and the machines below of all of them, and the first stage's count
-    beside; none where the first stage decided (its figures are the row's already)."""
+    beside; none where the first stage decided (its figures are the row's already). The lowest
+    slider position, the calibration and the nominal's rate stay the first stage's: the second
+    stage plays the robust torque only and keeps its counts."""
     if staged is None or len(staged["counts"]) < 2:
         return {}
     below, machines = staged["counts"][-1], staged["machines"][-1]
