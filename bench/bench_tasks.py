@@ -30,7 +30,7 @@ from crank.console import HELDOUT_SEED
 from crank.study import parse_seeds
 from replay.files import ocp_variability
 from replay.heldout import heldout_file
-from replay.rates import rate_upper, second_stage_end, staged_entry
+from replay.rates import rate_upper, second_stage_end, second_stage_entry
 
 TASKS: dict[str, dict] = {
     "paper (0.08 m at 50, 100; N 150)": {},
@@ -132,8 +132,8 @@ def main() -> None:
                     "nominal_heldout_rate": heldout["profiles"]["nominal"][loop]["rate"],
                     "seconds": time.perf_counter() - started,
                 }
-                staged = staged_entry(heldout, name)
-                if staged is not None and len(staged["counts"]) > 1:  # all machines played
+                staged = second_stage_entry(heldout, name)
+                if staged is not None:  # the row of all the machines played
                     below, runs = staged["counts"][-1], staged["machines"][-1]
                     row |= {
                         "heldout_first_below": staged["counts"][0],

@@ -63,10 +63,10 @@ def verdict_words(
 ) -> str:
     """A profile's held-out verdict in a sentence's words (replay/rates.py); `profile`'s in
     its own loop judged on all its machines where the check had a second stage for it."""
-    from replay.rates import machines_to_confirm, staged_entry, verdict
+    from replay.rates import machines_to_confirm, second_stage_entry, verdict
 
-    staged = staged_entry(heldout, profile)
-    if staged is not None and len(staged["counts"]) > 1:
+    staged = second_stage_entry(heldout, profile)
+    if staged is not None:
         (first, total), (n1, n2) = staged["counts"], staged["machines"]
         word = {"holds": "**holds**", "fails": "**does not hold**"}
         return (

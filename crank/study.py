@@ -36,7 +36,7 @@ from crank.chain import Hooks, RunConfig, run_chain
 from crank.estimate import Span, run_time
 from crank.study_figure import figure
 from replay.rates import TARGET_RATE as TARGET_HELDOUT_RATE
-from replay.rates import rate_upper, staged_entry, verdict
+from replay.rates import rate_upper, second_stage_entry, verdict
 
 MAX_SEEDS = 1000
 
@@ -133,7 +133,7 @@ def _profile_row(
             "robust_heldout_lowest_mm": 1e3 * min(s["lowest"] for s in robust["samples"].values()),
             # by index in the held-out draw: the same root gives every seed the same machines
             "robust_heldout_machines": robust.get("violating_machines"),
-        } | _second_stage(staged_entry(heldout, name), robust)
+        } | _second_stage(heldout, name, robust)
         if "model_rate" in robust:  # heldout.json version 4
             row["robust_model_rate"] = robust["model_rate"]["rate"]
         for sample, entry in robust["samples"].items():
@@ -148,14 +148,16 @@ def _profile_row(
     return row
 
 
-def _second_stage(staged: dict[str, Any] | None, first: dict[str, Any]) -> dict[str, Any]:
+def _second_stage(heldout: dict[str, Any], name: str, first: dict[str, Any]) -> dict[str, Any]:
     """A row's held-out figures over every machine its torque was played on where the check
-    went to a second stage (heldout.json version 8, replay/heldout_stages.py): the rate, its
+    went to a second stage for profile `name` (replay/rates.py `second_stage_entry`; `first`:
+    its first-stage entry in its loop): the rate, its
     one-look 95 % bound and the machines below of all of them, and the first stage's count
-    beside; none where the first stage decided (its figures are the row's already). The lowest
+    beside; none where it did not (the first stage's figures are the row's already). The lowest
     slider position, the calibration and the nominal's rate stay the first stage's: the second
     stage plays the robust torque only and keeps its counts."""
-    if staged is None or len(staged["counts"]) < 2:
+    staged = second_stage_entry(heldout, name)
+    if staged is None:
         return {}
     below, machines = staged["counts"][-1], staged["machines"][-1]
     listed = first.get("violating_machines")

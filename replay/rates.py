@@ -77,6 +77,13 @@ def staged_entry(heldout: dict[str, Any], profile: str | None) -> dict[str, Any]
     return (heldout.get("staged") or {}).get("profiles", {}).get(profile)
 
 
+def second_stage_entry(heldout: dict[str, Any], profile: str | None) -> dict[str, Any] | None:
+    """`staged_entry` where the check played the profile's second stage (its counts then of all
+    the machines played), else None: no second stage, or a first stage that decided."""
+    staged = staged_entry(heldout, profile)
+    return staged if staged is not None and len(staged["counts"]) > 1 else None
+
+
 def heldout_verdict_text(heldout: dict[str, Any], profile: str) -> str:
     """A robust profile's held-out verdict in words: the staged one where the check had a
     second stage (heldout.json version 8, replay/heldout_stages.py), else one look's."""

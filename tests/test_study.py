@@ -343,7 +343,11 @@ def test_a_row_of_a_staged_check_counts_every_machine_it_played() -> None:
         "verdict": "holds",
         "violating_machines": [1186, 4056, 4593, 5406, 6190, 6462, 7275, 7813, 8427, 8466],
     }
-    assert _second_stage(staged, first) == {
+
+    def heldout(entry: dict | None) -> dict:
+        return {"staged": {"profiles": {"robust": entry}}} if entry is not None else {}
+
+    assert _second_stage(heldout(staged), "robust", first) == {
         "heldout_runs": 10_000,
         "heldout_first_runs": 1000,
         "robust_heldout_first_below": 3,
@@ -353,11 +357,15 @@ def test_a_row_of_a_staged_check_counts_every_machine_it_played() -> None:
     }
     # more machines below than heldout.json lists: none listed rather than a part
     assert (
-        _second_stage(staged | {"violating_machines": None}, first)["robust_heldout_machines"]
+        _second_stage(heldout(staged | {"violating_machines": None}), "robust", first)[
+            "robust_heldout_machines"
+        ]
         is None
     )
-    assert _second_stage(staged | {"machines": [1000], "counts": [1]}, first) == {}
-    assert _second_stage(None, first) == {}
+    decided = heldout(staged | {"machines": [1000], "counts": [1]})
+    assert _second_stage(decided, "robust", first) == {}
+    assert _second_stage(heldout(None), "robust", first) == {}
+    assert _second_stage(heldout(staged), "robust-fb", first) == {}  # a profile it did not judge
 
 
 def test_the_verdict_of_a_staged_check_decides_whether_a_seed_is_confirmed() -> None:
