@@ -12,6 +12,8 @@ import json
 import sys
 from pathlib import Path
 
+from plan_fit_staged_table import kept  # bench/ is the script's own folder
+
 from crank.sweep import leaf_results
 from crank.sweep_report import rows_of
 from crank.sweep_spec import read_spec
@@ -30,13 +32,9 @@ def sweep_rows(folder: Path) -> list[dict]:
 
 def plan_fit_of(folder: Path, row: dict) -> str:
     """Whether the plan round's training kept plan_fit's weights, with its largest mean-angle
-    gap before and after."""
+    gap before and after (plan_fit_staged_table.py's words)."""
     report = folder / "solve" / row["solve_key"] / "model.report.json"
-    fit = json.loads(report.read_text())["models"]["ppann"].get("plan_fit")
-    if not fit:
-        return "none"
-    gap = f"{1e3 * fit['theta_bias_start']:.0f} → {1e3 * fit['theta_bias_kept']:.0f} mrad"
-    return f"{'yes' if fit['fitted'] else 'no'}, {gap}"
+    return kept(json.loads(report.read_text())["models"]["ppann"].get("plan_fit"))
 
 
 def ratios(row: dict) -> list[tuple[str, float]]:
