@@ -136,11 +136,62 @@ def tubes(out: Path) -> None:
     print(f"\nrun 2: {done} of 3 models finished; rule {'met' if met else 'NOT met'} on those")
 
 
+def lines(out: Path) -> None:
+    """Run 3: each line study's rows (crank/study.py, one seed a study), its rule."""
+    print(
+        "| line | seed | profile | campaign | nominal /100 | below (stage 1 → all) | verdict "
+        "| σ ratios | premium | or refused |"
+    )
+    print("|---" * 10 + "|")
+    met, done, tubes_seen = True, 0, set()
+    for path in sorted((out / "lines").glob("*/study.json")):
+        study = json.loads(path.read_text())
+        line = path.parent.name.rsplit("-seed", 1)[0]
+        for row in study["rows"]:
+            seed, profile = row["seed"], row["profile"]
+            if row.get("error"):
+                spread = row.get("refused_tightening")
+                why = (
+                    f"refused: tightening {1e3 * spread:.1f} mm at sample "
+                    f"{row.get('refused_sample')} (stroke above the height "
+                    f"{1e3 * row['refused_available']:.1f} mm)"
+                    if spread is not None
+                    else f"refused: {row['error']}"
+                )
+                print(f"| {line} | {seed} | {profile} |" + " |" * 6 + f" {why} |")
+                met &= spread is not None and profile == "robust"  # a tube must return
+                continue
+            done += 1
+            tubes_seen.add((line, seed, profile))
+            runs = row["heldout_runs"]
+            count = round(row["robust_heldout_rate"] * runs)
+            first = row.get("robust_heldout_first_below")
+            below = f"{first} → {count} of {runs}" if first is not None else f"{count} of {runs}"
+            keys = [k for k in row if k.startswith("ratio_") and k.count("_") == 1]
+            ratios = " / ".join(
+                f"{row[k]:.3f} @{k[6:]}" for k in sorted(keys, key=lambda k: int(k[6:]))
+            )
+            print(
+                f"| {line} | {seed} | {profile} | {row['robust_100']}/{row['campaign_runs']} | "
+                f"{row['nominal_100']} | {below} | {row['robust_heldout_verdict']} | {ratios} | "
+                f"{100 * row['premium']:.1f} % | |"
+            )
+            met &= row["robust_heldout_verdict"] == "holds" and row["robust_100"] == 0
+    seeds = {(line, seed) for line, seed, _ in tubes_seen}
+    for line, seed in seeds:
+        met &= all((line, seed, tube) in tubes_seen for tube in ("robust-fb", "robust-pd"))
+    print(
+        f"\nrun 3: {len(seeds)} line seeds with rows; rule {'met' if met else 'NOT met'} on those"
+    )
+
+
 def main() -> None:
     out = Path(sys.argv[1])
     same_torques(out)
     compare(out)
     tubes(out)
+    print()
+    lines(out)
 
 
 if __name__ == "__main__":
