@@ -34,6 +34,12 @@ EFFORT = 0.10
 """Σu² applied under its own law over the nominal plan's."""
 
 
+def span(values: list[float]) -> str:
+    """The least and the most to one decimal, one figure where they print alike (no -0.0)."""
+    low, high = (f"{round(v, 1) + 0.0:.1f}" for v in (min(values), max(values)))
+    return low if low == high else f"{low}-{high}"
+
+
 def same_torques(out: Path) -> None:
     for solve in sorted((out / "cmp").glob("paper-*/ocp.json")):
         mine, run = read_ocp(solve), read_ocp(out / solve.parent.name / "ocp.json")
@@ -121,8 +127,7 @@ def tubes(out: Path) -> None:
                     f"{min(m):.2f}-{max(m):.2f}"
                     for m in zip(*(r["margins_mm"] for r in got), strict=True)
                 )
-                premiums = [100 * r["premium"] for r in got]
-                premium = f"{min(premiums):.1f}-{max(premiums):.1f} %" if got else ""
+                premium = span([100 * r["premium"] for r in got]) + " %" if got else ""
                 name = task.replace(" (0.08 m at 50, 100; N 150)", "")
                 print(
                     f"| {path.parent.name} | {name} | {profile} | {', '.join(counts)} | "
@@ -134,6 +139,24 @@ def tubes(out: Path) -> None:
                     if r["verdict"] != "robust":
                         print(f"  refused, mc {r['mc_seed']}: {r['error']}")
     print(f"\nrun 2: {done} of 3 models finished; rule {'met' if met else 'NOT met'} on those")
+    for path in sorted((out / "tubes").glob("*/tasks_mc.json")):
+        print(f"{path.parent.name}, machines below (under how many torques): {below(path.parent)}")
+
+
+def below(folder: Path) -> dict[str, dict[int, int]]:
+    """Per tube, each held-out machine below and under how many of the model's torques, from
+    bench_tasks.py's held-out files (`tasks/task<t>-mc<s>.heldout.json`, every stage played)."""
+    found: dict[str, dict[int, int]] = {}
+    for path in sorted((folder / "tasks").glob("*.heldout.json")):
+        heldout = json.loads(path.read_text())
+        for name, loops in heldout["profiles"].items():
+            if name == "nominal":
+                continue
+            for entry in loops.values():
+                for machine in entry.get("violating_machines") or []:
+                    mine = found.setdefault(name, {})
+                    mine[machine] = mine.get(machine, 0) + 1
+    return found
 
 
 def lines(out: Path) -> None:
