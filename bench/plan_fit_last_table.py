@@ -149,13 +149,18 @@ def below(folder: Path) -> dict[str, dict[int, int]]:
     found: dict[str, dict[int, int]] = {}
     for path in sorted((folder / "tasks").glob("*.heldout.json")):
         heldout = json.loads(path.read_text())
-        for name, loops in heldout["profiles"].items():
-            if name == "nominal":
-                continue
-            for entry in loops.values():
-                for machine in entry.get("violating_machines") or []:
-                    mine = found.setdefault(name, {})
-                    mine[machine] = mine.get(machine, 0) + 1
+        lists = [
+            (name, entry.get("violating_machines"))
+            for name, loops in heldout["profiles"].items()
+            if name != "nominal"
+            for entry in loops.values()
+        ]  # the first stage's, then a second stage's (replay/staged.py)
+        staged = (heldout.get("staged") or {}).get("profiles", {})
+        lists += [(name, entry.get("violating_machines")) for name, entry in staged.items()]
+        for name, machines in lists:
+            for machine in machines or []:
+                mine = found.setdefault(name, {})
+                mine[machine] = mine.get(machine, 0) + 1
     return found
 
 
