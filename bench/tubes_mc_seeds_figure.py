@@ -2,7 +2,8 @@
 column each), the held-out machines below the height of every returned torque, one dot per
 Monte-Carlo seed, grouped by task with a colour per line, against the rule of at most 5 of 1000
 (0.5 %); below, each tube's cost premium over the seeds (a bar from the least to the most).
-A refusal is a cross on the axis.
+A refusal is a cross on the axis; a torque the first machines could not judge, which
+`bench_tasks.py --second-stage` played on more, a ring at its first stage's count.
 
     python bench/tubes_mc_seeds_figure.py --out docs/tubes_mc_seeds.png LABEL=tasks_mc.json ...
 
@@ -59,7 +60,10 @@ def main() -> None:
                 returned = [r for r in mine if r["verdict"] == "robust"]
                 for r in mine:
                     x = x0 + width * 0.6 * ((seeds.index(r["mc_seed"]) + 0.5) / len(seeds) - 0.5)
-                    if r["verdict"] == "robust":
+                    first = r.get("heldout_first_below")  # bench_tasks --second-stage
+                    if r["verdict"] == "robust" and first is not None:
+                        counts.plot(x, first, "o", mfc="none", color=color, ms=6)
+                    elif r["verdict"] == "robust":
                         below = round(r["heldout_rate"] * n)
                         counts.plot(x, below, "o", color=color, ms=4)
                     else:
@@ -80,7 +84,11 @@ def main() -> None:
             len(tasks) - 0.55, TARGET * n, f"{TARGET * n:g} of {n}", ha="right", va="bottom"
         )
         counts.set_ylim(-0.5, max(TARGET * n + 1.5, counts.get_ylim()[1]))
-        counts.set_title(f"{profile}: a dot per Monte-Carlo seed (x: refused)", fontsize=10)
+        counts.set_title(
+            f"{profile}: a dot per Monte-Carlo seed\n(x: refused; ring: its first {n}, "
+            "a second stage judged it)",
+            fontsize=10,
+        )
         counts.set_ylabel(f"held-out machines below, of {n}")
         premiums.set_ylabel("cost premium, %\n(bar: least to most over the seeds)")
         # a bar from its least premium read against zero, room above it for the legend
