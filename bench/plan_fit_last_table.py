@@ -41,6 +41,7 @@ def span(values: list[float]) -> str:
 
 
 def same_torques(out: Path) -> None:
+    """Each compare folder's solve against its run: the nominal and `robust` torques equal."""
     for solve in sorted((out / "cmp").glob("paper-*/ocp.json")):
         mine, run = read_ocp(solve), read_ocp(out / solve.parent.name / "ocp.json")
         for name in ("nominal", "robust"):
@@ -82,7 +83,7 @@ def compare(out: Path) -> None:
         effort = f"{100 * min(p['effort']):+.1f} to {100 * max(p['effort']):+.1f} %"
         print(
             f"| {profile} | {controller} | {p['below']} of {p['runs']} | {p['campaign']}/"
-            f"{100 * len(seeds)} | {effort} | {'; '.join(p.get('mpc', []))} |"
+            f"{data['runs'] * len(seeds)} | {effort} | {'; '.join(p.get('mpc', []))} |"
         )
         if controller in OWN.get(profile, ()):
             met &= p["below"] <= ALLOWED
