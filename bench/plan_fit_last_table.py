@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from plan_fit_rows_table import below, ratios  # bench/ is the script's own folder
 
 from control.ocp_file import read_ocp
 
@@ -141,10 +142,11 @@ def tubes(out: Path) -> None:
                         print(f"  refused, mc {r['mc_seed']}: {r['error']}")
     print(f"\nrun 2: {done} of 3 models finished; rule {'met' if met else 'NOT met'} on those")
     for path in sorted((out / "tubes").glob("*/tasks_mc.json")):
-        print(f"{path.parent.name}, machines below (under how many torques): {below(path.parent)}")
+        found = machines_below(path.parent)
+        print(f"{path.parent.name}, machines below (under how many torques): {found}")
 
 
-def below(folder: Path) -> dict[str, dict[int, int]]:
+def machines_below(folder: Path) -> dict[str, dict[int, int]]:
     """Per tube, each held-out machine below and under how many of the model's torques, from
     bench_tasks.py's held-out files (`tasks/task<t>-mc<s>.heldout.json`, every stage played)."""
     found: dict[str, dict[int, int]] = {}
@@ -172,7 +174,7 @@ def lines(out: Path) -> None:
         "| σ ratios | premium | or refused |"
     )
     print("|---" * 10 + "|")
-    met, done, tubes_seen = True, 0, set()
+    met, tubes_seen = True, set()
     for path in sorted((out / "lines").glob("*/study.json")):
         study = json.loads(path.read_text())
         line = path.parent.name.rsplit("-seed", 1)[0]
@@ -190,20 +192,12 @@ def lines(out: Path) -> None:
                 print(f"| {line} | {seed} | {profile} |" + " |" * 6 + f" {why} |")
                 met &= spread is not None and profile == "robust"  # a tube must return
                 continue
-            done += 1
             tubes_seen.add((line, seed, profile))
-            runs = row["heldout_runs"]
-            count = round(row["robust_heldout_rate"] * runs)
-            first = row.get("robust_heldout_first_below")
-            below = f"{first} → {count} of {runs}" if first is not None else f"{count} of {runs}"
-            keys = [k for k in row if k.startswith("ratio_") and k.count("_") == 1]
-            ratios = " / ".join(
-                f"{row[k]:.3f} @{k[6:]}" for k in sorted(keys, key=lambda k: int(k[6:]))
-            )
+            sigma = " / ".join(f"{v:.3f} @{sample}" for sample, v in ratios(row))
             print(
                 f"| {line} | {seed} | {profile} | {row['robust_100']}/{row['campaign_runs']} | "
-                f"{row['nominal_100']} | {below} | {row['robust_heldout_verdict']} | {ratios} | "
-                f"{100 * row['premium']:.1f} % | |"
+                f"{row['nominal_100']} | {below(row)} | {row['robust_heldout_verdict']} | "
+                f"{sigma} | {100 * row['premium']:.1f} % | |"
             )
             met &= row["robust_heldout_verdict"] == "holds" and row["robust_100"] == 0
     seeds = {(line, seed) for line, seed, _ in tubes_seen}
