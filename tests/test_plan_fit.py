@@ -172,7 +172,7 @@ def test_training_fits_the_plan_episodes_only_when_asked_and_present(
     record = fitted.history.plan_fit
     assert (record["episodes"], record["steps"], record["epochs"]) == (6, 79, EPOCHS)
     assert record["kept"] <= record["start"]
-    off = fit(with_plan_episodes, kind="ppann", config=TINY)
+    off = fit(with_plan_episodes, kind="ppann", config=replace(TINY, plan_fit=False))
     assert off.history.plan_fit is None
     plain = [
         fit(paper_dataset.loaded, kind="ppann", config=replace(TINY, plan_fit=on))
