@@ -19,6 +19,7 @@ from common.errors import CrankError
 from common.threads import rollout_threads
 from control.config import PD_GAINS, OCPConfig
 from crank.progress import close_bar, progress_bar
+from ppann.train_config import PLAN_FIT_EPOCHS
 
 if TYPE_CHECKING:
     from control.robust import Iteration
@@ -277,10 +278,9 @@ class EpochBars:
     def of(cls, config: TrainConfig) -> EpochBars:
         """The bars of training under `config`: phase 1, phase 2 and the bounds' calibration."""
         from ppann.inversion import calibration_epochs  # torch: not for `crank --help`
-        from ppann.plan_fit import EPOCHS as PLAN
 
         bounds = calibration_epochs(config.sigma_epochs, lines=config.bound_lines)
-        phases = {"mean": config.max_epochs, "plan": PLAN, "sigma": config.phase2_epochs}
+        phases = {"mean": config.max_epochs, "plan": PLAN_FIT_EPOCHS, "sigma": config.phase2_epochs}
         return cls(phases | {"bounds": bounds})
 
     def __call__(self, kind: str, phase: str, epoch: int, loss: float) -> None:

@@ -19,9 +19,11 @@ so the training estimate is a range: its low end at EARLY_EPOCHS, its high end a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
+from ppann.train_config import PLAN_FIT_EPOCHS, PLAN_FIT_MIN_EPISODES
 from replay.rates import second_stage_end
 from twin.physics import SAMPLE_RATE
 
@@ -53,6 +55,14 @@ SIGMA_SAMPLE_EPOCH = 0.40e-6
 """Phase-2 seconds per training sample and epoch (that run: 800 epochs of 348 000 samples in
 110.9 s, the plan round's 800 of 382 568 in 125.7 s; session 70's 0.55e-6, session 52's
 0.65e-6)."""
+PLAN_STEP = 0.92e-3
+"""`plan_fit`'s continued phase 1: seconds per minibatch and plan-episode step beyond its window
+loss (the plan episodes rolled out whole and back-propagated at every minibatch: their steps run
+one after another, the episodes side by side, so their count is left out). Session 96's
+fresh-clone `crank run` (a149189): 10 epochs of 11 minibatches and 150 steps in 46.4 s, where
+its phase 1 beside the baselines took 1.69 s an epoch (session 82's 0.87): 2.95 s an epoch beyond
+the windows, 1.52 s at session 82's pace. On one core beside another lane (session 95, line-15):
+10 epochs in 37.9 s."""
 VALIDATION = 19.0
 """Validation, Monte-Carlo bands and the 100-run twin calibration of the default dataset, s
 (the training stage less its two phases: 15.1 and 22.5 s in that run's two trainings; 25.0 and
@@ -108,10 +118,18 @@ def rewrite_time(config: GenerationConfig) -> Span:
     return Span(seconds, seconds)
 
 
-def train_time(config: TrainConfig, generation: GenerationConfig, *, baselines: bool) -> Span:
+def train_time(
+    config: TrainConfig,
+    generation: GenerationConfig,
+    *,
+    baselines: bool,
+    plan_episodes: int = 0,
+    plan_steps: int = 0,
+) -> Span:
     """Phase 1 at EARLY_EPOCHS to the cap, phase 2, and the validation. The baselines train
     beside the PPANN, one after the other on the second core (ppann/fit.py `fit_all`), so
-    phase 1 takes the longer of the two lanes."""
+    phase 1 takes the longer of the two lanes. `plan_episodes` of `plan_steps` steps in the data
+    (the plan round's): `plan_fit`'s continued phase 1 too, where it runs."""
     windows = generation.n_samples * (1 - config.validation_fraction)
     epoch = min(windows, config.epoch_windows)
     lanes = [WINDOW_STEP_EPOCH["ppann"]]
@@ -119,6 +137,10 @@ def train_time(config: TrainConfig, generation: GenerationConfig, *, baselines: 
         lanes.append(WINDOW_STEP_EPOCH["physics"] + WINDOW_STEP_EPOCH["blackbox"])
     per_epoch = max(lanes) * epoch * config.horizon
     phase1 = Span(per_epoch * min(EARLY_EPOCHS, config.max_epochs), per_epoch * config.max_epochs)
+    if config.plan_fit and plan_episodes >= PLAN_FIT_MIN_EPISODES:
+        batches = math.ceil(epoch / config.batch_size)
+        plan = PLAN_FIT_EPOCHS * (per_epoch + PLAN_STEP * batches * plan_steps)
+        phase1 = phase1 + Span(plan, plan)
     phase2 = SIGMA_SAMPLE_EPOCH * windows * config.phase2_epochs
     return phase1 + Span(phase2 + VALIDATION, phase2 + VALIDATION)
 
@@ -185,7 +207,13 @@ def run_time(config: RunConfig) -> dict[str, Span]:
         stages |= {
             "plan": generate_time(replace(config.generation, seconds=added))
             + rewrite_time(config.generation),
-            "train_plan": train_time(config.train, merged, baselines=config.baselines),
+            "train_plan": train_time(
+                config.train,
+                merged,
+                baselines=config.baselines,
+                plan_episodes=config.plan.episodes,
+                plan_steps=horizon,
+            ),
             "solve_plan": solve,
         }
     stages |= {

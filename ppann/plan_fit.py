@@ -46,16 +46,14 @@ from common.streams import torch_seed
 from ppann.data import Windows
 from ppann.losses import n_step_mse
 from ppann.model import n_step_prediction
+from ppann.train_config import PLAN_FIT_EPOCHS as EPOCHS
+from ppann.train_config import PLAN_FIT_MIN_EPISODES as MIN_EPISODES
 from twin.dataset import Dataset
 
-EPOCHS = 10
-"""Epochs of the continued phase 1 (each of phase 1's `epoch_windows`)."""
 WEIGHT = 1.0
 """The mean-trajectory term's weight beside the window loss (both on the same state scale)."""
 LR_SHARE = 0.1
 """Its Adam's learning rate as a share of phase 1's starting one."""
-MIN_EPISODES = 6
-"""Fewer plan episodes than this: no continuation (their mean says too little)."""
 
 
 def plan_episodes(dataset: Dataset, stop: int) -> Windows | None:

@@ -13,6 +13,12 @@ CALIBRATION_RUNS = 100
 """Fresh machines the model report replays the validation torque on (its observed σ, against
 which each Monte-Carlo mode's predicted σ is calibrated; ppann/pipeline.py)."""
 
+PLAN_FIT_EPOCHS = 10
+"""Epochs of `plan_fit`'s continued phase 1 (ppann/plan_fit.py), each of phase 1's
+`epoch_windows`."""
+PLAN_FIT_MIN_EPISODES = 6
+"""Fewer plan episodes than this in the data: no continuation (their mean says too little)."""
+
 EARLY_STOPPING = ("tail", "machines")
 """What phase 1's early stopping scores (TrainConfig.early_stopping)."""
 

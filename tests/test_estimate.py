@@ -3,6 +3,8 @@ add up to its total."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from crank.chain import RunConfig
@@ -11,6 +13,7 @@ from crank.estimate import (
     GENERATE_PER_SECOND,
     HELDOUT_PER_SAMPLE,
     MPC_STEP,
+    PLAN_STEP,
     REPLAY_FIXED,
     REWRITE_PER_SECOND,
     WINDOW_STEP_EPOCH,
@@ -22,6 +25,7 @@ from crank.estimate import (
     solve_time,
     train_time,
 )
+from ppann.train_config import PLAN_FIT_EPOCHS, PLAN_FIT_MIN_EPISODES
 from twin import DATASET_SECONDS, PAPER_SECONDS
 from twin.physics import SAMPLE_RATE
 from twin.plan_config import PlanConfig
@@ -154,3 +158,33 @@ def test_described_in_one_line() -> None:
     line = describe(run_time(RunConfig()), times=10)
     assert "\n" not in line and "each run: generate" in line
     assert line.startswith("estimated time on an idle 2-core machine: ")
+
+
+def test_plan_fit_adds_its_epochs_to_the_rounds_training_only() -> None:
+    """`plan_fit`'s continued phase 1 runs where the data holds the plan round's episodes: its
+    PLAN_FIT_EPOCHS epochs, each phase 1's plus the episodes' steps at every minibatch."""
+    on = RunConfig.for_seed(0, heldout_runs=0)
+    off = RunConfig.for_seed(0, train={"plan_fit": False}, heldout_runs=0)
+    assert on.train.plan_fit  # the default since session 96
+    assert run_time(on)["train"] == run_time(off)["train"]  # the first round has no episodes
+    plan_on, plan_off = run_time(on)["train_plan"], run_time(off)["train_plan"]
+    extra = plan_on.low - plan_off.low
+    assert extra == pytest.approx(plan_on.high - plan_off.high)
+    windows = on.generation.n_samples * (1 - on.train.validation_fraction)
+    epoch = min(windows, on.train.epoch_windows)
+    per_epoch = WINDOW_STEP_EPOCH["ppann"] * epoch * on.train.horizon
+    batches = math.ceil(epoch / on.train.batch_size)
+    expected = PLAN_FIT_EPOCHS * (per_epoch + PLAN_STEP * batches * on.ocp.horizon)
+    assert extra == pytest.approx(expected)
+    assert 15 < extra < 60  # 46 s in session 96's run, at about half session 82's pace
+    longer = RunConfig.for_seed(0, ocp={"horizon": 300}, heldout_runs=0)
+    longer_off = RunConfig.for_seed(
+        0, ocp={"horizon": 300}, train={"plan_fit": False}, heldout_runs=0
+    )
+    grown = run_time(longer)["train_plan"].low - run_time(longer_off)["train_plan"].low
+    assert grown - extra == pytest.approx(PLAN_FIT_EPOCHS * PLAN_STEP * batches * 150)
+    few = RunConfig.for_seed(0, plan={"episodes": PLAN_FIT_MIN_EPISODES - 1}, heldout_runs=0)
+    few_off = RunConfig.for_seed(
+        0, plan={"episodes": PLAN_FIT_MIN_EPISODES - 1}, train={"plan_fit": False}, heldout_runs=0
+    )
+    assert run_time(few)["train_plan"] == run_time(few_off)["train_plan"]  # too few: none
