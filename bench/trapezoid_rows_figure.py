@@ -63,21 +63,18 @@ def from_log(path: Path, lane: str) -> dict[int, dict[str, float]]:
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True)
-    args = parser.parse_args()
-    trapezoid = from_log(BENCH / "trapezoid.log", "trapezoid") | from_csv(
-        BENCH / "trapezoid_rows.csv"
-    )
-    lanes = (
-        ("Euler, session 84 (root 20261250)", "tab:grey", from_csv(BENCH / "default_today.csv")),
-        ("trapezoid, sessions 88-89 (roots 20261260-1)", "tab:blue", trapezoid),
-    )
+Rows = dict[int, dict[str, float]]
+"""Per training seed, its robust row: below, runs, premium, ratio_50, ratio_100."""
+
+
+def draw(lanes: list[tuple[str, str, Rows]], *, title: str, out: str) -> None:
+    """Per seed and lane (label, colour, rows): the rate below with its bound, the premium and
+    the σ ratios, the lanes side by side at each seed."""
     fig, (top, middle, bottom) = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    width = 0.6 / len(lanes)
     for i, (label, colour, rows) in enumerate(lanes):
         seeds = sorted(rows)
-        at = [s + (i - 0.5) * 0.3 for s in seeds]
+        at = [s + (i - (len(lanes) - 1) / 2) * width for s in seeds]
         rate = [100 * rows[s]["below"] / rows[s]["runs"] for s in seeds]
         bound = [100 * rate_upper(rows[s]["below"], rows[s]["runs"]) for s in seeds]
         top.plot(at, rate, "o", color=colour, label=f"{label}: rate")
@@ -98,12 +95,30 @@ def main() -> None:
     bottom.set_xlabel("training seed")
     bottom.set_xticks(range(10))
     bottom.legend(fontsize=7, ncol=3)
-    fig.suptitle(
-        "The paper task's robust torque, 4000 held-out machines per seed:\n"
-        "the trapezoid default beside the Euler default (bench/trapezoid_rows.md)"
-    )
+    fig.suptitle(title)
     fig.tight_layout()
-    save_figure(fig, args.out)
+    save_figure(fig, out)
+
+
+def trapezoid_rows() -> dict[int, dict[str, float]]:
+    """The trapezoid default's seeds 0-9 (sessions 88-89)."""
+    return from_log(BENCH / "trapezoid.log", "trapezoid") | from_csv(BENCH / "trapezoid_rows.csv")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args()
+    lanes = [
+        ("Euler, session 84 (root 20261250)", "tab:grey", from_csv(BENCH / "default_today.csv")),
+        ("trapezoid, sessions 88-89 (roots 20261260-1)", "tab:blue", trapezoid_rows()),
+    ]
+    draw(
+        lanes,
+        title="The paper task's robust torque, 4000 held-out machines per seed:\n"
+        "the trapezoid default beside the Euler default (bench/trapezoid_rows.md)",
+        out=args.out,
+    )
 
 
 if __name__ == "__main__":
