@@ -15,6 +15,7 @@ put that run's training at the bottom of its range; session 21's had said 3-7 mi
 that took 7-9.5. Phase 1 of training stops early at a number of epochs nobody knows in advance
 (58-73 on seeds 0-4 of `paper`, 37-117 on `line-30`, 68-188 in the plan round's two trainings),
 so the training estimate is a range: its low end at EARLY_EPOCHS, its high end at the epoch cap.
+The plan round's training also counts `plan_fit`'s continued phase 1 (PLAN_STEP, session 96).
 """
 
 from __future__ import annotations
