@@ -23,8 +23,11 @@ from replay.rates import rate_upper
 
 BENCH = Path(__file__).resolve().parent
 
+Rows = dict[int, dict[str, float]]
+"""Per training seed, its robust row: below, runs, premium, ratio_50, ratio_100."""
 
-def from_csv(path: Path) -> dict[int, dict[str, float]]:
+
+def from_csv(path: Path) -> Rows:
     """Per seed, the robust row of a sweep's table."""
     rows = {}
     for row in csv.DictReader(path.open()):
@@ -41,7 +44,7 @@ def from_csv(path: Path) -> dict[int, dict[str, float]]:
     return rows
 
 
-def from_log(path: Path, lane: str) -> dict[int, dict[str, float]]:
+def from_log(path: Path, lane: str) -> Rows:
     """Per seed, the `robust` line of bench/trapezoid_read.py's block for `lane` in its log."""
     rows, inside = {}, False
     for line in path.read_text().splitlines():
@@ -61,10 +64,6 @@ def from_log(path: Path, lane: str) -> dict[int, dict[str, float]]:
     if not rows:
         raise SystemExit(f"trapezoid_rows_figure.py: no robust row of {lane!r} in {path}")
     return rows
-
-
-Rows = dict[int, dict[str, float]]
-"""Per training seed, its robust row: below, runs, premium, ratio_50, ratio_100."""
 
 
 def draw(lanes: list[tuple[str, str, Rows]], *, title: str, out: str) -> None:
@@ -100,7 +99,7 @@ def draw(lanes: list[tuple[str, str, Rows]], *, title: str, out: str) -> None:
     save_figure(fig, out)
 
 
-def trapezoid_rows() -> dict[int, dict[str, float]]:
+def trapezoid_rows() -> Rows:
     """The trapezoid default's seeds 0-9 (sessions 88-89)."""
     return from_log(BENCH / "trapezoid.log", "trapezoid") | from_csv(BENCH / "trapezoid_rows.csv")
 
