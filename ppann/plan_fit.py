@@ -10,10 +10,11 @@ is steeper: a wider spread and a larger premium than the machines need (docs/rob
 
 Here, when the data holds the plan round's episodes (twin/plan_data.py, `plan_episode` in the run
 record: the plan's torque, scaled and dithered, on many machines with the white force), phase 1
-goes on from its best weights for EPOCHS epochs of its size, each step with two terms: its N-step
-loss on a minibatch of its windows as before, plus WEIGHT times the squared gap between the mean
-of the plan episodes rolled out whole (each from its first state under its own torque) and the
-mean of their recorded states, each state divided by the same scale, averaged over the steps.
+goes on from its best weights for PLAN_FIT_EPOCHS epochs of its size (ppann/train_config.py),
+each step with two terms: its N-step loss on a minibatch of its windows as before, plus WEIGHT
+times the squared gap between the mean of the plan episodes rolled out whole (each from its first
+state under its own torque) and the mean of their recorded states, each state divided by the
+same scale, averaged over the steps.
 The mean over some hundred machines and white forces is what the plan stands for; its spread is
 left to phase 2. The last weights are kept if they fit that mean better than phase 1's did,
 else phase 1's (a mean model that already fits the episodes is left bit for bit). Phase 2 then
@@ -46,8 +47,7 @@ from common.streams import torch_seed
 from ppann.data import Windows
 from ppann.losses import n_step_mse
 from ppann.model import n_step_prediction
-from ppann.train_config import PLAN_FIT_EPOCHS as EPOCHS
-from ppann.train_config import PLAN_FIT_MIN_EPISODES as MIN_EPISODES
+from ppann.train_config import PLAN_FIT_EPOCHS, PLAN_FIT_MIN_EPISODES
 from twin.dataset import Dataset
 
 WEIGHT = 1.0
@@ -59,7 +59,7 @@ LR_SHARE = 0.1
 def plan_episodes(dataset: Dataset, stop: int) -> Windows | None:
     """The plan round's episodes that end before sample `stop`, each as one window from its
     first sample over the shortest such episode's length; None if the data holds fewer than
-    MIN_EPISODES of them."""
+    PLAN_FIT_MIN_EPISODES of them."""
     records = dataset.run.get("episodes") or []
     marked = [
         record.get("index", i) for i, record in enumerate(records) if record.get("plan_episode")
@@ -70,7 +70,7 @@ def plan_episodes(dataset: Dataset, stop: int) -> Windows | None:
         if samples.size > 1 and samples[-1] < stop:
             firsts.append(int(samples[0]))
             lengths.append(int(samples.size))
-    if len(firsts) < MIN_EPISODES:
+    if len(firsts) < PLAN_FIT_MIN_EPISODES:
         return None
     first = np.asarray(firsts)
     steps = first[:, None] + np.arange(min(lengths))[None, :]
@@ -147,7 +147,7 @@ def fit_plan_episodes(
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(params, lr=lr * LR_SHARE)
     kept, bias_kept = start, bias_start
-    for epoch in range(EPOCHS):
+    for epoch in range(PLAN_FIT_EPOCHS):
         order = torch.randperm(len(train), generator=generator)[:epoch_windows]
         for batch in order.split(batch_size):
             part = _part(train, batch)
@@ -170,7 +170,7 @@ def fit_plan_episodes(
         weight=WEIGHT,
         start=start,
         kept=kept,
-        epochs=EPOCHS,
+        epochs=PLAN_FIT_EPOCHS,
         fitted=fitted,
         theta_bias_start=bias_start,
         theta_bias_kept=bias_kept,

@@ -16,14 +16,12 @@ from ppann.data import Windows
 from ppann.fit import fit
 from ppann.model import PPANN, rollout
 from ppann.plan_fit import (
-    EPOCHS,
-    MIN_EPISODES,
     PlanFit,
     fit_plan_episodes,
     mean_gap,
     plan_episodes,
 )
-from ppann.train_config import TrainConfig
+from ppann.train_config import PLAN_FIT_EPOCHS, PLAN_FIT_MIN_EPISODES, TrainConfig
 from twin.dataset import Dataset
 
 TINY = TrainConfig(max_epochs=2, epoch_windows=2000, sigma_epochs=3, bound_lines=0)
@@ -62,9 +60,9 @@ def test_plan_episodes_are_the_marked_ones_before_the_split() -> None:
     np.testing.assert_array_equal(got.target[2, :, 1].numpy(), 10 * (firsts[2] + 1 + np.arange(24)))
     cut = plan_episodes(data, stop=int(firsts[6]) + 10)  # the last marked one crosses the split
     assert len(cut) == 6
-    assert plan_episodes(data, stop=int(firsts[5]) + 10) is None  # fewer than MIN_EPISODES
+    assert plan_episodes(data, stop=int(firsts[5]) + 10) is None  # fewer than PLAN_FIT_MIN_EPISODES
     assert plan_episodes(_dataset(lengths, marked=set()), stop=len(data)) is None
-    assert MIN_EPISODES == 6
+    assert PLAN_FIT_MIN_EPISODES == 6
 
 
 def _episodes(model: PPANN, *, count: int, steps: int, seed: int = 3) -> Windows:
@@ -131,7 +129,7 @@ def test_a_biased_mean_is_pulled_to_the_episodes() -> None:
         bias = float(mean_gap(model, episodes)[:, 0].abs().max())
     assert done.theta_bias_kept == pytest.approx(bias, rel=1e-12)
     assert done.theta_bias_kept < done.theta_bias_start / 5
-    assert (done.episodes, done.steps, done.epochs) == (24, 120, EPOCHS)
+    assert (done.episodes, done.steps, done.epochs) == (24, 120, PLAN_FIT_EPOCHS)
 
 
 def test_an_exact_mean_is_left_bit_for_bit() -> None:
@@ -170,7 +168,7 @@ def test_training_fits_the_plan_episodes_only_when_asked_and_present(
 ) -> None:
     fitted = fit(with_plan_episodes, kind="ppann", config=replace(TINY, plan_fit=True))
     record = fitted.history.plan_fit
-    assert (record["episodes"], record["steps"], record["epochs"]) == (6, 79, EPOCHS)
+    assert (record["episodes"], record["steps"], record["epochs"]) == (6, 79, PLAN_FIT_EPOCHS)
     assert record["kept"] <= record["start"]
     off = fit(with_plan_episodes, kind="ppann", config=replace(TINY, plan_fit=False))
     assert off.history.plan_fit is None
