@@ -4,6 +4,7 @@ Monte-Carlo seeds and every returned robust torque checked on held-out machines.
     python bench/bench_tasks.py --model logs/<run>/model.pt [--runs 1000] [--mc-seeds 0-4]
         [--mc-samples 1000] [--only "horizon 200"] [--profiles robust-fb,robust-pd]
         [--heldout-seed S] [--second-stage 9000] [--out tasks.json] [--tail-sampling plain|lines]
+        [--drawn ROOT:I[,J...]]
 
 Per task, Monte-Carlo seed and robust profile (default the open-loop `robust`; the tubes
 `robust-fb`, `robust-pd` are checked closed loop under their own gains): the verdict (a robust
@@ -13,7 +14,8 @@ premium, and the held-out violation rate in the profile's loop with its exact 95
 machines cannot judge is played on M more of the same draw and the row's rate, bound and verdict
 are the staged check's over all of them (replay/heldout_stages.py), as `crank run` judges. A
 task's verdict must not depend on the Monte-Carlo seed. Writes `tasks.json` beside the model
-and prints a table.
+and prints a table. With `--drawn ROOT:I` the tasks are instead those bench/random_tasks.py
+draws from ROOT, the I-th (0-based; several comma-separated), named as its sweep spec names them.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import argparse
 import json
 import time
 from pathlib import Path
+
+from random_tasks import draw_tasks  # the script's folder is on the path
 
 from common.errors import ConfigError, CrankError
 from control.config import TAIL_SAMPLINGS, OCPConfig, loops_of
@@ -46,6 +50,25 @@ def _none(reason: object) -> dict:
     return {"verdict": "none", "error": str(reason)}
 
 
+def drawn_tasks(text: str) -> dict[str, dict]:
+    """--drawn ROOT:I[,J...]: bench/random_tasks.py's tasks I, J of ROOT, by its names."""
+    try:
+        root, indices = text.split(":")
+        picked = sorted({int(i) for i in indices.split(",")})
+        tasks = draw_tasks(int(root), picked[-1] + 1)
+    except (ValueError, IndexError):
+        raise SystemExit(f"bench_tasks: --drawn takes ROOT:I[,J...], got {text!r}") from None
+    if picked[0] < 0:
+        raise SystemExit(f"bench_tasks: --drawn indices must be >= 0, got {text!r}")
+    named = {}
+    for i in picked:
+        task = tasks[i]
+        samples = ", ".join(str(k) for k in task["constraint_samples"])
+        name = f"task {i}: horizon {task['horizon']}, samples {samples}, height {task['height']}"
+        named[name] = task | {"constraint_samples": tuple(task["constraint_samples"])}
+    return named
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", required=True)
@@ -65,7 +88,9 @@ def main() -> None:
         choices=TAIL_SAMPLINGS,
         help="the own-tail check's draws",
     )
+    parser.add_argument("--drawn", default="", help="bench/random_tasks.py's tasks: ROOT:I[,J]")
     args = parser.parse_args()
+    tasks = drawn_tasks(args.drawn) if args.drawn else TASKS
     try:
         mc_seeds = parse_seeds(args.mc_seeds, option="--mc-seeds")
     except ConfigError as exc:
@@ -77,7 +102,7 @@ def main() -> None:
     work = model.parent / "tasks"
     work.mkdir(exist_ok=True)
     rows = []
-    for t, (task, options) in enumerate(TASKS.items()):
+    for t, (task, options) in enumerate(tasks.items()):
         if args.only not in task:
             continue
         for mc_seed in mc_seeds:
@@ -152,7 +177,7 @@ def main() -> None:
                     f"{100 * row['nominal_heldout_rate']:.1f} %",
                     flush=True,
                 )
-    for task in (t for t in TASKS if args.only in t):
+    for task in (t for t in tasks if args.only in t):
         for name in profiles:
             verdicts = {r["verdict"] for r in rows if r["task"] == task and r["profile"] == name}
             print(
