@@ -73,10 +73,11 @@ def draw(tasks: list[tuple[str, dict | None, bool]], *, out: Path) -> None:
         )
         rate.annotate(
             f"{round(value * int(row['heldout_runs']))} of {row['heldout_runs']}",
-            (i, 100 * upper),
+            (i, 100 * value),
             textcoords="offset points",
-            xytext=(0, 5),
-            ha="center",
+            xytext=(6, 0),
+            ha="left",
+            va="center",
             fontsize=8,
         )
         premium.plot(i, 100 * _number(row["premium"]), marker, color=color)
@@ -114,6 +115,7 @@ def draw(tasks: list[tuple[str, dict | None, bool]], *, out: Path) -> None:
     ratio.axhline(1.0, color="grey", lw=0.5)
     ratio.set_ylabel("predicted / observed σ\nof the slider (each sample)")
     ratio.set_xticks(x, labels, fontsize=8)
+    ratio.set_xlim(-0.5, len(tasks) - 0.2)  # room for the last count
     fig.suptitle(
         "Tasks drawn by a seed (root 20261284), each on its own training seed: the "
         "shipped default's robust torque\non held-out machines of root 20261285 "
