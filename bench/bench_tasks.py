@@ -25,7 +25,7 @@ import json
 import time
 from pathlib import Path
 
-from random_tasks import draw_tasks  # the script's folder is on the path
+from random_tasks import draw_tasks, task_name  # the script's folder is on the path
 
 from common.errors import ConfigError, CrankError
 from control.config import TAIL_SAMPLINGS, OCPConfig, loops_of
@@ -63,9 +63,7 @@ def drawn_tasks(text: str) -> dict[str, dict]:
     named = {}
     for i in picked:
         task = tasks[i]
-        samples = ", ".join(str(k) for k in task["constraint_samples"])
-        name = f"task {i}: horizon {task['horizon']}, samples {samples}, height {task['height']}"
-        named[name] = task | {"constraint_samples": tuple(task["constraint_samples"])}
+        named[task_name(i, task)] = task | {"constraint_samples": tuple(task["constraint_samples"])}
     return named
 
 

@@ -43,6 +43,12 @@ def draw_tasks(root: int, count: int) -> list[dict]:
     return tasks
 
 
+def task_name(i: int, task: dict) -> str:
+    """Task `i`'s name: its case in the sweep spec, its row in bench/bench_tasks.py --drawn."""
+    samples = ", ".join(str(k) for k in task["constraint_samples"])
+    return f"task {i}: horizon {task['horizon']}, samples {samples}, height {task['height']}"
+
+
 def spec(tasks: list[dict], *, root: int, heldout_seed: int) -> str:
     """The sweep spec: the shipped default chain, task i on training seed i, the staged verdict
     on 1000 + 9000 machines of `heldout_seed`."""
@@ -70,8 +76,7 @@ def spec(tasks: list[dict], *, root: int, heldout_seed: int) -> str:
         lines += [
             "",
             "[[cases]]",
-            f'name = "task {i}: horizon {task["horizon"]}, samples {samples}, '
-            f'height {task["height"]}"',
+            f'name = "{task_name(i, task)}"',
             f"seed = {i}",
             f"ocp = {{ horizon = {task['horizon']}, constraint_samples = [{samples}], "
             f"height = {task['height']} }}",
