@@ -49,6 +49,11 @@ def task_name(i: int, task: dict) -> str:
     return f"task {i}: horizon {task['horizon']}, samples {samples}, height {task['height']}"
 
 
+def task_index(name: str) -> int:
+    """i of a name task_name wrote ("task i: ...")."""
+    return int(name.split(":", 1)[0].removeprefix("task "))
+
+
 def spec(tasks: list[dict], *, root: int, heldout_seed: int) -> str:
     """The sweep spec: the shipped default chain, task i on training seed i, the staged verdict
     on 1000 + 9000 machines of `heldout_seed`."""

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from random_tasks import task_index  # the script's folder is on the path
 
 TARGET = 0.005
 BAND = (0.8, 1.25)
@@ -30,7 +31,7 @@ def read(path: Path) -> list[tuple[str, dict | None, bool]]:
     None where no torque came out) and whether the open loop was refused."""
     with path.open() as handle:
         rows = list(csv.DictReader(handle))
-    cases = sorted({r["case"] for r in rows}, key=lambda c: int(re.match(r"task (\d+)", c)[1]))
+    cases = sorted({r["case"] for r in rows}, key=task_index)
     out = []
     for case in cases:
         mine = [r for r in rows if r["case"] == case]

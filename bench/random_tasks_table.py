@@ -13,16 +13,11 @@ import re
 import sys
 from pathlib import Path
 
+from random_tasks import task_index  # the script's folder is on the path
+
 from crank.sweep import leaf_results
 from crank.sweep_report import rows_of
 from crank.sweep_spec import read_spec
-
-CAP = 200
-"""Phase 1's epoch cap (the default TrainConfig.max_epochs)."""
-
-
-def _task(case: str) -> int:
-    return int(re.match(r"task (\d+)", case)[1])
 
 
 def _epochs(report: Path) -> str:
@@ -33,7 +28,8 @@ def _epochs(report: Path) -> str:
 def run_1(folder: Path) -> None:
     """One line per task and profile the chain ended with (a refusal: its reason)."""
     _, leaves = read_spec(folder / "sweep.toml")
-    rows = sorted(rows_of(leaf_results(leaves, folder), folder), key=lambda r: _task(r["case"]))
+    rows = rows_of(leaf_results(leaves, folder), folder)
+    rows.sort(key=lambda r: task_index(r["case"]))
     print(
         "| task | profile | campaign below | held-out below (95 % bound) | verdict "
         "| machines below | nominal campaign | premium | k | σ ratio per sample "
@@ -41,7 +37,7 @@ def run_1(folder: Path) -> None:
     )
     print("|---" * 12 + "|")
     for row in rows:
-        name = f"{_task(row['case'])}"
+        name = f"{task_index(row['case'])}"
         if row.get("error"):
             print(f"| {name} | {row.get('profile')} | refused: {row['error']} |" + " |" * 9)
             continue
