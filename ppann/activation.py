@@ -34,8 +34,9 @@ class _Tanh(torch.autograd.Function):
     @staticmethod
     def forward(ctx: torch.autograd.function.FunctionCtx, x: torch.Tensor) -> torch.Tensor:
         # the same operations in the same order as torch.sigmoid(2 * x).mul_(2).sub_(1), so the
-        # same bits, in one buffer instead of two: a second 3-23 MB tensor a layer cost
-        # ~5 % of a phase-1 step and 3-23 % of a phase-2 epoch (session 98, bench/bench_tanh.py)
+        # same bits, in one buffer instead of two: a second 3-23 MB tensor a layer cost ~5 % of
+        # a phase-1 step and 3-23 % of a phase-2 epoch in isolation, not measurable in a whole
+        # `crank run` (session 98, docs/benchmarks.md)
         y = x * 2
         torch.sigmoid(y, out=y)
         y.mul_(2).sub_(1)
