@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -49,9 +50,23 @@ def task_name(i: int, task: dict) -> str:
     return f"task {i}: horizon {task['horizon']}, samples {samples}, height {task['height']}"
 
 
+def task_of(name: str) -> tuple[int, dict]:
+    """(i, task) of a name task_name wrote: the inverse of task_name."""
+    found = re.fullmatch(r"task (\d+): horizon (\d+), samples ([\d, ]+), height (\S+)", name)
+    if found is None:
+        raise ValueError(f"not a drawn task's name: {name!r}")
+    i, horizon, samples, height = found.groups()
+    task = {
+        "horizon": int(horizon),
+        "constraint_samples": [int(k) for k in samples.split(", ")],
+        "height": float(height),
+    }
+    return int(i), task
+
+
 def task_index(name: str) -> int:
     """i of a name task_name wrote ("task i: ...")."""
-    return int(name.split(":", 1)[0].removeprefix("task "))
+    return task_of(name)[0]
 
 
 def spec(tasks: list[dict], *, root: int, heldout_seed: int) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
-from random_tasks import task_index  # the script's folder is on the path
+from random_tasks import task_index, task_of  # the script's folder is on the path
 
 TARGET = 0.005
 BAND = (0.8, 1.25)
@@ -43,11 +43,9 @@ def read(path: Path) -> list[tuple[str, dict | None, bool]]:
 
 def _label(case: str) -> str:
     """ "task 3: horizon 213, samples 68, height 0.0751" as three short lines."""
-    name, task = case.split(": ", 1)
-    horizon, samples, height = re.fullmatch(
-        r"horizon (\d+), samples ([\d, ]+), height (\S+)", task
-    ).groups()
-    return f"{name}\nN {horizon}, h {height}\nat {samples}"
+    i, task = task_of(case)
+    samples = ", ".join(str(k) for k in task["constraint_samples"])
+    return f"task {i}\nN {task['horizon']}, h {task['height']}\nat {samples}"
 
 
 def draw(tasks: list[tuple[str, dict | None, bool]], *, out: Path) -> None:

@@ -37,6 +37,9 @@ def test_the_drawn_tasks_spec_is_its_draw() -> None:
     assert text == (bench / "random_tasks_sweep.toml").read_text()
     _, leaves = read_spec(bench / "random_tasks_sweep.toml")
     assert [leaf.config.seed for leaf in leaves] == list(range(8))
+    assert [module.task_of(module.task_name(i, t)) for i, t in enumerate(tasks)] == list(
+        enumerate(tasks)
+    )  # a name reads back as its task (the tables and the figure read them)
     for task, leaf in zip(tasks, leaves, strict=True):
         ocp, n = leaf.config.ocp, task["horizon"]
         assert (ocp.horizon, list(ocp.constraint_samples), ocp.height) == (
