@@ -95,6 +95,8 @@ def run_2(folder: Path) -> None:
 
 
 def main() -> None:
+    if len(sys.argv) not in (2, 3):
+        raise SystemExit("usage: python bench/random_tasks_table.py SWEEP_FOLDER [MC_FOLDER]")
     run_1(Path(sys.argv[1]))
     if len(sys.argv) > 2:
         print()
